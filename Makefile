@@ -1,0 +1,35 @@
+# shotcrete-planner: every target sets itself up (apt packages, venv, build) on a fresh Debian 12.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+OUT ?= out/demo
+export CMAKE_CXX_COMPILER_LAUNCHER := ccache
+
+.PHONY: setup demo test test-cpp test-python test-ros screenshot bench clean
+
+setup:
+	bash scripts/setup.sh
+
+demo: setup
+	$(VENV)/bin/shotcrete demo --out $(OUT)
+
+# ctest (C++ core) + pytest (bindings, CLI) + rostest (ROS node); fails if any suite fails or runs nothing.
+test: setup
+	bash scripts/run_tests.sh
+
+test-cpp: setup
+	bash scripts/run_tests.sh cpp
+
+test-python: setup
+	bash scripts/run_tests.sh python
+
+test-ros: setup
+	bash scripts/run_tests.sh ros
+
+screenshot: setup
+	bash ros1_pkg/scripts/rviz_screenshot.sh out/rviz.png
+
+bench: setup
+	$(PY) bench/run_benchmarks.py --out bench/results
+
+clean:
+	rm -rf build out bench/results ros1_pkg/.ws

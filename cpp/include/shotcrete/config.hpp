@@ -1,0 +1,141 @@
+#pragma once
+// The one configuration of the product. Mirrored in config/default.yaml (one section per stage)
+// and exposed unchanged to Python and ROS through the field table in config_fields.hpp.
+// Every value carries its unit in its name or its doc string.
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+
+namespace shotcrete {
+
+struct IoConfig {
+  double max_extent_m = 1000.0;  // a cloud larger than this is taken for millimetres and refused
+  double unit_scale = 1.0;       // multiply input coordinates by this (0.001 for a mm cloud)
+};
+
+struct PreprocessConfig {
+  bool crop_enabled = false;
+  Eigen::Vector3d crop_min_m{-1e3, -1e3, -1e3};  // tunnel frame, m
+  Eigen::Vector3d crop_max_m{1e3, 1e3, 1e3};
+  double voxel_size_m = 0.0;     // voxel edge for downsampling; 0 = off
+  int outlier_neighbors = 16;    // k of the statistical outlier filter; 0 = off
+  double outlier_std_ratio = 3.0;  // points beyond mean + ratio * std of k-NN distance are removed
+};
+
+struct ProfileConfig {
+  double design_radius_m = 5.6;                 // radius of the circular design profile
+  Eigen::Vector3d axis_origin_m{0.0, 0.0, 0.0};  // a point on the tunnel axis
+  Eigen::Vector3d axis_direction{1.0, 0.0, 0.0};  // advance direction (normalised on use)
+  bool estimate_axis = false;                   // fit the axis and radius centre to the cloud
+  double max_deviation_m = 1.0;  // points farther than this from the design line are ignored
+};
+
+struct NormalsConfig {
+  int k_neighbors = 20;  // neighbours per PCA normal
+};
+
+struct GridConfig {
+  double cell_size_m = 0.05;  // cell edge along the axis and along the wall arc
+  int min_points_per_cell = 1;  // cells with fewer points are marked empty
+};
+
+struct RegionConfig {
+  int min_region_cells = 10;  // smaller regions merge into the nearest one
+};
+
+struct SynthConfig {
+  double design_radius_m = 5.6;  // design line of the synthetic bay
+  double length_m = 1.2;         // bay length between two arches
+  double theta_min_rad = 0.0;    // right springline
+  double theta_max_rad = 3.14159265358979;  // left springline
+  double base_overbreak_m = 0.15;  // uniform over-break outside the design line
+  int pit_count = 30;            // number of dig pits
+  double pit_depth_min_m = 0.02;  // Tmax range of the pits
+  double pit_depth_max_m = 0.14;
+  double pit_radius_min_m = 0.4;  // D range of the pits (on the unrolled wall)
+  double pit_radius_max_m = 1.0;
+  double pit_shape_alpha = 1.5;   // dT = Tmax (1 - d^2/D^2)^alpha
+  double noise_m = 0.005;         // scanner noise (std dev, radial)
+  double points_per_cell = 20.0;  // mean points per 50 mm x 50 mm cell
+  std::uint64_t seed = 1;
+};
+
+struct DepositionConfig {
+  double reference_standoff_m = 1.0;  // H0: standoff of the spot model
+  double spot_radius_m = 0.201;       // R at H0 (cone half-angle = atan(R / H0))
+  double spot_beta = 2.2;             // spot exponent; stroke exponent = beta - 1/2
+  double peak_rate_mps = 0.0;         // q_max at H0, m/s of thickness; 0 = derive from the stroke fit
+  double rebound_fraction = 0.08;     // share of sprayed concrete that does not stay on the wall
+  double nominal_flow_m3ph = 5.0;     // machine's nominal concrete flow
+};
+
+struct PlannerConfig {
+  std::string mode = "graded";     // graded (thesis) or optimal (levelling round, residual + time)
+  std::string pass_direction = "axial";  // axial: passes along the tunnel; circumferential: around
+  double standoff_m = 1.0;         // nozzle to wall along the offset direction
+  bool offset_along_normal = false;  // offset along -normal instead of along -r
+  double min_speed_mps = 0.05;
+  double max_speed_mps = 1.0;
+  int max_rounds = 12;
+  double sample_step_m = 0.01;     // integration step of the nozzle along a pass
+};
+
+struct OrderingConfig {
+  std::string method = "best";  // aco | ga | nn | exact | best
+  std::uint64_t seed = 1;
+  double aco_ants_per_region = 1.5;
+  double aco_alpha = 1.0;
+  double aco_beta = 5.0;
+  double aco_rho = 0.3;
+  double aco_q = 10.0;
+  int aco_iterations = 200;
+  int ga_population = 100;
+  double ga_crossover = 0.9;
+  double ga_mutation = 0.1;
+  int ga_generations = 400;
+  int exact_max_regions = 16;
+  bool local_search = true;
+};
+
+struct RobotConfig {
+  std::string urdf_path = "";  // empty: the bundled shotcrete manipulator
+  Eigen::Vector3d base_position_m{0.6, 0.0, -1.2};  // base link in the tunnel frame
+  double ik_position_tolerance_m = 0.001;
+  double ik_angle_tolerance_rad = 0.0087;  // 0.5 degree
+  int ik_max_restarts = 20;
+};
+
+struct TimingConfig {
+  double trajectory_rate_hz = 50.0;  // sampling of the timed joint trajectory
+  double start_fraction_k1 = 0.5;    // share of the start segment spent accelerating
+  double end_fraction_k2 = 0.5;      // share of the end segment spent cruising
+  double start_length_m = 0.1;       // nozzle path length of the start segment
+  double end_length_m = 0.1;         // nozzle path length of the end segment
+  int pso_particles = 15;
+  int pso_iterations = 30;
+};
+
+struct Config {
+  IoConfig io;
+  PreprocessConfig preprocess;
+  ProfileConfig profile;
+  NormalsConfig normals;
+  GridConfig grid;
+  RegionConfig regions;
+  SynthConfig synth;
+  DepositionConfig deposition;
+  PlannerConfig planner;
+  OrderingConfig ordering;
+  RobotConfig robot;
+  TimingConfig timing;
+};
+
+/// Defaults overridden by a YAML file; unknown sections/keys, wrong types and out-of-range values
+/// throw std::invalid_argument naming the key.
+Config load_config(const std::string& path);
+Config config_from_yaml(const std::string& text);
+std::string config_to_yaml(const Config& config);
+/// Throws std::invalid_argument naming the first offending key, its value and the allowed range.
+void validate(const Config& config);
+
+}  // namespace shotcrete

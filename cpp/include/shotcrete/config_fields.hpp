@@ -1,0 +1,126 @@
+#pragma once
+// The field table of the configuration: name, member pointer, allowed range, unit/doc.
+// One table drives YAML loading and dumping, validation, the Python properties and the ROS
+// parameter overrides, so a key exists in exactly one place.
+#include <limits>
+
+#include "shotcrete/config.hpp"
+
+namespace shotcrete::fields {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// f(name, member pointer, min, max, doc); min/max are ignored for bool, string and vector fields.
+template <class F> void visit(IoConfig*, F&& f) {
+  f("max_extent_m", &IoConfig::max_extent_m, 1.0, 1e6, "largest accepted cloud extent [m]");
+  f("unit_scale", &IoConfig::unit_scale, 1e-6, 1e3, "factor applied to input coordinates (0.001 for mm)");
+}
+template <class F> void visit(PreprocessConfig*, F&& f) {
+  f("crop_enabled", &PreprocessConfig::crop_enabled, 0, 0, "apply the crop box");
+  f("crop_min_m", &PreprocessConfig::crop_min_m, 0, 0, "crop box minimum corner [m]");
+  f("crop_max_m", &PreprocessConfig::crop_max_m, 0, 0, "crop box maximum corner [m]");
+  f("voxel_size_m", &PreprocessConfig::voxel_size_m, 0.0, 1.0, "voxel edge [m]; 0 = off");
+  f("outlier_neighbors", &PreprocessConfig::outlier_neighbors, 0, 1000, "k of the outlier filter; 0 = off");
+  f("outlier_std_ratio", &PreprocessConfig::outlier_std_ratio, 0.1, 100.0, "outlier threshold [std devs]");
+}
+template <class F> void visit(ProfileConfig*, F&& f) {
+  f("design_radius_m", &ProfileConfig::design_radius_m, 0.5, 50.0, "design profile radius [m]");
+  f("axis_origin_m", &ProfileConfig::axis_origin_m, 0, 0, "a point on the tunnel axis [m]");
+  f("axis_direction", &ProfileConfig::axis_direction, 0, 0, "axis direction (unit-free)");
+  f("estimate_axis", &ProfileConfig::estimate_axis, 0, 0, "fit axis and centre to the cloud");
+  f("max_deviation_m", &ProfileConfig::max_deviation_m, 0.01, 10.0, "band around the design line kept for the grid [m]");
+}
+template <class F> void visit(NormalsConfig*, F&& f) {
+  f("k_neighbors", &NormalsConfig::k_neighbors, 3, 500, "neighbours per normal");
+}
+template <class F> void visit(GridConfig*, F&& f) {
+  f("cell_size_m", &GridConfig::cell_size_m, 0.005, 1.0, "cell edge along axis and arc [m]");
+  f("min_points_per_cell", &GridConfig::min_points_per_cell, 1, 10000, "fewer points: cell empty");
+}
+template <class F> void visit(RegionConfig*, F&& f) {
+  f("min_region_cells", &RegionConfig::min_region_cells, 1, 100000, "smaller regions merge");
+}
+template <class F> void visit(SynthConfig*, F&& f) {
+  f("design_radius_m", &SynthConfig::design_radius_m, 0.5, 50.0, "design radius [m]");
+  f("length_m", &SynthConfig::length_m, 0.1, 20.0, "bay length [m]");
+  f("theta_min_rad", &SynthConfig::theta_min_rad, -3.2, 3.2, "first wall angle [rad]");
+  f("theta_max_rad", &SynthConfig::theta_max_rad, -3.2, 3.2, "last wall angle [rad]");
+  f("base_overbreak_m", &SynthConfig::base_overbreak_m, -1.0, 2.0, "uniform over-break [m]");
+  f("pit_count", &SynthConfig::pit_count, 0, 100000, "number of dig pits");
+  f("pit_depth_min_m", &SynthConfig::pit_depth_min_m, 0.0, 2.0, "smallest pit depth [m]");
+  f("pit_depth_max_m", &SynthConfig::pit_depth_max_m, 0.0, 2.0, "largest pit depth [m]");
+  f("pit_radius_min_m", &SynthConfig::pit_radius_min_m, 0.01, 10.0, "smallest pit radius [m]");
+  f("pit_radius_max_m", &SynthConfig::pit_radius_max_m, 0.01, 10.0, "largest pit radius [m]");
+  f("pit_shape_alpha", &SynthConfig::pit_shape_alpha, 0.1, 10.0, "pit shape exponent");
+  f("noise_m", &SynthConfig::noise_m, 0.0, 0.1, "radial scanner noise std dev [m]");
+  f("points_per_cell", &SynthConfig::points_per_cell, 0.1, 10000.0, "mean points per grid cell");
+  f("seed", &SynthConfig::seed, 0, 0, "random seed");
+}
+template <class F> void visit(DepositionConfig*, F&& f) {
+  f("reference_standoff_m", &DepositionConfig::reference_standoff_m, 0.1, 5.0, "H0 of the spot model [m]");
+  f("spot_radius_m", &DepositionConfig::spot_radius_m, 0.01, 2.0, "spot radius R at H0 [m]");
+  f("spot_beta", &DepositionConfig::spot_beta, 1.0, 20.0, "spot exponent beta");
+  f("peak_rate_mps", &DepositionConfig::peak_rate_mps, 0.0, 1.0, "spot centre rate q_max [m/s]; 0 = from the stroke fit");
+  f("rebound_fraction", &DepositionConfig::rebound_fraction, 0.0, 0.9, "share that rebounds");
+  f("nominal_flow_m3ph", &DepositionConfig::nominal_flow_m3ph, 0.1, 100.0, "nominal concrete flow [m^3/h]");
+}
+template <class F> void visit(PlannerConfig*, F&& f) {
+  f("mode", &PlannerConfig::mode, 0, 0, "graded | optimal");
+  f("pass_direction", &PlannerConfig::pass_direction, 0, 0, "axial | circumferential");
+  f("standoff_m", &PlannerConfig::standoff_m, 0.8, 1.2, "nozzle standoff [m]");
+  f("offset_along_normal", &PlannerConfig::offset_along_normal, 0, 0, "offset along -normal instead of -r");
+  f("min_speed_mps", &PlannerConfig::min_speed_mps, 0.001, 10.0, "slowest nozzle speed [m/s]");
+  f("max_speed_mps", &PlannerConfig::max_speed_mps, 0.001, 10.0, "fastest nozzle speed [m/s]");
+  f("max_rounds", &PlannerConfig::max_rounds, 1, 1000, "round limit");
+  f("sample_step_m", &PlannerConfig::sample_step_m, 0.001, 0.1, "integration step along a pass [m]");
+}
+template <class F> void visit(OrderingConfig*, F&& f) {
+  f("method", &OrderingConfig::method, 0, 0, "aco | ga | nn | exact | best");
+  f("seed", &OrderingConfig::seed, 0, 0, "random seed");
+  f("aco_ants_per_region", &OrderingConfig::aco_ants_per_region, 0.1, 100.0, "ants = ratio * regions");
+  f("aco_alpha", &OrderingConfig::aco_alpha, 0.0, 10.0, "pheromone weight");
+  f("aco_beta", &OrderingConfig::aco_beta, 0.0, 20.0, "heuristic weight");
+  f("aco_rho", &OrderingConfig::aco_rho, 0.0, 1.0, "evaporation");
+  f("aco_q", &OrderingConfig::aco_q, 1e-6, 1e6, "pheromone deposit Q");
+  f("aco_iterations", &OrderingConfig::aco_iterations, 1, 100000, "ant colony iterations");
+  f("ga_population", &OrderingConfig::ga_population, 2, 100000, "GA population");
+  f("ga_crossover", &OrderingConfig::ga_crossover, 0.0, 1.0, "crossover probability");
+  f("ga_mutation", &OrderingConfig::ga_mutation, 0.0, 1.0, "mutation probability");
+  f("ga_generations", &OrderingConfig::ga_generations, 1, 100000, "GA generations");
+  f("exact_max_regions", &OrderingConfig::exact_max_regions, 1, 20, "largest n solved exactly");
+  f("local_search", &OrderingConfig::local_search, 0, 0, "polish with 2-opt/or-opt/flips");
+}
+template <class F> void visit(RobotConfig*, F&& f) {
+  f("urdf_path", &RobotConfig::urdf_path, 0, 0, "URDF file; empty = bundled manipulator");
+  f("base_position_m", &RobotConfig::base_position_m, 0, 0, "robot base in the tunnel frame [m]");
+  f("ik_position_tolerance_m", &RobotConfig::ik_position_tolerance_m, 1e-6, 0.1, "IK position tolerance [m]");
+  f("ik_angle_tolerance_rad", &RobotConfig::ik_angle_tolerance_rad, 1e-5, 0.5, "IK axis tolerance [rad]");
+  f("ik_max_restarts", &RobotConfig::ik_max_restarts, 0, 10000, "random restarts per failed solve");
+}
+template <class F> void visit(TimingConfig*, F&& f) {
+  f("trajectory_rate_hz", &TimingConfig::trajectory_rate_hz, 1.0, 1000.0, "trajectory sampling [Hz]");
+  f("start_fraction_k1", &TimingConfig::start_fraction_k1, 0.01, 1.0, "accelerating share of the start");
+  f("end_fraction_k2", &TimingConfig::end_fraction_k2, 0.0, 0.99, "cruising share of the end");
+  f("start_length_m", &TimingConfig::start_length_m, 0.0, 5.0, "start segment length [m]");
+  f("end_length_m", &TimingConfig::end_length_m, 0.0, 5.0, "end segment length [m]");
+  f("pso_particles", &TimingConfig::pso_particles, 2, 1000, "swarm size");
+  f("pso_iterations", &TimingConfig::pso_iterations, 1, 10000, "swarm iterations");
+}
+
+// g(name, member pointer to the section) for every section of Config.
+template <class G> void visit_sections(G&& g) {
+  g("io", &Config::io);
+  g("preprocess", &Config::preprocess);
+  g("profile", &Config::profile);
+  g("normals", &Config::normals);
+  g("grid", &Config::grid);
+  g("regions", &Config::regions);
+  g("synth", &Config::synth);
+  g("deposition", &Config::deposition);
+  g("planner", &Config::planner);
+  g("ordering", &Config::ordering);
+  g("robot", &Config::robot);
+  g("timing", &Config::timing);
+}
+
+}  // namespace shotcrete::fields

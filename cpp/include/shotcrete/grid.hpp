@@ -1,0 +1,71 @@
+#pragma once
+// The unrolled wall grid: cells of cell_size_m along the axis (d) and of cell_size_m of arc at the
+// design radius (theta step = cell_size_m / r_design). Cell index = row * n_d + col with
+// row along theta (up the wall) and col along d (along the tunnel).
+#include <map>
+#include <vector>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/profile.hpp"
+#include "shotcrete/types.hpp"
+
+namespace shotcrete {
+
+/// Level of an empty cell (no data); never a real level.
+constexpr int kNoDataLevel = -100;
+
+struct Grid {
+  TunnelAxis axis;
+  DesignProfile profile;
+  double cell_size_m = 0.05;
+  double dtheta_rad = 0.0;  // cell_size_m / design radius
+  double theta0_rad = 0.0;  // lower edge of row 0
+  double d0_m = 0.0;        // lower edge of column 0
+  int n_theta = 0, n_d = 0;
+
+  std::vector<int> count;      // points per cell
+  std::vector<bool> valid;     // count >= min_points_per_cell
+  Points mean_xyz;             // per cell, m (zero where invalid)
+  Points mean_normal;          // per cell, unit, toward the axis (zero where invalid)
+  Eigen::VectorXd td_m;        // per cell mean TD = r_wall - r_design, m (NaN where invalid)
+
+  int size() const { return n_theta * n_d; }
+  int index(int row, int col) const { return row * n_d + col; }
+  int row_of(int cell) const { return cell / n_d; }
+  int col_of(int cell) const { return cell % n_d; }
+  double theta_center(int row) const { return theta0_rad + (row + 0.5) * dtheta_rad; }
+  double d_center(int col) const { return d0_m + (col + 0.5) * cell_size_m; }
+  /// Cell containing (theta, d), or -1 outside the grid.
+  int cell_at(double theta_rad, double d_m) const;
+  /// Design-line point at the centre of a cell (where the wall should end up).
+  Eigen::Vector3d design_point(int cell) const;
+  int valid_count() const;
+};
+
+/// Grids a cloud with normals. Points farther than max_deviation_m from the design line are
+/// ignored; throws std::invalid_argument if none is left (wrong radius, axis or units).
+Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
+                const GridConfig& config, double max_deviation_m);
+
+/// Per-point TD (r - r_design) in metres.
+Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile);
+
+/// Priority level of a TD in millimetres (design section 5).
+int level_of_td_mm(double td_mm);
+/// Level per cell (kNoDataLevel where invalid).
+std::vector<int> cell_levels(const Grid& grid);
+/// Count of valid cells per level.
+std::map<int, int> level_counts(const std::vector<int>& levels);
+
+struct Region {
+  std::vector<int> cells;  // grid cell indices
+  int level = 0;
+  double td_min_m = 0, td_max_m = 0, td_mean_m = 0;
+  int row_min = 0, row_max = 0, col_min = 0, col_max = 0;  // bounding box in grid indices
+};
+
+/// 4-connected regions of the cells at `level`; regions smaller than min_cells merge into the
+/// nearest region (closest pair of cell centres on the unrolled wall) until large enough.
+std::vector<Region> find_regions(const Grid& grid, const std::vector<int>& levels, int level, int min_cells);
+
+}  // namespace shotcrete

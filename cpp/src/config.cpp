@@ -1,0 +1,165 @@
+#include "shotcrete/config.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <type_traits>
+
+#include "shotcrete/config_fields.hpp"
+
+namespace shotcrete {
+namespace {
+
+template <class T> void read_value(const YAML::Node& node, const std::string& key, T& out) {
+  try {
+    if constexpr (std::is_same_v<T, Eigen::Vector3d>) {
+      if (!node.IsSequence() || node.size() != 3)
+        throw std::invalid_argument("config key '" + key + "': expected a list of 3 numbers");
+      for (int i = 0; i < 3; ++i) out[i] = node[i].as<double>();
+    } else if constexpr (std::is_same_v<T, std::uint64_t>) {
+      const long long v = node.as<long long>();
+      if (v < 0) throw std::invalid_argument("config key '" + key + "': must be >= 0");
+      out = static_cast<std::uint64_t>(v);
+    } else {
+      if (!node.IsScalar()) throw std::invalid_argument("config key '" + key + "': expected a scalar");
+      out = node.as<T>();
+    }
+  } catch (const YAML::Exception& e) {
+    std::ostringstream msg;
+    msg << "config key '" << key << "': cannot read '" << YAML::Dump(node) << "' as "
+        << (std::is_same_v<T, bool> ? "true/false" : std::is_same_v<T, std::string> ? "text" : "a number");
+    throw std::invalid_argument(msg.str());
+  }
+}
+
+void apply_yaml(const YAML::Node& root, Config& config) {
+  if (!root || root.IsNull()) return;
+  if (!root.IsMap()) throw std::invalid_argument("config: the top level must be a mapping of sections");
+  std::set<std::string> known_sections;
+  fields::visit_sections([&](const char* name, auto section_ptr) { known_sections.insert(name); });
+  for (const auto& kv : root) {
+    const auto name = kv.first.as<std::string>();
+    if (!known_sections.count(name)) throw std::invalid_argument("config: unknown section '" + name + "'");
+  }
+  fields::visit_sections([&](const char* section_name, auto section_ptr) {
+    const YAML::Node node = root[section_name];
+    if (!node || node.IsNull()) return;
+    if (!node.IsMap())
+      throw std::invalid_argument(std::string("config section '") + section_name + "' must be a mapping");
+    auto& section = config.*section_ptr;
+    std::set<std::string> known;
+    fields::visit(&section, [&](const char* key, auto member, double, double, const char*) {
+      known.insert(key);
+      if (node[key]) read_value(node[key], std::string(section_name) + "." + key, section.*member);
+    });
+    for (const auto& kv : node) {
+      const auto key = kv.first.as<std::string>();
+      if (!known.count(key))
+        throw std::invalid_argument(std::string("config: unknown key '") + section_name + "." + key + "'");
+    }
+  });
+  validate(config);
+}
+
+template <class T> void check_range(const std::string& key, T value, double lo, double hi) {
+  if constexpr (std::is_arithmetic_v<T> && !std::is_same_v<T, bool> && !std::is_same_v<T, std::uint64_t>) {
+    const double v = static_cast<double>(value);
+    if (!std::isfinite(v) || v < lo || v > hi) {
+      std::ostringstream msg;
+      msg << "config key '" << key << "' = " << value << " is out of range [" << lo << ", " << hi << "]";
+      throw std::invalid_argument(msg.str());
+    }
+  } else if constexpr (std::is_same_v<T, Eigen::Vector3d>) {
+    if (!value.allFinite()) throw std::invalid_argument("config key '" + key + "' has a non-finite entry");
+  }
+}
+
+void check_choice(const std::string& key, const std::string& value, std::initializer_list<const char*> choices) {
+  std::string list;
+  for (const char* c : choices) {
+    if (value == c) return;
+    list += std::string(list.empty() ? "" : ", ") + c;
+  }
+  throw std::invalid_argument("config key '" + key + "' = '" + value + "': expected one of " + list);
+}
+
+}  // namespace
+
+void validate(const Config& config) {
+  fields::visit_sections([&](const char* section_name, auto section_ptr) {
+    const auto& section = config.*section_ptr;
+    using S = std::decay_t<decltype(section)>;
+    fields::visit(static_cast<S*>(nullptr), [&](const char* key, auto member, double lo, double hi, const char*) {
+      check_range(std::string(section_name) + "." + key, section.*member, lo, hi);
+    });
+  });
+  const auto& p = config.preprocess;
+  if (p.crop_enabled && !(p.crop_min_m.array() < p.crop_max_m.array()).all())
+    throw std::invalid_argument("config: preprocess.crop_min_m must be below crop_max_m on every axis");
+  if (config.profile.axis_direction.norm() < 1e-9)
+    throw std::invalid_argument("config: profile.axis_direction must not be zero");
+  const auto& s = config.synth;
+  if (s.theta_min_rad >= s.theta_max_rad)
+    throw std::invalid_argument("config: synth.theta_min_rad must be below synth.theta_max_rad");
+  if (s.pit_depth_min_m > s.pit_depth_max_m || s.pit_radius_min_m > s.pit_radius_max_m)
+    throw std::invalid_argument("config: synth pit ranges must have min <= max");
+  if (config.planner.min_speed_mps >= config.planner.max_speed_mps)
+    throw std::invalid_argument("config: planner.min_speed_mps must be below planner.max_speed_mps");
+  check_choice("planner.mode", config.planner.mode, {"graded", "optimal"});
+  check_choice("planner.pass_direction", config.planner.pass_direction, {"axial", "circumferential"});
+  check_choice("ordering.method", config.ordering.method, {"aco", "ga", "nn", "exact", "best"});
+}
+
+Config config_from_yaml(const std::string& text) {
+  Config config;
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw std::invalid_argument(std::string("config: malformed YAML: ") + e.what());
+  }
+  apply_yaml(root, config);
+  return config;
+}
+
+Config load_config(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::invalid_argument("config: cannot open '" + path + "'");
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  try {
+    return config_from_yaml(buffer.str());
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path + ": " + e.what());
+  }
+}
+
+std::string config_to_yaml(const Config& config) {
+  YAML::Emitter out;
+  out.SetDoublePrecision(12);  // 5.6, not 5.5999999999999996
+  out << YAML::BeginMap;
+  fields::visit_sections([&](const char* section_name, auto section_ptr) {
+    const auto& section = config.*section_ptr;
+    using S = std::decay_t<decltype(section)>;
+    out << YAML::Key << section_name << YAML::Value << YAML::BeginMap;
+    fields::visit(static_cast<S*>(nullptr), [&](const char* key, auto member, double, double, const char* doc) {
+      const auto& v = section.*member;
+      out << YAML::Key << key << YAML::Value;
+      if constexpr (std::is_same_v<std::decay_t<decltype(v)>, Eigen::Vector3d>) {
+        out << YAML::Flow << YAML::BeginSeq << v[0] << v[1] << v[2] << YAML::EndSeq;
+      } else {
+        out << v;
+      }
+      out << YAML::Comment(doc);
+    });
+    out << YAML::EndMap;
+  });
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
+
+}  // namespace shotcrete

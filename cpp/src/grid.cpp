@@ -1,0 +1,217 @@
+#include "shotcrete/grid.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+namespace shotcrete {
+
+int Grid::cell_at(double theta_rad, double d_m) const {
+  const int row = static_cast<int>(std::floor((theta_rad - theta0_rad) / dtheta_rad));
+  const int col = static_cast<int>(std::floor((d_m - d0_m) / cell_size_m));
+  if (row < 0 || row >= n_theta || col < 0 || col >= n_d) return -1;
+  return index(row, col);
+}
+
+Eigen::Vector3d Grid::design_point(int cell) const {
+  const double theta = theta_center(row_of(cell));
+  return axis.to_cartesian(profile.radius_at(theta), theta, d_center(col_of(cell)));
+}
+
+int Grid::valid_count() const { return static_cast<int>(std::count(valid.begin(), valid.end(), true)); }
+
+Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile) {
+  Eigen::VectorXd td(cloud.size());
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d c = axis.to_cylindrical(cloud.xyz.row(i).transpose());
+    td[i] = c[0] - profile.radius_at(c[1]);
+  }
+  return td;
+}
+
+Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
+                const GridConfig& config, double max_deviation_m) {
+  if (!(profile.radius_m > 0) || !std::isfinite(profile.radius_m))
+    throw std::invalid_argument("grid: design radius must be > 0, got " + std::to_string(profile.radius_m));
+  if (!(config.cell_size_m > 0)) throw std::invalid_argument("grid: cell_size_m must be > 0");
+  if (cloud.size() == 0) throw std::invalid_argument("grid: the cloud is empty");
+  if (!cloud.has_normals()) throw std::invalid_argument("grid: the cloud needs normals (run estimate_normals)");
+
+  Grid g;
+  g.axis = axis;
+  g.profile = profile;
+  g.cell_size_m = config.cell_size_m;
+  g.dtheta_rad = config.cell_size_m / profile.radius_m;
+
+  std::vector<Eigen::Vector3d> cyl(cloud.size());
+  std::vector<char> keep(cloud.size(), 0);
+  double tmin = std::numeric_limits<double>::infinity(), tmax = -tmin, dmin = tmin, dmax = -tmin;
+  std::size_t kept = 0;
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    cyl[i] = axis.to_cylindrical(cloud.xyz.row(i).transpose());
+    if (std::abs(cyl[i][0] - profile.radius_at(cyl[i][1])) > max_deviation_m) continue;
+    keep[i] = 1;
+    ++kept;
+    tmin = std::min(tmin, cyl[i][1]);
+    tmax = std::max(tmax, cyl[i][1]);
+    dmin = std::min(dmin, cyl[i][2]);
+    dmax = std::max(dmax, cyl[i][2]);
+  }
+  if (kept == 0) {
+    std::ostringstream msg;
+    msg << "grid: no point lies within " << max_deviation_m << " m of the design radius " << profile.radius_m
+        << " m around the axis; check profile.design_radius_m, the axis, and that coordinates are metres";
+    throw std::invalid_argument(msg.str());
+  }
+  // Cell edges on fixed multiples of the cell size, so cells do not depend on the point sample.
+  g.theta0_rad = std::floor(tmin / g.dtheta_rad) * g.dtheta_rad;
+  g.d0_m = std::floor(dmin / g.cell_size_m) * g.cell_size_m;
+  g.n_theta = std::max(1, static_cast<int>(std::floor((tmax - g.theta0_rad) / g.dtheta_rad)) + 1);
+  g.n_d = std::max(1, static_cast<int>(std::floor((dmax - g.d0_m) / g.cell_size_m)) + 1);
+  if (static_cast<double>(g.n_theta) * g.n_d > 5e7)
+    throw std::invalid_argument("grid: more than 50 million cells; increase grid.cell_size_m");
+
+  const int n = g.size();
+  g.count.assign(n, 0);
+  g.valid.assign(n, false);
+  g.mean_xyz = Points::Zero(n, 3);
+  g.mean_normal = Points::Zero(n, 3);
+  Eigen::VectorXd r_sum = Eigen::VectorXd::Zero(n);
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    if (!keep[i]) continue;
+    const int c = g.cell_at(cyl[i][1], cyl[i][2]);
+    if (c < 0) continue;
+    g.count[c] += 1;
+    g.mean_xyz.row(c) += cloud.xyz.row(i);
+    g.mean_normal.row(c) += cloud.normals.row(i);
+    r_sum[c] += cyl[i][0] - profile.radius_at(cyl[i][1]);
+  }
+  g.td_m = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::quiet_NaN());
+  for (int c = 0; c < n; ++c) {
+    if (g.count[c] < config.min_points_per_cell || g.count[c] == 0) {
+      g.mean_xyz.row(c).setZero();
+      g.mean_normal.row(c).setZero();
+      continue;
+    }
+    g.valid[c] = true;
+    g.mean_xyz.row(c) /= g.count[c];
+    const double len = g.mean_normal.row(c).norm();
+    if (len > 1e-12) g.mean_normal.row(c) /= len;
+    g.td_m[c] = r_sum[c] / g.count[c];
+  }
+  return g;
+}
+
+int level_of_td_mm(double td_mm) {
+  if (!std::isfinite(td_mm)) return kNoDataLevel;
+  if (td_mm < -50.0) return -1;
+  if (td_mm < 50.0) return 0;
+  if (td_mm < 140.0) return 1;
+  return static_cast<int>(std::floor(td_mm / 70.0));
+}
+
+std::vector<int> cell_levels(const Grid& grid) {
+  std::vector<int> levels(grid.size(), kNoDataLevel);
+  for (int c = 0; c < grid.size(); ++c)
+    if (grid.valid[c]) levels[c] = level_of_td_mm(grid.td_m[c] * 1000.0);
+  return levels;
+}
+
+std::map<int, int> level_counts(const std::vector<int>& levels) {
+  std::map<int, int> counts;
+  for (int l : levels)
+    if (l != kNoDataLevel) counts[l] += 1;
+  return counts;
+}
+
+namespace {
+
+void summarise(const Grid& grid, Region& r) {
+  r.td_min_m = std::numeric_limits<double>::infinity();
+  r.td_max_m = -r.td_min_m;
+  r.row_min = r.col_min = std::numeric_limits<int>::max();
+  r.row_max = r.col_max = -1;
+  double sum = 0;
+  std::sort(r.cells.begin(), r.cells.end());
+  for (int c : r.cells) {
+    r.td_min_m = std::min(r.td_min_m, grid.td_m[c]);
+    r.td_max_m = std::max(r.td_max_m, grid.td_m[c]);
+    sum += grid.td_m[c];
+    r.row_min = std::min(r.row_min, grid.row_of(c));
+    r.row_max = std::max(r.row_max, grid.row_of(c));
+    r.col_min = std::min(r.col_min, grid.col_of(c));
+    r.col_max = std::max(r.col_max, grid.col_of(c));
+  }
+  r.td_mean_m = r.cells.empty() ? 0.0 : sum / r.cells.size();
+}
+
+// Squared distance (in cells) between the closest cells of two regions.
+double region_gap2(const Grid& grid, const Region& a, const Region& b) {
+  double best = std::numeric_limits<double>::infinity();
+  for (int ca : a.cells)
+    for (int cb : b.cells) {
+      const double dr = grid.row_of(ca) - grid.row_of(cb), dc = grid.col_of(ca) - grid.col_of(cb);
+      best = std::min(best, dr * dr + dc * dc);
+    }
+  return best;
+}
+
+}  // namespace
+
+std::vector<Region> find_regions(const Grid& grid, const std::vector<int>& levels, int level, int min_cells) {
+  if (static_cast<int>(levels.size()) != grid.size())
+    throw std::invalid_argument("find_regions: levels has " + std::to_string(levels.size()) + " entries for " +
+                                std::to_string(grid.size()) + " cells");
+  if (min_cells < 1) throw std::invalid_argument("find_regions: min_cells must be >= 1");
+  std::vector<Region> regions;
+  std::vector<char> seen(grid.size(), 0);
+  const int dr[4] = {1, -1, 0, 0}, dc[4] = {0, 0, 1, -1};
+  for (int start = 0; start < grid.size(); ++start) {
+    if (seen[start] || levels[start] != level) continue;
+    Region r;
+    r.level = level;
+    std::deque<int> queue{start};
+    seen[start] = 1;
+    while (!queue.empty()) {
+      const int c = queue.front();
+      queue.pop_front();
+      r.cells.push_back(c);
+      for (int k = 0; k < 4; ++k) {
+        const int row = grid.row_of(c) + dr[k], col = grid.col_of(c) + dc[k];
+        if (row < 0 || row >= grid.n_theta || col < 0 || col >= grid.n_d) continue;
+        const int nb = grid.index(row, col);
+        if (!seen[nb] && levels[nb] == level) {
+          seen[nb] = 1;
+          queue.push_back(nb);
+        }
+      }
+    }
+    regions.push_back(std::move(r));
+  }
+  // Merge the smallest undersized region into its nearest neighbour until none is left (or one region).
+  while (regions.size() > 1) {
+    auto small = std::min_element(regions.begin(), regions.end(),
+                                  [](const Region& a, const Region& b) { return a.cells.size() < b.cells.size(); });
+    if (static_cast<int>(small->cells.size()) >= min_cells) break;
+    std::size_t best = 0;
+    double best_gap = std::numeric_limits<double>::infinity();
+    const std::size_t s = small - regions.begin();
+    for (std::size_t j = 0; j < regions.size(); ++j) {
+      if (j == s) continue;
+      const double gap = region_gap2(grid, regions[s], regions[j]);
+      if (gap < best_gap) {
+        best_gap = gap;
+        best = j;
+      }
+    }
+    regions[best].cells.insert(regions[best].cells.end(), regions[s].cells.begin(), regions[s].cells.end());
+    regions.erase(regions.begin() + s);
+  }
+  for (auto& r : regions) summarise(grid, r);
+  return regions;
+}
+
+}  // namespace shotcrete

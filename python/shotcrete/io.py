@@ -1,0 +1,72 @@
+"""Cloud files: PCD/PLY/XYZ through the C++ core (PCL), LAS/LAZ through laspy, E57 through pye57."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+
+UNIT_SCALES = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+def _cloud_from_array(xyz: np.ndarray, path: Path) -> _core.Cloud:
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"{path}: expected (N, 3) coordinates, got shape {xyz.shape}")
+    return _core.Cloud(np.ascontiguousarray(xyz))
+
+
+def read_cloud(path: str | Path) -> _core.Cloud:
+    """Read a cloud in metres from .pcd, .ply, .xyz/.txt/.csv, .las/.laz or .e57.
+
+    Raises ValueError for a missing, unknown or malformed file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file")
+    ext = path.suffix.lower()
+    if ext in (".las", ".laz"):
+        import laspy
+
+        try:
+            las = laspy.read(str(path))
+        except Exception as exc:  # laspy raises several types for a bad file
+            raise ValueError(f"{path}: not a readable LAS/LAZ file ({exc})") from exc
+        return _cloud_from_array(np.column_stack([las.x, las.y, las.z]), path)
+    if ext == ".e57":
+        import pye57
+
+        try:
+            e57 = pye57.E57(str(path))
+            parts = []
+            for i in range(e57.scan_count):
+                scan = e57.read_scan(i, ignore_missing_fields=True, transform=True)
+                parts.append(np.column_stack([scan["cartesianX"], scan["cartesianY"], scan["cartesianZ"]]))
+        except Exception as exc:
+            raise ValueError(f"{path}: not a readable E57 file ({exc})") from exc
+        if not parts:
+            raise ValueError(f"{path}: the E57 file has no scans")
+        return _cloud_from_array(np.vstack(parts), path)
+    return _core.read_cloud(str(path))
+
+
+def write_cloud(path: str | Path, cloud: _core.Cloud, scalar: np.ndarray | None = None) -> Path:
+    """Write .pcd/.ply/.xyz (core) or .las (laspy); ``scalar`` goes to intensity (PCD/PLY) or a column."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() in (".las", ".laz"):
+        import laspy
+
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.scales = np.array([1e-4, 1e-4, 1e-4])
+        header.offsets = cloud.xyz.min(axis=0) if len(cloud) else np.zeros(3)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2]
+        las.write(str(path))
+        return path
+    if scalar is None:
+        _core.write_cloud(str(path), cloud)
+    else:
+        _core.write_cloud(str(path), cloud, np.asarray(scalar, dtype=np.float64))
+    return path

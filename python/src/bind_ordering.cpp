@@ -1,0 +1,3 @@
+#include "bindings.hpp"
+
+void bind_ordering(py::module_& m) {}

@@ -1,0 +1,147 @@
+#include "bindings.hpp"
+#include "shotcrete/grid.hpp"
+#include "shotcrete/io.hpp"
+#include "shotcrete/preprocess.hpp"
+#include "shotcrete/profile.hpp"
+#include "shotcrete/surface.hpp"
+#include "shotcrete/synth.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+Cloud make_cloud(const Points& xyz, std::optional<Points> normals) {
+  Cloud c;
+  c.xyz = xyz;
+  if (normals) {
+    if (normals->rows() != xyz.rows())
+      throw std::invalid_argument("normals must have one row per point (" + std::to_string(xyz.rows()) + ")");
+    c.normals = *normals;
+  }
+  return c;
+}
+
+template <class T> py::array_t<T> as_map(const std::vector<T>& v, const Grid& g) {
+  py::array_t<T> out({g.n_theta, g.n_d});
+  std::copy(v.begin(), v.end(), out.mutable_data());
+  return out;
+}
+
+}  // namespace
+
+void bind_surface(py::module_& m) {
+  py::class_<Cloud>(m, "Cloud", "Point cloud in metres: xyz (N, 3) float64 and optional normals (N, 3).")
+      .def(py::init(&make_cloud), py::arg("xyz"), py::arg("normals") = py::none())
+      .def_readwrite("xyz", &Cloud::xyz, "(N, 3) coordinates [m]")
+      .def_readwrite("normals", &Cloud::normals, "(N, 3) unit normals toward the axis, or (0, 3)")
+      .def("has_normals", &Cloud::has_normals)
+      .def("__len__", &Cloud::size)
+      .def("__repr__", [](const Cloud& c) {
+        return "<Cloud " + std::to_string(c.size()) + " points" + (c.has_normals() ? " with normals>" : ">");
+      });
+
+  m.def("read_cloud", &read_cloud, py::arg("path"), "Read a .pcd, .ply or .xyz/.txt/.csv cloud (metres).");
+  m.def("write_cloud", &write_cloud, py::arg("path"), py::arg("cloud"), py::arg("scalar") = Eigen::VectorXd(),
+        "Write .pcd/.ply (binary) or .xyz; `scalar` goes to the intensity field.");
+  m.def("check_cloud", &check_cloud, py::arg("cloud"), py::arg("io"),
+        "Raise ValueError for an empty cloud, NaN/inf points or a millimetre-sized extent.");
+  m.def("preprocess", &preprocess, py::arg("cloud"), py::arg("config"), "Crop, voxel and outlier filters.");
+  m.def("voxel_downsample", &voxel_downsample, py::arg("cloud"), py::arg("voxel_size_m"));
+  m.def("remove_statistical_outliers", &remove_statistical_outliers, py::arg("cloud"), py::arg("neighbors"),
+        py::arg("std_ratio"));
+  m.def("crop_box", &crop_box, py::arg("cloud"), py::arg("min_m"), py::arg("max_m"));
+
+  py::class_<TunnelAxis>(m, "TunnelAxis", "Tunnel frame: ex along the axis, ey across, ez up.")
+      .def(py::init<>())
+      .def_static("from_direction", &TunnelAxis::from_direction, py::arg("origin_m"), py::arg("direction"))
+      .def_readwrite("origin_m", &TunnelAxis::origin_m)
+      .def_readonly("ex", &TunnelAxis::ex)
+      .def_readonly("ey", &TunnelAxis::ey)
+      .def_readonly("ez", &TunnelAxis::ez)
+      .def("to_cylindrical", &TunnelAxis::to_cylindrical, py::arg("p"), "(r, theta, d) of a point")
+      .def("to_cartesian", &TunnelAxis::to_cartesian, py::arg("r_m"), py::arg("theta_rad"), py::arg("d_m"));
+  py::class_<DesignProfile>(m, "DesignProfile")
+      .def(py::init<>())
+      .def_readwrite("radius_m", &DesignProfile::radius_m)
+      .def("radius_at", &DesignProfile::radius_at, py::arg("theta_rad"));
+  py::class_<AxisFit>(m, "AxisFit")
+      .def_readonly("axis", &AxisFit::axis)
+      .def_readonly("radius_m", &AxisFit::radius_m)
+      .def_readonly("rms_m", &AxisFit::rms_m);
+  m.def("fit_axis", &fit_axis, py::arg("cloud"), py::arg("direction_hint") = Eigen::Vector3d(1, 0, 0),
+        "Fit the tunnel axis (normals) and circle centre/radius (points) to a cloud with normals.");
+  m.def("estimate_normals", &estimate_normals, py::arg("cloud"), py::arg("k_neighbors"), py::arg("axis"),
+        "PCL k-NN normals oriented toward the tunnel axis.");
+
+  m.attr("NO_DATA_LEVEL") = kNoDataLevel;
+  py::class_<Grid>(m, "Grid", "Unrolled wall grid; cell = row * n_d + col, rows along theta, cols along d.")
+      .def_readonly("axis", &Grid::axis)
+      .def_readonly("profile", &Grid::profile)
+      .def_readonly("cell_size_m", &Grid::cell_size_m)
+      .def_readonly("dtheta_rad", &Grid::dtheta_rad)
+      .def_readonly("theta0_rad", &Grid::theta0_rad)
+      .def_readonly("d0_m", &Grid::d0_m)
+      .def_readonly("n_theta", &Grid::n_theta)
+      .def_readonly("n_d", &Grid::n_d)
+      .def_property_readonly("count", [](const Grid& g) { return as_map(g.count, g); }, "(n_theta, n_d) points per cell")
+      .def_property_readonly("valid", [](const Grid& g) {
+        std::vector<std::uint8_t> v(g.valid.begin(), g.valid.end());
+        return as_map(v, g).attr("astype")("bool");
+      }, "(n_theta, n_d) True where the cell has data")
+      .def_readonly("mean_xyz", &Grid::mean_xyz, "(cells, 3) mean point per cell [m]")
+      .def_readonly("mean_normal", &Grid::mean_normal, "(cells, 3) mean unit normal per cell")
+      .def_property_readonly("td_m", [](const Grid& g) {
+        std::vector<double> v(g.td_m.data(), g.td_m.data() + g.td_m.size());
+        return as_map(v, g);
+      }, "(n_theta, n_d) mean TD per cell [m], NaN where empty")
+      .def("theta_center", &Grid::theta_center, py::arg("row"))
+      .def("d_center", &Grid::d_center, py::arg("col"))
+      .def("cell_at", &Grid::cell_at, py::arg("theta_rad"), py::arg("d_m"))
+      .def("design_point", &Grid::design_point, py::arg("cell"))
+      .def("valid_count", &Grid::valid_count)
+      .def("__len__", &Grid::size);
+  m.def("build_grid", &build_grid, py::arg("cloud"), py::arg("axis"), py::arg("profile"), py::arg("config"),
+        py::arg("max_deviation_m"));
+  m.def("point_td", &point_td, py::arg("cloud"), py::arg("axis"), py::arg("profile"), "Per-point TD [m].");
+  m.def("level_of_td_mm", &level_of_td_mm, py::arg("td_mm"), "Priority level of a TD in millimetres.");
+  m.def("cell_levels", &cell_levels, py::arg("grid"), "Level per cell (NO_DATA_LEVEL where empty).");
+  m.def("level_counts", &level_counts, py::arg("levels"));
+
+  py::class_<Region>(m, "Region")
+      .def_readonly("cells", &Region::cells)
+      .def_readonly("level", &Region::level)
+      .def_readonly("td_min_m", &Region::td_min_m)
+      .def_readonly("td_max_m", &Region::td_max_m)
+      .def_readonly("td_mean_m", &Region::td_mean_m)
+      .def_readonly("row_min", &Region::row_min)
+      .def_readonly("row_max", &Region::row_max)
+      .def_readonly("col_min", &Region::col_min)
+      .def_readonly("col_max", &Region::col_max);
+  m.def("find_regions", &find_regions, py::arg("grid"), py::arg("levels"), py::arg("level"), py::arg("min_cells"),
+        "4-connected regions of one level; small ones merge into the nearest.");
+
+  py::class_<DigPit>(m, "DigPit")
+      .def_readonly("d_m", &DigPit::d_m)
+      .def_readonly("s_m", &DigPit::s_m)
+      .def_readonly("depth_m", &DigPit::depth_m)
+      .def_readonly("radius_m", &DigPit::radius_m);
+  py::class_<SyntheticBay>(m, "SyntheticBay", "Half-cylinder bay with dig pits (seeded).")
+      .def_readonly("config", &SyntheticBay::config)
+      .def_readonly("pits", &SyntheticBay::pits)
+      .def_readonly("axis", &SyntheticBay::axis)
+      .def("td_at", &SyntheticBay::td_at, py::arg("d_m"), py::arg("theta_rad"), "Noise-free TD [m].")
+      .def("sample", &SyntheticBay::sample, py::arg("cell_size_m") = 0.05, "Sample the wall as a Cloud.");
+  m.def("make_synthetic_bay", &make_synthetic_bay, py::arg("config"));
+
+  py::class_<Surface>(m, "Surface", "Preprocessed cloud with normals, axis, grid and levels.")
+      .def_readonly("cloud", &Surface::cloud)
+      .def_readonly("axis", &Surface::axis)
+      .def_readonly("profile", &Surface::profile)
+      .def_readonly("axis_fit_rms_m", &Surface::axis_fit_rms_m)
+      .def_readonly("grid", &Surface::grid)
+      .def_readonly("levels", &Surface::levels)
+      .def_readonly("timings_s", &Surface::timings_s);
+  m.def("build_surface", &build_surface, py::arg("cloud"), py::arg("config"),
+        py::call_guard<py::gil_scoped_release>(),
+        "Check, preprocess, normals, axis, grid and levels of a raw cloud.");
+}

@@ -1,0 +1,11 @@
+#include "bindings.hpp"
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "shotcrete core (C++): surface, deposition, planning, ordering, robot";
+  bind_config(m);
+  bind_surface(m);
+  bind_deposition(m);
+  bind_ordering(m);
+  bind_robot(m);
+  bind_planner(m);
+}

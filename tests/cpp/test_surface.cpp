@@ -1,0 +1,310 @@
+// Surface stage: gridding on an analytic cylinder, normals, axis fit, levels, regions, config.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <random>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/grid.hpp"
+#include "shotcrete/io.hpp"
+#include "shotcrete/preprocess.hpp"
+#include "shotcrete/surface.hpp"
+#include "shotcrete/synth.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Wall r(theta, d) = R + td(theta, d) sampled on a regular lattice: every cell gets the same points.
+Cloud lattice_cylinder(double R, double (*td)(double, double), int per_side = 5, double cell = 0.05,
+                       double theta_max = kPi, double length = 1.2) {
+  const double dtheta = cell / R;
+  const int rows = static_cast<int>(std::floor(theta_max / dtheta)), cols = static_cast<int>(std::round(length / cell));
+  Cloud c;
+  c.xyz.resize(static_cast<Eigen::Index>(rows) * cols * per_side * per_side, 3);
+  Eigen::Index k = 0;
+  for (int i = 0; i < rows; ++i)
+    for (int j = 0; j < cols; ++j)
+      for (int a = 0; a < per_side; ++a)
+        for (int b = 0; b < per_side; ++b) {
+          const double theta = (i + (a + 0.5) / per_side) * dtheta, d = (j + (b + 0.5) / per_side) * cell;
+          const double r = R + td(theta, d);
+          c.xyz.row(k++) << d, r * std::cos(theta), r * std::sin(theta);
+        }
+  return c;
+}
+
+double td_linear(double theta, double d) { return 0.1 + 0.05 * theta + 0.02 * d; }
+
+}  // namespace
+
+TEST(Grid, AnalyticCylinderTdPerCell) {
+  const double R = 5.6;
+  Cloud c = lattice_cylinder(R, td_linear);
+  TunnelAxis axis;
+  c = estimate_normals(c, 20, axis);
+  DesignProfile profile{R};
+  Grid g = build_grid(c, axis, profile, GridConfig{}, 1.0);
+  EXPECT_EQ(g.n_d, 24);
+  EXPECT_EQ(g.n_theta, static_cast<int>(std::floor(kPi * R / 0.05)));
+  int checked = 0;
+  for (int cell = 0; cell < g.size(); ++cell) {
+    if (!g.valid[cell]) continue;
+    // td is linear, so the mean over a symmetric lattice in the cell is td at the cell centre.
+    const double expected = td_linear(g.theta_center(g.row_of(cell)), g.d_center(g.col_of(cell)));
+    ASSERT_NEAR(g.td_m[cell], expected, 1e-6) << "cell " << cell;
+    EXPECT_EQ(g.count[cell], 25);
+    ++checked;
+  }
+  EXPECT_EQ(checked, g.size());
+}
+
+TEST(Grid, EmptyCellsAreFlaggedNotFilled) {
+  Cloud c = lattice_cylinder(5.6, td_linear);
+  Cloud holed;
+  std::vector<Eigen::Index> keep;
+  for (Eigen::Index i = 0; i < c.size(); ++i) {
+    const double d = c.xyz(i, 0), theta = std::atan2(c.xyz(i, 2), c.xyz(i, 1));
+    if (!(d > 0.5 && d < 0.7 && theta > 1.0 && theta < 1.2)) keep.push_back(i);
+  }
+  holed.xyz.resize(keep.size(), 3);
+  for (std::size_t j = 0; j < keep.size(); ++j) holed.xyz.row(j) = c.xyz.row(keep[j]);
+  TunnelAxis axis;
+  holed = estimate_normals(holed, 20, axis);
+  Grid g = build_grid(holed, axis, DesignProfile{5.6}, GridConfig{}, 1.0);
+  const int hole = g.cell_at(1.1, 0.6);
+  ASSERT_GE(hole, 0);
+  EXPECT_FALSE(g.valid[hole]);
+  EXPECT_TRUE(std::isnan(g.td_m[hole]));
+  EXPECT_EQ(cell_levels(g)[hole], kNoDataLevel);
+}
+
+TEST(Grid, NoPointsNearDesignRadiusIsAClearError) {
+  Cloud c = lattice_cylinder(5.6, td_linear);
+  TunnelAxis axis;
+  c = estimate_normals(c, 20, axis);
+  try {
+    build_grid(c, axis, DesignProfile{9.0}, GridConfig{}, 1.0);
+    FAIL() << "expected an exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("design radius"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(build_grid(c, axis, DesignProfile{-1.0}, GridConfig{}, 1.0), std::invalid_argument);
+  EXPECT_THROW(build_grid(c, axis, DesignProfile{0.0}, GridConfig{}, 1.0), std::invalid_argument);
+}
+
+TEST(Normals, PlaneAngleError) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Cloud c;
+  c.xyz.resize(4000, 3);
+  // Plane z = 0.2 x + 0.1 y - 3, below a horizontal axis at z = 0.
+  for (int i = 0; i < 4000; ++i) {
+    const double x = u(rng), y = u(rng);
+    c.xyz.row(i) << x, y, 0.2 * x + 0.1 * y - 3.0;
+  }
+  c = estimate_normals(c, 20, TunnelAxis{});
+  const Eigen::Vector3d truth = Eigen::Vector3d(-0.2, -0.1, 1.0).normalized();  // toward the axis (up)
+  double worst = 0;
+  for (int i = 0; i < c.size(); ++i)
+    worst = std::max(worst, std::acos(std::min(1.0, c.normals.row(i).dot(truth.transpose()))));
+  EXPECT_LT(worst * 180 / kPi, 0.01);
+}
+
+TEST(Normals, CylinderAngleErrorAndOrientation) {
+  Cloud c = lattice_cylinder(5.6, [](double, double) { return 0.0; });
+  c = estimate_normals(c, 20, TunnelAxis{});
+  double worst = 0;
+  for (int i = 0; i < c.size(); ++i) {
+    const Eigen::Vector3d p = c.xyz.row(i).transpose();
+    const Eigen::Vector3d inward = -Eigen::Vector3d(0, p.y(), p.z()).normalized();
+    worst = std::max(worst, std::acos(std::min(1.0, c.normals.row(i).dot(inward.transpose()))));
+  }
+  EXPECT_LT(worst * 180 / kPi, 1.0);  // k = 20 on a 1 cm lattice of a 5.6 m cylinder
+}
+
+TEST(Axis, FitRecoversAShiftedTiltedCylinder) {
+  SynthConfig sc;
+  sc.pit_count = 0;
+  sc.noise_m = 0.002;
+  sc.points_per_cell = 4;
+  Cloud c = make_synthetic_bay(sc).sample();
+  // Move the bay: axis through (0, 0.3, -0.2), direction rotated 5 degrees about z.
+  const Eigen::Matrix3d rot = Eigen::AngleAxisd(5 * kPi / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const Eigen::Vector3d shift(0, 0.3, -0.2);
+  for (int i = 0; i < c.size(); ++i) c.xyz.row(i) = (rot * c.xyz.row(i).transpose() + shift).transpose();
+  c = estimate_normals(c, 20, TunnelAxis{});
+  AxisFit fit = fit_axis(c, Eigen::Vector3d::UnitX());
+  EXPECT_NEAR(fit.radius_m, 5.6 + 0.15, 0.005);
+  EXPECT_GT(fit.axis.ex.dot(rot.col(0)), std::cos(0.2 * kPi / 180));
+  const Eigen::Vector3d q = fit.axis.origin_m - shift;
+  EXPECT_LT((q - q.dot(fit.axis.ex) * fit.axis.ex).norm(), 0.01);
+}
+
+TEST(Levels, BoundariesExactlyAsDesigned) {
+  EXPECT_EQ(level_of_td_mm(-50.001), -1);
+  EXPECT_EQ(level_of_td_mm(-50.0), 0);
+  EXPECT_EQ(level_of_td_mm(49.999), 0);
+  EXPECT_EQ(level_of_td_mm(50.0), 1);
+  EXPECT_EQ(level_of_td_mm(139.999), 1);
+  EXPECT_EQ(level_of_td_mm(140.0), 2);
+  EXPECT_EQ(level_of_td_mm(209.999), 2);
+  EXPECT_EQ(level_of_td_mm(210.0), 3);
+  EXPECT_EQ(level_of_td_mm(280.0), 4);
+  EXPECT_EQ(level_of_td_mm(700.0), 10);
+  EXPECT_EQ(level_of_td_mm(std::nan("")), kNoDataLevel);
+}
+
+namespace {
+Grid hand_grid(int rows, int cols) {
+  Grid g;
+  g.n_theta = rows;
+  g.n_d = cols;
+  g.cell_size_m = 0.05;
+  g.dtheta_rad = 0.05 / 5.6;
+  g.valid.assign(rows * cols, true);
+  g.count.assign(rows * cols, 1);
+  g.td_m = Eigen::VectorXd::Constant(rows * cols, 0.15);
+  return g;
+}
+}  // namespace
+
+TEST(Regions, BfsIsFourConnected) {
+  Grid g = hand_grid(6, 6);
+  std::vector<int> lv(36, 0);
+  // Two diagonal-touching blocks: 4-connectivity keeps them apart.
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) lv[g.index(r, c)] = 2;
+  for (int r = 3; r < 6; ++r)
+    for (int c = 3; c < 6; ++c) lv[g.index(r, c)] = 2;
+  auto regions = find_regions(g, lv, 2, 1);
+  ASSERT_EQ(regions.size(), 2u);
+  EXPECT_EQ(regions[0].cells.size(), 9u);
+  EXPECT_EQ(regions[1].cells.size(), 9u);
+  EXPECT_EQ(regions[1].row_min, 3);
+  EXPECT_EQ(regions[1].col_max, 5);
+}
+
+TEST(Regions, SmallRegionsMergeIntoNearest) {
+  Grid g = hand_grid(10, 20);
+  std::vector<int> lv(200, 0);
+  auto fill = [&](int r0, int r1, int c0, int c1) {
+    for (int r = r0; r < r1; ++r)
+      for (int c = c0; c < c1; ++c) lv[g.index(r, c)] = 3;
+  };
+  fill(0, 4, 0, 4);    // A: 16 cells
+  fill(0, 4, 14, 20);  // B: 24 cells
+  fill(6, 7, 17, 19);  // s: 2 cells, nearest to B
+  fill(5, 6, 1, 2);    // t: 1 cell, nearest to A
+  auto regions = find_regions(g, lv, 3, 10);
+  ASSERT_EQ(regions.size(), 2u);
+  std::sort(regions.begin(), regions.end(), [](auto& a, auto& b) { return a.col_min < b.col_min; });
+  EXPECT_EQ(regions[0].cells.size(), 17u);
+  EXPECT_EQ(regions[1].cells.size(), 26u);
+  EXPECT_EQ(regions[1].row_max, 6);
+  // Everything too small merges into one region of all cells.
+  std::vector<int> few(200, 0);
+  few[g.index(0, 0)] = few[g.index(9, 19)] = few[g.index(5, 5)] = 3;
+  auto one = find_regions(g, few, 3, 10);
+  ASSERT_EQ(one.size(), 1u);
+  EXPECT_EQ(one[0].cells.size(), 3u);
+}
+
+TEST(Synth, DefaultBayResemblesTheThesisExperiment) {
+  Config cfg;
+  SyntheticBay bay = make_synthetic_bay(cfg.synth);
+  Surface s = build_surface(bay.sample(), cfg);
+  const int valid = s.grid.valid_count();
+  EXPECT_NEAR(valid, 8400, 300);
+  auto counts = level_counts(s.levels);
+  int below2 = 0;
+  for (auto [lv, n] : counts)
+    if (lv < 2) below2 += n;
+  EXPECT_EQ(below2, 0);
+  EXPECT_NEAR(double(counts[2]) / valid, 0.625, 0.04);
+  EXPECT_NEAR(double(counts[3]) / valid, 0.275, 0.04);
+  EXPECT_NEAR(double(counts[4]) / valid, 0.075, 0.035);
+  // Per-cell TD matches the generator's noise-free surface.
+  double worst = 0;
+  for (int c = 0; c < s.grid.size(); ++c)
+    if (s.grid.valid[c] && s.grid.count[c] >= 10)
+      worst = std::max(worst, std::abs(s.grid.td_m[c] - bay.td_at(s.grid.d_center(s.grid.col_of(c)),
+                                                                    s.grid.theta_center(s.grid.row_of(c)))));
+  EXPECT_LT(worst, 0.012);
+}
+
+TEST(Synth, SeededAndReproducible) {
+  SynthConfig sc;
+  sc.points_per_cell = 1;
+  Cloud a = make_synthetic_bay(sc).sample(), b = make_synthetic_bay(sc).sample();
+  EXPECT_EQ((a.xyz - b.xyz).norm(), 0.0);
+  sc.seed = 2;
+  Cloud c = make_synthetic_bay(sc).sample();
+  EXPECT_GT((a.xyz - c.xyz).norm(), 1.0);
+}
+
+TEST(Input, BadCloudsGiveClearErrors) {
+  Config cfg;
+  EXPECT_THROW(build_surface(Cloud{}, cfg), std::invalid_argument);
+  Cloud nan_cloud = lattice_cylinder(5.6, td_linear, 2);
+  nan_cloud.xyz(5, 1) = std::nan("");
+  try {
+    build_surface(nan_cloud, cfg);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("non-finite"), std::string::npos);
+  }
+  Cloud mm = lattice_cylinder(5.6, td_linear, 2);
+  mm.xyz *= 1000.0;
+  try {
+    build_surface(mm, cfg);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("millimetres"), std::string::npos);
+  }
+  cfg.io.unit_scale = 0.001;  // the unit option makes the same cloud usable
+  EXPECT_NO_THROW(build_surface(mm, cfg));
+}
+
+TEST(Io, RoundTripsKeepPointsAndNormals) {
+  Cloud c = lattice_cylinder(5.6, td_linear, 1);
+  c = estimate_normals(c, 10, TunnelAxis{});
+  Eigen::VectorXd td = point_td(c, TunnelAxis{}, DesignProfile{5.6});
+  for (const char* ext : {".pcd", ".ply", ".xyz"}) {
+    const std::string path = ::testing::TempDir() + "/rt" + ext;
+    write_cloud(path, c, std::string(ext) == ".xyz" ? Eigen::VectorXd() : td);
+    Cloud back = read_cloud(path);
+    ASSERT_EQ(back.size(), c.size()) << ext;
+    EXPECT_LT((back.xyz - c.xyz).cwiseAbs().maxCoeff(), 1e-5) << ext;  // PCL stores float32
+    ASSERT_TRUE(back.has_normals()) << ext;
+    EXPECT_LT((back.normals - c.normals).cwiseAbs().maxCoeff(), 1e-6) << ext;
+  }
+  const std::string junk = ::testing::TempDir() + "/junk.pcd";
+  std::ofstream(junk) << "this is not a point cloud\n";
+  EXPECT_THROW(read_cloud(junk), std::invalid_argument);
+  EXPECT_THROW(read_cloud("/nonexistent/x.pcd"), std::invalid_argument);
+  const std::string bad = ::testing::TempDir() + "/bad.xyz";
+  std::ofstream(bad) << "1 2 3\n4 five 6\n";
+  EXPECT_THROW(read_cloud(bad), std::invalid_argument);
+}
+
+TEST(Config, DefaultYamlMatchesStructDefaults) {
+  const Config file = load_config(std::string(SHOTCRETE_DATA_DIR) + "/../config/default.yaml");
+  EXPECT_EQ(config_to_yaml(file), config_to_yaml(Config{}));
+}
+
+TEST(Config, UnknownKeysAndRangesAreErrors) {
+  EXPECT_THROW(config_from_yaml("grid: {cell_size_mm: 50}"), std::invalid_argument);
+  EXPECT_THROW(config_from_yaml("gird: {}"), std::invalid_argument);
+  EXPECT_THROW(config_from_yaml("profile: {design_radius_m: -5}"), std::invalid_argument);
+  EXPECT_THROW(config_from_yaml("profile: {design_radius_m: abc}"), std::invalid_argument);
+  EXPECT_THROW(config_from_yaml("planner: {mode: fastest}"), std::invalid_argument);
+  EXPECT_THROW(config_from_yaml("grid: [1, 2"), std::invalid_argument);
+  const Config c = config_from_yaml("profile: {design_radius_m: 6.5}\nsynth: {seed: 7}");
+  EXPECT_DOUBLE_EQ(c.profile.design_radius_m, 6.5);
+  EXPECT_EQ(c.synth.seed, 7u);
+  EXPECT_EQ(config_to_yaml(config_from_yaml(config_to_yaml(c))), config_to_yaml(c));
+}
