@@ -1,0 +1,107 @@
+#pragma once
+// Deposition model (design section 4): spot model fitted to the measured stroke, closed-form
+// stroke profile, free-form thickness rate on a cloud with normals, accumulation along nozzle
+// paths, rebound, and the golden-section pass spacing.
+#include <memory>
+#include <vector>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/types.hpp"
+
+namespace shotcrete {
+
+/// Spot model at the reference standoff H0: q(r) = q_max (1 - r^2/R^2)^(beta - 1) for r <= R.
+/// Rates are thickness per second in m/s (sprayed, before rebound).
+struct SpotModel {
+  double reference_standoff_m = 1.0;  // H0
+  double radius_m = 0.201;            // R at H0
+  double beta = 2.2;                  // spot exponent
+  double peak_rate_mps = 0.0;         // q_max
+
+  double rate_at(double r_m) const;
+  double cone_half_angle_rad() const;  // atan(R / H0)
+  /// Sprayed volume per second: integral of q over the disc = q_max * pi R^2 / beta [m^3/s].
+  double volume_rate_m3ps() const;
+};
+
+/// The spot model of the config (deposition section).
+SpotModel spot_model_from_config(const DepositionConfig& config);
+
+/// Closed-form cross profile of a straight pass at speed v over a plane at H0:
+/// T(x) = (q_max / v) R B(1/2, beta) (1 - x^2/R^2)^(beta - 1/2)   [m].
+double stroke_thickness_m(const SpotModel& model, double x_m, double speed_mps);
+
+/// A measured stroke: thickness across one pass (metres), with its standoff and speed.
+struct StrokeData {
+  std::vector<double> position_m;
+  std::vector<double> thickness_m;
+  double standoff_m = 1.0;
+  double speed_mps = 0.15;
+};
+/// Reads position_mm,thickness_mm CSV; throws std::invalid_argument for < 5 rows, non-numeric
+/// cells, negative or all-zero thickness.
+StrokeData read_stroke_csv(const std::string& path, double standoff_m = 1.0, double speed_mps = 0.15);
+
+struct StrokeFit {
+  SpotModel model;
+  double stroke_exponent = 0.0;  // beta - 1/2
+  double peak_thickness_m = 0.0; // T(0) at the test speed
+  double mse_mm2 = 0.0;          // mean squared error of the stroke profile [mm^2]
+  double flow_m3ph = 0.0;        // implied sprayed flow at the test speed [m^3/h]
+};
+/// Least-squares fit of (R, beta, q_max) to a measured stroke through the closed form.
+StrokeFit fit_stroke(const StrokeData& data);
+
+/// Nozzle pose: position and unit spray axis (roll about the axis does not matter).
+struct NozzlePose {
+  Eigen::Vector3d position_m{0, 0, 0};
+  Eigen::Vector3d axis{0, 0, 1};
+};
+
+/// Free-form thickness rate (thesis eq. 2-13) at point p with unit normal n [m/s]:
+/// q0(r_proj) (H0/L)^2 cos(gamma) / cos^3(theta) inside the cone and facing the nozzle, else 0.
+double point_rate_mps(const SpotModel& model, const NozzlePose& nozzle, const Eigen::Vector3d& p,
+                      const Eigen::Vector3d& n);
+
+/// Spatial index over a cloud with normals, answering "which points can this nozzle reach"
+/// without scanning the whole cloud. Build once per cloud; rebuild after moving points.
+class SurfaceIndex {
+ public:
+  explicit SurfaceIndex(const Cloud& cloud);  // cloud must have normals
+  ~SurfaceIndex();
+  SurfaceIndex(SurfaceIndex&&) noexcept;
+  SurfaceIndex& operator=(SurfaceIndex&&) noexcept;
+  const Cloud& cloud() const;
+  /// Indices of points within `radius_m` of `center`.
+  void within(const Eigen::Vector3d& center, double radius_m, std::vector<int>& out) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Adds to `thickness_m` (one entry per point of the index's cloud) the concrete that stays on the
+/// wall while the nozzle dwells dwell_s[i] at poses[i]: sum_i q_s(pose_i) * dwell_i * (1 - rebound).
+void accumulate_dwells(const SpotModel& model, const SurfaceIndex& surface, const std::vector<NozzlePose>& poses,
+                       const std::vector<double>& dwell_s, double rebound_fraction, Eigen::VectorXd& thickness_m);
+
+/// Same for a nozzle moving along a polyline of poses at constant speed: the path is resampled at
+/// `step_m` (poses interpolated, axes renormalised) and each sample dwells step / speed.
+void accumulate_pass(const SpotModel& model, const SurfaceIndex& surface, const std::vector<NozzlePose>& polyline,
+                     double speed_mps, double step_m, double rebound_fraction, Eigen::VectorXd& thickness_m);
+
+/// Moves every point along its (unit, inward) normal by its thickness: the sprayed surface.
+Cloud apply_thickness(const Cloud& cloud, const Eigen::VectorXd& thickness_m);
+
+/// Golden-section pass spacing (thesis 3.5): the overlap in [0, R] (design; widened if the optimum
+/// sits on the bound) of two parallel strokes that
+/// minimises sum_x (Td - T(x))^2 on a 1 mm grid, each stroke peaking at Td; spacing = 2R - overlap.
+struct PassSpacing {
+  double spacing_m = 0.0;
+  double overlap_m = 0.0;
+  double band_min_m = 0.0;  // thickness range between the two pass centres, for peak Td
+  double band_max_m = 0.0;
+};
+PassSpacing pass_spacing(const SpotModel& model, double target_thickness_m);
+
+}  // namespace shotcrete
