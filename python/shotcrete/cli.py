@@ -17,7 +17,7 @@ from .io import UNIT_SCALES, read_cloud, write_cloud
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Shotcrete spraying plans from a 3-D scan of a tunnel bay.")
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # errors on one line, never wrapped
 
 EXIT_BAD_INPUT = 2
 

@@ -1,0 +1,156 @@
+"""Surface stage through the bindings, the file formats and the CLI."""
+import json
+
+import numpy as np
+import pytest
+
+import shotcrete
+from conftest import cylinder_points
+
+
+def test_cloud_round_trip_through_bindings():
+    xyz = cylinder_points(500)
+    cloud = shotcrete.Cloud(xyz)
+    assert cloud.xyz.dtype == np.float64 and cloud.xyz.shape == (500, 3)
+    np.testing.assert_array_equal(cloud.xyz, xyz)
+    assert cloud.normals.shape == (0, 3) and not cloud.has_normals()
+    with pytest.raises(ValueError, match="one row per point"):
+        shotcrete.Cloud(xyz, np.zeros((3, 3)))
+    # float32 and Fortran-ordered input are converted, not misread.
+    cloud32 = shotcrete.Cloud(np.asfortranarray(xyz.astype(np.float32)))
+    np.testing.assert_allclose(cloud32.xyz, xyz, rtol=1e-6)
+
+
+def test_surface_arrays_have_documented_shapes(small_config, small_cloud):
+    s = shotcrete.build_surface(small_cloud, small_config)
+    g = s.grid
+    assert g.td_m.shape == (g.n_theta, g.n_d) and g.td_m.dtype == np.float64
+    assert g.valid.dtype == bool and g.count.shape == (g.n_theta, g.n_d)
+    assert g.mean_xyz.shape == (g.n_theta * g.n_d, 3)
+    assert len(s.levels) == g.n_theta * g.n_d
+    assert s.cloud.has_normals()
+    # Normals point toward the axis: dot with the radial direction is negative.
+    radial = s.cloud.xyz * np.array([0, 1, 1])
+    assert np.all(np.einsum("ij,ij->i", s.cloud.normals, radial) < 0)
+    assert set(s.timings_s) >= {"preprocess", "normals", "grid"}
+
+
+def test_td_matches_the_generator(small_config, small_cloud):
+    bay = shotcrete.make_synthetic_bay(small_config.synth)
+    s = shotcrete.build_surface(small_cloud, small_config)
+    g = s.grid
+    err = []
+    for row in range(1, g.n_theta - 1):  # edge cells are only partly covered by the slice
+        for col in range(1, g.n_d - 1):
+            if g.count[row, col] >= 6:
+                err.append(g.td_m[row, col] - bay.td_at(g.d_center(col), g.theta_center(row)))
+    assert len(err) > 100
+    # 5 mm scanner noise over 6-8 points per cell: about 2 mm RMS.
+    assert np.sqrt(np.mean(np.square(err))) < 0.004
+    assert np.max(np.abs(err)) < 0.015
+
+
+@pytest.mark.parametrize("ext", [".pcd", ".ply", ".xyz", ".las"])
+def test_io_round_trip(tmp_path, ext):
+    cloud = shotcrete.Cloud(cylinder_points(300))
+    path = shotcrete.write_cloud(tmp_path / f"c{ext}", cloud)
+    back = shotcrete.read_cloud(path)
+    assert len(back) == 300
+    np.testing.assert_allclose(back.xyz, cloud.xyz, atol=2e-4)  # float32 / LAS 0.1 mm scale
+
+
+def test_e57_read(tmp_path):
+    pye57 = pytest.importorskip("pye57")
+    xyz = cylinder_points(200)
+    path = tmp_path / "scan.e57"
+    e57 = pye57.E57(str(path), mode="w")
+    e57.write_scan_raw({"cartesianX": xyz[:, 0], "cartesianY": xyz[:, 1], "cartesianZ": xyz[:, 2]})
+    e57.close()
+    back = shotcrete.read_cloud(path)
+    np.testing.assert_allclose(back.xyz, xyz, atol=1e-9)
+
+
+def test_bad_files_raise_value_error(tmp_path):
+    junk = tmp_path / "junk.ply"
+    junk.write_text("hello\n")
+    with pytest.raises(ValueError, match="not a PLY"):
+        shotcrete.read_cloud(junk)
+    with pytest.raises(ValueError, match="no such file"):
+        shotcrete.read_cloud(tmp_path / "missing.pcd")
+    las = tmp_path / "junk.las"
+    las.write_bytes(b"\x00" * 64)
+    with pytest.raises(ValueError, match="LAS"):
+        shotcrete.read_cloud(las)
+    with pytest.raises(ValueError, match="unknown cloud format"):
+        (tmp_path / "c.obj").write_text("v 1 2 3\n")
+        shotcrete.read_cloud(tmp_path / "c.obj")
+
+
+def test_bad_clouds_raise_value_error(small_config):
+    with pytest.raises(ValueError, match="empty"):
+        shotcrete.build_surface(shotcrete.Cloud(np.zeros((0, 3))), small_config)
+    xyz = cylinder_points(500)
+    xyz[10, 2] = np.inf
+    with pytest.raises(ValueError, match="non-finite"):
+        shotcrete.build_surface(shotcrete.Cloud(xyz), small_config)
+    with pytest.raises(ValueError, match="millimetres"):
+        shotcrete.build_surface(shotcrete.Cloud(cylinder_points(500) * 1000), small_config)
+    far = shotcrete.load_config()
+    far.profile.design_radius_m = 9.0
+    with pytest.raises(ValueError, match="design radius"):
+        shotcrete.build_surface(shotcrete.Cloud(cylinder_points(500)), far)
+
+
+def test_config_errors_name_the_key(tmp_path):
+    cfg = shotcrete.load_config()
+    cfg.profile.design_radius_m = -1
+    with pytest.raises(ValueError, match="profile.design_radius_m"):
+        cfg.validate()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("grid:\n  cell_size_mm: 50\n")
+    with pytest.raises(ValueError, match="unknown key 'grid.cell_size_mm'"):
+        shotcrete.load_config(bad)
+    assert shotcrete.Config.from_yaml(cfg.copy().to_yaml().replace("-1", "6")).profile.design_radius_m == 6
+    assert "design_radius_m" in shotcrete.ProfileConfig.KEYS
+
+
+def test_cli_synth_then_plan(tmp_path, run_cli):
+    cloud = tmp_path / "bay.pcd"
+    r = run_cli("synth", "--out", cloud, "--seed", 4)
+    assert r.exit_code == 0, r.output
+    r = run_cli("synth", "--out", cloud)
+    assert r.exit_code == 2 and "exists" in r.output
+    out = tmp_path / "job"
+    r = run_cli("plan", cloud, "--out", out, "--json")
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["cells"] > 8000
+    assert min(int(k) for k in report["levels_before"]) >= 2
+    assert {"preprocess", "normals", "grid"} <= set(report["timings_s"])
+    assert (out / "report.html").is_file() and (out / "figures" / "td_before.png").is_file()
+    # A second run into the same directory is allowed (ours); a foreign non-empty one is not.
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    r = run_cli("plan", cloud, "--out", foreign)
+    assert r.exit_code == 2 and "not empty" in r.output
+    assert (foreign / "notes.txt").read_text() == "keep me"
+
+
+def test_cli_bad_inputs_exit_2(tmp_path, run_cli):
+    junk = tmp_path / "junk.pcd"
+    junk.write_text("not a cloud")
+    r = run_cli("plan", junk, "--out", tmp_path / "o1")
+    assert r.exit_code == 2 and "not a PCD" in r.output
+    empty = tmp_path / "empty.xyz"
+    empty.write_text("")
+    r = run_cli("plan", empty, "--out", tmp_path / "o2")
+    assert r.exit_code == 2 and "empty" in r.output
+    mm = tmp_path / "mm.xyz"
+    np.savetxt(mm, cylinder_points(800) * 1000)
+    r = run_cli("plan", mm, "--out", tmp_path / "o3")
+    assert r.exit_code == 2 and "millimetres" in r.output
+    cfg = tmp_path / "neg.yaml"
+    cfg.write_text("profile:\n  design_radius_m: 0\n")
+    r = run_cli("plan", mm, "--out", tmp_path / "o4", "--config", cfg)
+    assert r.exit_code == 2 and "design_radius_m" in r.output
