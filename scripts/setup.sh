@@ -13,7 +13,7 @@ APT_PACKAGES=(
   catkin libroscpp-dev libsensor-msgs-dev libvisualization-msgs-dev libstd-srvs-dev
   libpcl-conversions-dev librostest-dev python3-rostest python3-rospy python3-roslaunch
   ros-robot-state-publisher python3-sensor-msgs python3-visualization-msgs python3-std-srvs
-  python3-tf2-msgs rviz xvfb xauth imagemagick
+  python3-tf2-msgs libtf2-msgs-dev rviz xvfb xauth imagemagick
 )
 
 missing=()

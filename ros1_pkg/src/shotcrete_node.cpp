@@ -1,0 +1,614 @@
+// shotcrete_node: the planner on the core library, driven from ROS.
+//
+// Input:     ~cloud_in (sensor_msgs/PointCloud2, tunnel frame), or ~cloud_file, or ~synthetic + ~seed.
+// Services:  ~plan, ~execute (std_srvs/Trigger: success + a one-line summary).
+// Published: ~cloud (PointCloud2, TD as intensity and rgb; republished while concrete is deposited),
+//            ~grid_levels, ~passes (MarkerArray), ~summary (String), /joint_states, /tf_static.
+// Config:    ~config (YAML; default the repository's config/default.yaml), and every
+//            ~<section>/<key> of the config field table overrides that one value.
+#include <geometry_msgs/TransformStamped.h>
+#include <ros/ros.h>
+#include <sensor_msgs/JointState.h>
+#include <std_msgs/String.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_msgs/TFMessage.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <iomanip>
+#include <memory>
+#include <mutex>
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+#include "ros_conversions.hpp"
+#include "shotcrete/config.hpp"
+#include "shotcrete/deposition.hpp"
+#include "shotcrete/grid.hpp"
+#include "shotcrete/io.hpp"
+#include "shotcrete/planner.hpp"
+#include "shotcrete/robot.hpp"
+#include "shotcrete/surface.hpp"
+#include "shotcrete/synth.hpp"
+#include "shotcrete/timing.hpp"
+
+namespace shotcrete_ros {
+namespace {
+
+using shotcrete::Cloud;
+using shotcrete::Config;
+using shotcrete::Plan;
+using shotcrete::Surface;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+std::string levels_text(const std::map<int, int>& counts) {
+  std::ostringstream s;
+  s << "{";
+  bool first = true;
+  for (const auto& [level, n] : counts) {
+    if (level == shotcrete::kNoDataLevel) continue;
+    s << (first ? "" : ", ") << level << ": " << n;
+    first = false;
+  }
+  s << "}";
+  return s.str();
+}
+
+geometry_msgs::Point point_msg(const Eigen::Vector3d& p) {
+  geometry_msgs::Point m;
+  m.x = p.x();
+  m.y = p.y();
+  m.z = p.z();
+  return m;
+}
+
+}  // namespace
+
+class ShotcreteNode {
+ public:
+  ShotcreteNode(ros::NodeHandle nh, ros::NodeHandle pnh) : nh_(nh), pnh_(pnh) {
+    const std::string default_config = std::string(SHOTCRETE_REPO_DIR) + "/config/default.yaml";
+    pnh_.param<std::string>("config", config_path_, default_config);
+    config_ = shotcrete::load_config(config_path_);
+    // ~seed is the short form of ~synth/seed (the per-key override below wins if both are set).
+    int seed = -1;
+    if (pnh_.getParam("seed", seed)) {
+      if (seed < 0) throw std::invalid_argument("~seed must not be negative, got " + std::to_string(seed));
+      config_.synth.seed = static_cast<std::uint64_t>(seed);
+    }
+    const auto overridden = apply_param_overrides(pnh_, config_);
+    pnh_.param<std::string>("frame_id", frame_id_, "tunnel");
+    pnh_.param<std::string>("urdf", urdf_path_, config_.robot.urdf_path.empty()
+                                                    ? std::string(SHOTCRETE_REPO_DIR) + "/data/shotcrete_manipulator.urdf"
+                                                    : config_.robot.urdf_path);
+    pnh_.param("execute_time_scale", time_scale_, 1.0);
+    pnh_.param("execute_max_wall_s", max_wall_s_, 0.0);  // > 0: raise the time scale to fit
+    pnh_.param("joint_state_rate_hz", joint_rate_hz_, 50.0);
+    pnh_.param("cloud_rate_hz", cloud_rate_hz_, 2.0);
+    pnh_.param("td_color_max_m", td_color_max_m_, 0.0);  // 0 = the largest TD of the scan
+    if (!(time_scale_ > 0) || !(joint_rate_hz_ >= 1) || !(cloud_rate_hz_ > 0))
+      throw std::invalid_argument("~execute_time_scale and ~cloud_rate_hz must be > 0, ~joint_state_rate_hz >= 1");
+    std::ostringstream ov;
+    for (const auto& k : overridden) ov << " " << k;
+    ROS_INFO("config %s%s%s", config_path_.c_str(), overridden.empty() ? "" : ", overridden:", ov.str().c_str());
+
+    robot_ = std::make_unique<shotcrete::Robot>(
+        shotcrete::Robot::load_file(urdf_path_, config_.robot.base_position_m));
+    q_current_ = robot_->neutral();
+
+    cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("cloud", 1, true);
+    levels_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("grid_levels", 1, true);
+    passes_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("passes", 1, true);
+    summary_pub_ = pnh_.advertise<std_msgs::String>("summary", 1, true);
+    joint_pub_ = nh_.advertise<sensor_msgs::JointState>("joint_states", 10);
+    tf_static_pub_ = nh_.advertise<tf2_msgs::TFMessage>("tf_static", 1, true);
+    publish_base_transform();
+
+    cloud_sub_ = pnh_.subscribe("cloud_in", 2, &ShotcreteNode::on_cloud, this);
+    plan_srv_ = pnh_.advertiseService("plan", &ShotcreteNode::on_plan, this);
+    execute_srv_ = pnh_.advertiseService("execute", &ShotcreteNode::on_execute, this);
+    // The arm is shown at rest until an execution streams the trajectory.
+    idle_timer_ = nh_.createWallTimer(ros::WallDuration(0.1), [this](const ros::WallTimerEvent&) {
+      if (!executing_) publish_joints(q_current_, ros::Time::now());
+    });
+  }
+
+  /// Startup input: ~cloud_file or ~synthetic. Returns false when neither is set.
+  bool load_initial_cloud() {
+    std::string file;
+    bool synthetic = false;
+    pnh_.param<std::string>("cloud_file", file, "");
+    pnh_.param("synthetic", synthetic, false);
+    if (!file.empty() && synthetic) throw std::invalid_argument("set either ~cloud_file or ~synthetic, not both");
+    Cloud cloud;
+    std::string source;
+    if (!file.empty()) {
+      cloud = shotcrete::read_cloud(file);
+      source = file;
+    } else if (synthetic) {
+      cloud = shotcrete::make_synthetic_bay(config_.synth).sample(config_.grid.cell_size_m);
+      source = "synthetic bay (seed " + std::to_string(config_.synth.seed) + ")";
+    } else {
+      return false;
+    }
+    std::string error;
+    if (!set_cloud(cloud, source, error)) throw std::invalid_argument("cloud from " + source + ": " + error);
+    return true;
+  }
+
+  /// Plans the current surface; fills `summary`. Returns false (with the reason) on failure.
+  bool plan(std::string& summary) {
+    std::unique_lock<std::mutex> work(work_mutex_, std::try_to_lock);
+    if (!work.owns_lock()) {
+      summary = "busy: a plan or an execution is running";
+      return false;
+    }
+    std::shared_ptr<const Surface> surface;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      surface = surface_;
+    }
+    if (!surface) {
+      summary = "no cloud yet: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
+      return false;
+    }
+    const auto t0 = Clock::now();
+    auto plan = std::make_shared<Plan>();
+    try {
+      double last_report = -1.0;
+      *plan = shotcrete::plan_bay(*surface, config_, [&](const std::string& stage, double fraction) {
+        const double t = seconds_since(t0);
+        if (t - last_report >= 2.0) {
+          ROS_INFO("planning: %s %.0f %%", stage.c_str(), 100.0 * fraction);
+          last_report = t;
+        }
+      });
+    } catch (const std::exception& e) {
+      summary = std::string("planning failed: ") + e.what();
+      return false;
+    }
+    const double plan_s = seconds_since(t0);
+    const auto t1 = Clock::now();
+    auto trajectory = std::make_shared<shotcrete::TimedTrajectory>();
+    std::string timing_note;
+    try {
+      std::vector<std::vector<shotcrete::Pass>> regions;
+      for (const auto& round : plan->rounds)
+        for (const auto& region : round.regions) regions.push_back(spraying_order(region));
+      *trajectory = shotcrete::time_plan(*robot_, regions, robot_->neutral(), config_.timing, config_.robot);
+    } catch (const std::exception& e) {
+      // The plan stays usable (markers, summary); only ~execute needs the trajectory.
+      trajectory.reset();
+      timing_note = std::string(", no trajectory: ") + e.what();
+    }
+    const double timing_s = seconds_since(t1);
+
+    int passes = 0, regions = 0;
+    for (const auto& round : plan->rounds) {
+      regions += static_cast<int>(round.regions.size());
+      for (const auto& region : round.regions) passes += static_cast<int>(region.passes.size());
+    }
+    std::ostringstream s;
+    s << std::fixed << std::setprecision(2) << "rounds=" << plan->rounds.size() << " regions=" << regions
+      << " passes=" << passes << " spray_time_s=" << plan->spray_time_s << " stop='" << plan->stop_reason
+      << "' levels_before=" << levels_text(shotcrete::level_counts(surface->levels));
+    if (!plan->rounds.empty()) s << " levels_after=" << levels_text(plan->rounds.back().levels_after);
+    s << " unreachable_cells=" << plan->unreachable_cells.size();
+    if (trajectory)
+      s << " trajectory_s=" << trajectory->duration_s << " samples=" << trajectory->size()
+        << " max_velocity_ratio=" << trajectory->max_velocity_ratio;
+    s << " plan_s=" << plan_s << " timing_s=" << timing_s << timing_note;
+    summary = s.str();
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      plan_ = plan;
+      trajectory_ = trajectory;
+    }
+    publish_passes(*surface, *plan);
+    std_msgs::String msg;
+    msg.data = summary;
+    summary_pub_.publish(msg);
+    return true;
+  }
+
+  /// Streams the timed trajectory as /joint_states and deposits concrete on the cloud as it goes.
+  bool execute(std::string& summary) {
+    std::unique_lock<std::mutex> work(work_mutex_, std::try_to_lock);
+    if (!work.owns_lock()) {
+      summary = "busy: a plan or an execution is running";
+      return false;
+    }
+    std::shared_ptr<const Surface> surface;
+    std::shared_ptr<const shotcrete::TimedTrajectory> traj;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      surface = surface_;
+      traj = trajectory_;
+      if (!plan_) {
+        summary = "no plan: call " + pnh_.resolveName("plan") + " first";
+        return false;
+      }
+    }
+    if (!traj || traj->size() < 2) {
+      summary = "the plan has no timed trajectory (see the plan summary)";
+      return false;
+    }
+    executing_ = true;  // the idle publisher stops: only trajectory samples from here on
+    struct Reset {
+      std::atomic<bool>& flag;
+      ~Reset() { flag = false; }
+    } reset{executing_};
+    const auto model = spot_model();
+    const shotcrete::SurfaceIndex index(surface->cloud);
+    const std::vector<double> dwell = shotcrete::spray_dwells(traj->t_s, traj->spraying);
+    Eigen::VectorXd deposited = Eigen::VectorXd::Zero(surface->cloud.size());
+    const Eigen::VectorXd td0 = shotcrete::point_td(surface->cloud, surface->axis, surface->profile);
+
+    const auto t0 = Clock::now();
+    std::size_t next = 0;          // first sample not yet deposited
+    std::size_t published = 0;
+    ros::WallRate rate(joint_rate_hz_);
+    double last_cloud_wall = -1e9;
+    const double duration = traj->t_s.back();
+    const double time_scale =
+        max_wall_s_ > 0 ? std::max(time_scale_, (duration - traj->t_s.front()) / max_wall_s_) : time_scale_;
+    while (ros::ok()) {
+      const double wall = seconds_since(t0);
+      const double t = std::min(duration, traj->t_s.front() + wall * time_scale);
+      // Sample at or after t: deposit every spraying sample up to it.
+      const auto it = std::lower_bound(traj->t_s.begin(), traj->t_s.end(), t);
+      const std::size_t k = std::min<std::size_t>(traj->size() - 1, static_cast<std::size_t>(it - traj->t_s.begin()));
+      deposit(model, index, *traj, dwell, next, k + 1, deposited);
+      next = k + 1;
+      publish_joints(interpolate(*traj, t, k), ros::Time::now());
+      ++published;
+      const bool done = t >= duration;
+      if (done || wall - last_cloud_wall >= 1.0 / cloud_rate_hz_) {
+        publish_cloud(surface->cloud.xyz, td0 - deposited);
+        last_cloud_wall = wall;
+      }
+      if (done) break;
+      rate.sleep();
+    }
+    q_current_ = traj->q.back();
+    const Eigen::VectorXd td1 = td0 - deposited;
+    std::ostringstream s;
+    s << std::fixed << std::setprecision(3) << "executed " << traj->duration_s << " s of trajectory in "
+      << seconds_since(t0) << " s wall (time scale " << time_scale << "), " << published
+      << " joint states; mean TD " << td0.mean() * 1000 << " -> " << td1.mean() * 1000 << " mm, deposited max "
+      << deposited.maxCoeff() * 1000 << " mm";
+    summary = s.str();
+    return ros::ok();
+  }
+
+ private:
+  // ---------------------------------------------------------------------------------------------
+  // Input
+  // ---------------------------------------------------------------------------------------------
+  void on_cloud(const sensor_msgs::PointCloud2::ConstPtr& msg) {
+    Cloud cloud;
+    const std::string reason = cloud_from_msg(*msg, frame_id_, cloud);
+    if (!reason.empty()) {
+      ROS_WARN("cloud on %s ignored: %s", cloud_sub_.getTopic().c_str(), reason.c_str());
+      return;
+    }
+    std::unique_lock<std::mutex> work(work_mutex_, std::try_to_lock);
+    if (!work.owns_lock()) {
+      ROS_WARN("cloud on %s ignored: busy planning or executing", cloud_sub_.getTopic().c_str());
+      return;
+    }
+    std::string error;
+    if (!set_cloud(cloud, "topic " + cloud_sub_.getTopic(), error))
+      ROS_WARN("cloud on %s ignored: %s", cloud_sub_.getTopic().c_str(), error.c_str());
+  }
+
+  bool set_cloud(const Cloud& cloud, const std::string& source, std::string& error) {
+    const auto t0 = Clock::now();
+    auto surface = std::make_shared<Surface>();
+    try {
+      *surface = shotcrete::build_surface(cloud, config_);
+    } catch (const std::exception& e) {
+      error = e.what();
+      return false;
+    }
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      surface_ = surface;
+      plan_.reset();
+      trajectory_.reset();
+    }
+    const Eigen::VectorXd td = shotcrete::point_td(surface->cloud, surface->axis, surface->profile);
+    color_max_m_ = td_color_max_m_ > 0 ? td_color_max_m_ : std::max(1e-3, td.maxCoeff());
+    publish_cloud(surface->cloud.xyz, td);
+    publish_levels(*surface);
+    clear_passes();
+    ROS_INFO("cloud from %s: %ld points in, %ld kept, %d grid cells (%d valid), levels %s, %.2f s", source.c_str(),
+             static_cast<long>(cloud.size()), static_cast<long>(surface->cloud.size()), surface->grid.size(),
+             surface->grid.valid_count(), levels_text(shotcrete::level_counts(surface->levels)).c_str(),
+             seconds_since(t0));
+    return true;
+  }
+
+  // ---------------------------------------------------------------------------------------------
+  // Services
+  // ---------------------------------------------------------------------------------------------
+  bool on_plan(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    try {
+      res.success = plan(res.message);
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = std::string("plan failed: ") + e.what();
+    }
+    if (res.success)
+      ROS_INFO("plan: %s", res.message.c_str());
+    else
+      ROS_WARN("plan: %s", res.message.c_str());
+    return true;
+  }
+
+  bool on_execute(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    try {
+      res.success = execute(res.message);
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = std::string("execute failed: ") + e.what();
+    }
+    if (res.success)
+      ROS_INFO("execute: %s", res.message.c_str());
+    else
+      ROS_WARN("execute: %s", res.message.c_str());
+    return true;
+  }
+
+  // ---------------------------------------------------------------------------------------------
+  // Execution helpers
+  // ---------------------------------------------------------------------------------------------
+  /// Passes of a region in the order the nozzle sprays them (a reversed region runs from its
+  /// last pass back to the first, each pass backwards).
+  static std::vector<shotcrete::Pass> spraying_order(const shotcrete::RegionPlan& region) {
+    std::vector<shotcrete::Pass> passes = region.passes;
+    if (region.reversed) {
+      std::reverse(passes.begin(), passes.end());
+      for (auto& p : passes) std::reverse(p.waypoints.begin(), p.waypoints.end());
+    }
+    return passes;
+  }
+
+  shotcrete::SpotModel spot_model() const {
+    return shotcrete::spot_model_from_config(config_.deposition);
+  }
+
+  void deposit(const shotcrete::SpotModel& model, const shotcrete::SurfaceIndex& index,
+               const shotcrete::TimedTrajectory& traj, const std::vector<double>& dwell, std::size_t from,
+               std::size_t to, Eigen::VectorXd& deposited) const {
+    std::vector<shotcrete::NozzlePose> poses;
+    std::vector<double> dwells;
+    for (std::size_t i = from; i < to && i < traj.size(); ++i) {
+      if (!traj.spraying[i] || dwell[i] <= 0) continue;
+      poses.push_back(traj.nozzle[i]);
+      dwells.push_back(dwell[i]);
+    }
+    if (!poses.empty())
+      shotcrete::accumulate_dwells(model, index, poses, dwells, config_.deposition.rebound_fraction, deposited);
+  }
+
+  /// Joints at time t, linear between the samples k - 1 and k (t_s[k] >= t).
+  static Eigen::VectorXd interpolate(const shotcrete::TimedTrajectory& traj, double t, std::size_t k) {
+    if (k == 0) return traj.q.front();
+    const double t0 = traj.t_s[k - 1], t1 = traj.t_s[k];
+    const double u = t1 > t0 ? std::clamp((t - t0) / (t1 - t0), 0.0, 1.0) : 1.0;
+    return (1.0 - u) * traj.q[k - 1] + u * traj.q[k];
+  }
+
+  // ---------------------------------------------------------------------------------------------
+  // Publishing
+  // ---------------------------------------------------------------------------------------------
+  void publish_joints(const Eigen::VectorXd& q, const ros::Time& stamp) {
+    sensor_msgs::JointState js;
+    js.header.stamp = stamp;
+    js.name = robot_->joint_names();
+    js.position.assign(q.data(), q.data() + q.size());
+    joint_pub_.publish(js);
+  }
+
+  void publish_base_transform() {
+    geometry_msgs::TransformStamped tf;
+    tf.header.stamp = ros::Time::now();
+    tf.header.frame_id = frame_id_;
+    tf.child_frame_id = "base_link";
+    const Eigen::Vector3d p = robot_->base_pose().translation();
+    tf.transform.translation.x = p.x();
+    tf.transform.translation.y = p.y();
+    tf.transform.translation.z = p.z();
+    tf.transform.rotation.w = 1.0;
+    tf2_msgs::TFMessage msg;
+    msg.transforms.push_back(tf);
+    tf_static_pub_.publish(msg);
+  }
+
+  void publish_cloud(const shotcrete::Points& xyz, const Eigen::VectorXd& td) {
+    cloud_pub_.publish(cloud_to_msg(xyz, td, color_max_m_, frame_id_, ros::Time::now()));
+  }
+
+  visualization_msgs::Marker marker(const std::string& ns, int id, int type) const {
+    visualization_msgs::Marker m;
+    m.header.frame_id = frame_id_;
+    m.header.stamp = ros::Time::now();
+    m.ns = ns;
+    m.id = id;
+    m.type = type;
+    m.action = visualization_msgs::Marker::ADD;
+    m.pose.orientation.w = 1.0;
+    return m;
+  }
+
+  static visualization_msgs::Marker delete_all() {
+    visualization_msgs::Marker m;
+    m.action = 3;  // DELETEALL
+    return m;
+  }
+
+  /// One cube list per level on the design line (where the wall should end up).
+  void publish_levels(const Surface& surface) {
+    visualization_msgs::MarkerArray arr;
+    arr.markers.push_back(delete_all());
+    const auto& grid = surface.grid;
+    std::map<int, std::vector<int>> by_level;
+    for (int c = 0; c < grid.size(); ++c)
+      if (surface.levels[c] != shotcrete::kNoDataLevel) by_level[surface.levels[c]].push_back(c);
+    int max_level = 1;
+    for (const auto& [level, cells] : by_level) max_level = std::max(max_level, level);
+    for (const auto& [level, cells] : by_level) {
+      auto m = marker("levels", level - shotcrete::kNoDataLevel, visualization_msgs::Marker::CUBE_LIST);
+      m.scale.x = m.scale.y = m.scale.z = 0.9 * grid.cell_size_m;
+      m.color = level <= 0 ? std_msgs::ColorRGBA() : colormap(static_cast<double>(level) / max_level, 0.8f);
+      if (level <= 0) m.color.r = m.color.g = m.color.b = 0.5f, m.color.a = 0.8f;
+      for (int c : cells) m.points.push_back(point_msg(grid.design_point(c)));
+      arr.markers.push_back(m);
+    }
+    levels_pub_.publish(arr);
+  }
+
+  void clear_passes() {
+    visualization_msgs::MarkerArray arr;
+    arr.markers.push_back(delete_all());
+    passes_pub_.publish(arr);
+  }
+
+  /// Passes (line list coloured by speed), region outlines on the design line, transit links.
+  void publish_passes(const Surface& surface, const Plan& plan) {
+    visualization_msgs::MarkerArray arr;
+    arr.markers.push_back(delete_all());
+    const auto& grid = plan.grid_before.size() > 0 ? plan.grid_before : surface.grid;
+    const double vmin = config_.planner.min_speed_mps, vmax = config_.planner.max_speed_mps;
+    for (std::size_t r = 0; r < plan.rounds.size(); ++r) {
+      const auto& round = plan.rounds[r];
+      auto passes = marker("passes", static_cast<int>(r), visualization_msgs::Marker::LINE_LIST);
+      passes.scale.x = 0.012;
+      auto boxes = marker("regions", static_cast<int>(r), visualization_msgs::Marker::LINE_LIST);
+      boxes.scale.x = 0.008;
+      boxes.color.r = 1.0f, boxes.color.g = 1.0f, boxes.color.b = 1.0f, boxes.color.a = 0.9f;
+      auto links = marker("transits", static_cast<int>(r), visualization_msgs::Marker::LINE_LIST);
+      links.scale.x = 0.006;
+      links.color.r = 0.8f, links.color.g = 0.3f, links.color.b = 0.9f, links.color.a = 0.9f;
+      bool have_prev = false;
+      Eigen::Vector3d prev_end = Eigen::Vector3d::Zero();
+      for (const auto& region : round.regions) {
+        const auto ordered = spraying_order(region);
+        for (const auto& pass : ordered) {
+          const auto c = colormap(vmax > vmin ? (pass.speed_mps - vmin) / (vmax - vmin) : 0.5);
+          for (std::size_t i = 1; i < pass.waypoints.size(); ++i) {
+            passes.points.push_back(point_msg(pass.waypoints[i - 1].position_m));
+            passes.points.push_back(point_msg(pass.waypoints[i].position_m));
+            passes.colors.push_back(c);
+            passes.colors.push_back(c);
+          }
+        }
+        if (!ordered.empty() && !ordered.front().waypoints.empty()) {
+          if (have_prev) {
+            links.points.push_back(point_msg(prev_end));
+            links.points.push_back(point_msg(ordered.front().waypoints.front().position_m));
+          }
+          prev_end = ordered.back().waypoints.back().position_m;
+          have_prev = true;
+        }
+        add_region_outline(grid, region.region, boxes);
+      }
+      for (auto* m : {&passes, &boxes, &links})
+        if (!m->points.empty()) arr.markers.push_back(*m);
+    }
+    passes_pub_.publish(arr);
+  }
+
+  /// Outline of a region's bounding box of cells, drawn on the design line (arcs along theta).
+  static void add_region_outline(const shotcrete::Grid& grid, const shotcrete::Region& region,
+                                 visualization_msgs::Marker& m) {
+    const double th0 = grid.theta0_rad + region.row_min * grid.dtheta_rad;
+    const double th1 = grid.theta0_rad + (region.row_max + 1) * grid.dtheta_rad;
+    const double d0 = grid.d0_m + region.col_min * grid.cell_size_m;
+    const double d1 = grid.d0_m + (region.col_max + 1) * grid.cell_size_m;
+    const double r = grid.profile.radius_m;
+    auto at = [&](double th, double d) { return point_msg(grid.axis.to_cartesian(r, th, d)); };
+    const int steps = std::max(1, static_cast<int>(std::ceil((th1 - th0) * r / 0.1)));
+    for (int i = 0; i < steps; ++i) {
+      const double a = th0 + (th1 - th0) * i / steps, b = th0 + (th1 - th0) * (i + 1) / steps;
+      for (double d : {d0, d1}) {
+        m.points.push_back(at(a, d));
+        m.points.push_back(at(b, d));
+      }
+    }
+    for (double th : {th0, th1}) {
+      m.points.push_back(at(th, d0));
+      m.points.push_back(at(th, d1));
+    }
+  }
+
+  ros::NodeHandle nh_, pnh_;
+  Config config_;
+  std::string config_path_, frame_id_, urdf_path_;
+  double time_scale_ = 1.0, max_wall_s_ = 0.0, joint_rate_hz_ = 50.0, cloud_rate_hz_ = 2.0, td_color_max_m_ = 0.0;
+  double color_max_m_ = 0.3;
+  std::unique_ptr<shotcrete::Robot> robot_;
+  Eigen::VectorXd q_current_;
+  std::atomic<bool> executing_{false};
+
+  std::mutex work_mutex_;   // one plan / execution / cloud update at a time
+  std::mutex state_mutex_;  // guards the snapshots below
+  std::shared_ptr<const Surface> surface_;
+  std::shared_ptr<const Plan> plan_;
+  std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
+
+  ros::Publisher cloud_pub_, levels_pub_, passes_pub_, summary_pub_, joint_pub_, tf_static_pub_;
+  ros::Subscriber cloud_sub_;
+  ros::ServiceServer plan_srv_, execute_srv_;
+  ros::WallTimer idle_timer_;
+};
+
+}  // namespace shotcrete_ros
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "shotcrete_node");
+  ros::NodeHandle nh, pnh("~");
+  std::unique_ptr<shotcrete_ros::ShotcreteNode> node;
+  try {
+    node = std::make_unique<shotcrete_ros::ShotcreteNode>(nh, pnh);
+  } catch (const std::exception& e) {
+    ROS_FATAL("shotcrete_node cannot start: %s", e.what());
+    return 1;
+  }
+  ros::AsyncSpinner spinner(3);  // services block while planning / executing; topics keep flowing
+  spinner.start();
+  bool auto_plan = false, auto_execute = false;
+  pnh.param("auto_plan", auto_plan, false);
+  pnh.param("auto_execute", auto_execute, false);
+  try {
+    const bool have_cloud = node->load_initial_cloud();
+    if (have_cloud && auto_plan) {
+      std::string summary;
+      if (node->plan(summary)) {
+        ROS_INFO("plan: %s", summary.c_str());
+        if (auto_execute) {
+          if (node->execute(summary))
+            ROS_INFO("execute: %s", summary.c_str());
+          else
+            ROS_WARN("execute: %s", summary.c_str());
+        }
+      } else {
+        ROS_ERROR("plan: %s", summary.c_str());
+      }
+    }
+  } catch (const std::exception& e) {
+    ROS_FATAL("shotcrete_node: %s", e.what());
+    return 1;
+  }
+  ros::waitForShutdown();
+  return 0;
+}

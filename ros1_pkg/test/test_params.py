@@ -1,0 +1,56 @@
+#!/usr/bin/python3
+"""rostest: ~<section>/<key> parameters override the YAML config one value at a time (seen in the
+synthetic bay the node generates), and a misspelt key, a wrong type or an out-of-range value stop
+the node with a message naming the parameter."""
+import math
+import os
+import subprocess
+import sys
+import unittest
+
+import roslib.packages
+import rospy
+import rostest
+from sensor_msgs.msg import PointCloud2
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import shotcrete_test_utils as u  # noqa: E402
+
+
+class Params(unittest.TestCase):
+    def test_overrides_shape_the_synthetic_bay(self):
+        clouds = u.Collector(u.NS + "/cloud", PointCloud2)
+        msg = clouds.wait(timeout=60)
+        self.assertIsNotNone(msg, "no cloud from the synthetic bay")
+        xyz, td = u.cloud_arrays(msg)
+        xs = [p[0] for p in xyz]
+        th = [math.atan2(p[2], p[1]) for p in xyz]
+        # Overrides from the launch file: length 0.3 m (default 1.2), theta 1.2 .. 1.8 rad (default 0 .. pi).
+        self.assertLess(max(xs), 0.3 + 1e-3)
+        self.assertGreater(max(xs), 0.25)
+        self.assertGreater(min(th), 1.2 - 0.01)
+        self.assertLess(max(th), 1.8 + 0.01)
+        self.assertGreater(max(th) - min(th), 0.55)
+
+    def run_node(self, name, params):
+        for k, v in params.items():
+            rospy.set_param("/%s/%s" % (name, k), v)
+        exe = roslib.packages.find_node("shotcrete_ros", "shotcrete_node")[0]
+        p = subprocess.run([exe, "__name:=" + name], capture_output=True, text=True, timeout=60)
+        return p.returncode, p.stdout + p.stderr
+
+    def test_bad_parameters_stop_the_node(self):
+        cases = [
+            ("typo_node", {"synth/lenght_m": 0.5}, "unknown config parameter /typo_node/synth/lenght_m"),
+            ("type_node", {"synth/pit_count": "many"}, "/type_node/synth/pit_count: expected an integer"),
+            ("range_node", {"synth/length_m": 50.0}, "length_m"),
+        ]
+        for name, params, text in cases:
+            code, out = self.run_node(name, params)
+            self.assertEqual(code, 1, out)
+            self.assertIn(text, out)
+
+
+if __name__ == "__main__":
+    rospy.init_node("test_params")
+    rostest.rosrun("shotcrete_ros", "params", Params, sys.argv)
