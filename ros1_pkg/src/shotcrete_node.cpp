@@ -182,7 +182,7 @@ class ShotcreteNode {
     try {
       std::vector<std::vector<shotcrete::Pass>> regions;
       for (const auto& round : plan->rounds)
-        for (const auto& region : round.regions) regions.push_back(spraying_order(region));
+        for (const auto& region : round.regions) regions.push_back(region.passes);  // in spraying order
       *trajectory = shotcrete::time_plan(*robot_, regions, robot_->neutral(), config_.timing, config_.robot);
     } catch (const std::exception& e) {
       // The plan stays usable (markers, summary); only ~execute needs the trajectory.
@@ -371,17 +371,6 @@ class ShotcreteNode {
   // ---------------------------------------------------------------------------------------------
   // Execution helpers
   // ---------------------------------------------------------------------------------------------
-  /// Passes of a region in the order the nozzle sprays them (a reversed region runs from its
-  /// last pass back to the first, each pass backwards).
-  static std::vector<shotcrete::Pass> spraying_order(const shotcrete::RegionPlan& region) {
-    std::vector<shotcrete::Pass> passes = region.passes;
-    if (region.reversed) {
-      std::reverse(passes.begin(), passes.end());
-      for (auto& p : passes) std::reverse(p.waypoints.begin(), p.waypoints.end());
-    }
-    return passes;
-  }
-
   shotcrete::SpotModel spot_model() const {
     return shotcrete::spot_model_from_config(config_.deposition);
   }
@@ -502,7 +491,7 @@ class ShotcreteNode {
       bool have_prev = false;
       Eigen::Vector3d prev_end = Eigen::Vector3d::Zero();
       for (const auto& region : round.regions) {
-        const auto ordered = spraying_order(region);
+        const auto& ordered = region.passes;  // in spraying order (reversed regions already flipped)
         for (const auto& pass : ordered) {
           const auto c = colormap(vmax > vmin ? (pass.speed_mps - vmin) / (vmax - vmin) : 0.5);
           for (std::size_t i = 1; i < pass.waypoints.size(); ++i) {
