@@ -96,6 +96,8 @@ template <class F> void visit(RobotConfig*, F&& f) {
   f("ik_position_tolerance_m", &RobotConfig::ik_position_tolerance_m, 1e-6, 0.1, "IK position tolerance [m]");
   f("ik_angle_tolerance_rad", &RobotConfig::ik_angle_tolerance_rad, 1e-5, 0.5, "IK axis tolerance [rad]");
   f("ik_max_restarts", &RobotConfig::ik_max_restarts, 0, 10000, "random restarts per failed solve");
+  f("ik_max_iterations", &RobotConfig::ik_max_iterations, 1, 100000, "IK iterations per attempt");
+  f("ik_max_joint_step", &RobotConfig::ik_max_joint_step, 0.001, 10.0, "max joint change between waypoints [rad or m]");
 }
 template <class F> void visit(TimingConfig*, F&& f) {
   f("trajectory_rate_hz", &TimingConfig::trajectory_rate_hz, 1.0, 1000.0, "trajectory sampling [Hz]");
