@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <cmath>
 #include <iomanip>
 #include <memory>
@@ -564,6 +565,7 @@ class ShotcreteNode {
 }  // namespace shotcrete_ros
 
 int main(int argc, char** argv) {
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // log lines appear at once when stdout is a file
   ros::init(argc, argv, "shotcrete_node");
   ros::NodeHandle nh, pnh("~");
   std::unique_ptr<shotcrete_ros::ShotcreteNode> node;

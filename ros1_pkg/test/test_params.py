@@ -51,6 +51,30 @@ class Params(unittest.TestCase):
             self.assertIn(text, out)
 
 
+    def test_cloud_file_input(self):
+        path = os.path.join(os.environ.get("ROS_HOME", "/tmp"), "strip.xyz")
+        points = u.bay_points(length_m=0.4)
+        with open(path, "w") as f:
+            for p in points:
+                f.write("%.6f %.6f %.6f\n" % p)
+        clouds = u.Collector("/file_node/cloud", PointCloud2)
+        exe = roslib.packages.find_node("shotcrete_ros", "shotcrete_node")[0]
+        node = subprocess.Popen([exe, "__name:=file_node", "_cloud_file:=" + path],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            msg = clouds.wait(timeout=60)
+            self.assertIsNotNone(msg, "no cloud from ~cloud_file")
+            xyz, td = u.cloud_arrays(msg)
+            self.assertGreater(len(xyz), 0.9 * len(points))
+            self.assertLess(max(p[0] for p in xyz), 0.4 + 1e-3)  # the file, not the synthetic bay
+        finally:
+            node.terminate()
+            node.wait(timeout=20)
+        code, out = self.run_node("missing_file_node", {"cloud_file": path + ".missing.xyz"})
+        self.assertEqual(code, 1, out)
+        self.assertIn("strip.xyz.missing.xyz", out)
+
+
 if __name__ == "__main__":
     rospy.init_node("test_params")
     rostest.rosrun("shotcrete_ros", "params", Params, sys.argv)

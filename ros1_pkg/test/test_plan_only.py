@@ -1,0 +1,37 @@
+#!/usr/bin/python3
+"""rostest: plan_only.launch plans the synthetic bay at startup and publishes the summary, the
+passes, the levels and the TD cloud without anybody calling a service."""
+import os
+import sys
+import unittest
+
+import rospy
+import rostest
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from visualization_msgs.msg import MarkerArray
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import shotcrete_test_utils as u  # noqa: E402
+
+
+class PlanOnly(unittest.TestCase):
+    def test_plans_at_startup(self):
+        summary = u.Collector(u.NS + "/summary", String)
+        passes = u.Collector(u.NS + "/passes", MarkerArray)
+        levels = u.Collector(u.NS + "/grid_levels", MarkerArray)
+        clouds = u.Collector(u.NS + "/cloud", PointCloud2)
+        s = summary.wait(timeout=90)
+        self.assertIsNotNone(s, "no plan summary")
+        self.assertIn("stop='flush'", s.data)
+        self.assertIn("levels_after={", s.data)
+        self.assertIsNotNone(passes.wait(lambda m: any(k.ns == "passes" and k.points for k in m.markers), 10))
+        self.assertIsNotNone(levels.wait(lambda m: any(k.points for k in m.markers), 10))
+        c = clouds.wait(timeout=10)
+        self.assertIsNotNone(c)
+        self.assertGreater(c.width * c.height, 1000)
+
+
+if __name__ == "__main__":
+    rospy.init_node("test_plan_only")
+    rostest.rosrun("shotcrete_ros", "plan_only", PlanOnly, sys.argv)
