@@ -124,6 +124,7 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
 
 
 from .cli_order import register as _register_order; _register_order(app)  # noqa: E402,E702
+from .cli_deposition import register as _register_deposition; _register_deposition(app)  # noqa: E402,E702
 from .cli_robot import register as _register_robot; _register_robot(app)  # noqa: E402,E702
 
 

@@ -62,9 +62,11 @@ struct SynthConfig {
 
 struct DepositionConfig {
   double reference_standoff_m = 1.0;  // H0: standoff of the spot model
-  double spot_radius_m = 0.201;       // R at H0 (cone half-angle = atan(R / H0))
-  double spot_beta = 2.2;             // spot exponent; stroke exponent = beta - 1/2
-  double peak_rate_mps = 0.0;         // q_max at H0, m/s of thickness; 0 = derive from the stroke fit
+  // Defaults: fit of data/deposition_stroke.csv (`shotcrete deposition fit`, stroke MSE 0.46 mm^2);
+  // test Fit.ConfigDefaultsMatchFreshFit keeps them in step with the data.
+  double spot_radius_m = 0.1924;      // R at H0 (cone half-angle = atan(R / H0) = 10.9 deg)
+  double spot_beta = 2.015;           // spot exponent; stroke exponent = beta - 1/2
+  double peak_rate_mps = 0.025;       // q_max at H0, m/s of thickness, sprayed (before rebound); must be > 0
   double rebound_fraction = 0.08;     // share of sprayed concrete that does not stay on the wall
   double nominal_flow_m3ph = 5.0;     // machine's nominal concrete flow
 };

@@ -60,7 +60,7 @@ template <class F> void visit(DepositionConfig*, F&& f) {
   f("reference_standoff_m", &DepositionConfig::reference_standoff_m, 0.1, 5.0, "H0 of the spot model [m]");
   f("spot_radius_m", &DepositionConfig::spot_radius_m, 0.01, 2.0, "spot radius R at H0 [m]");
   f("spot_beta", &DepositionConfig::spot_beta, 1.0, 20.0, "spot exponent beta");
-  f("peak_rate_mps", &DepositionConfig::peak_rate_mps, 0.0, 1.0, "spot centre rate q_max [m/s]; 0 = from the stroke fit");
+  f("peak_rate_mps", &DepositionConfig::peak_rate_mps, 1e-6, 1.0, "spot centre rate q_max, sprayed [m/s]");
   f("rebound_fraction", &DepositionConfig::rebound_fraction, 0.0, 0.9, "share that rebounds");
   f("nominal_flow_m3ph", &DepositionConfig::nominal_flow_m3ph, 0.1, 100.0, "nominal concrete flow [m^3/h]");
 }

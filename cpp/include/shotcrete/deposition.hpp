@@ -3,9 +3,12 @@
 // stroke profile, free-form thickness rate on a cloud with normals, accumulation along nozzle
 // paths, rebound, and the golden-section pass spacing.
 #include <memory>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "shotcrete/config.hpp"
+#include "shotcrete/grid.hpp"
 #include "shotcrete/types.hpp"
 
 namespace shotcrete {
@@ -24,32 +27,45 @@ struct SpotModel {
   double volume_rate_m3ps() const;
 };
 
-/// The spot model of the config (deposition section).
+/// The spot model of the config (deposition section). Throws std::invalid_argument if
+/// peak_rate_mps <= 0 (there is no implicit fit: run `shotcrete deposition fit` and set it), if
+/// spot_radius_m <= 0 or spot_beta < 1.
 SpotModel spot_model_from_config(const DepositionConfig& config);
 
 /// Closed-form cross profile of a straight pass at speed v over a plane at H0:
 /// T(x) = (q_max / v) R B(1/2, beta) (1 - x^2/R^2)^(beta - 1/2)   [m].
 double stroke_thickness_m(const SpotModel& model, double x_m, double speed_mps);
 
-/// A measured stroke: thickness across one pass (metres), with its standoff and speed.
+/// A measured stroke: thickness across one pass (metres), with its standoff and speed. The stroke
+/// is what stayed on the wall, i.e. after a rebound of `rebound_fraction`.
 struct StrokeData {
   std::vector<double> position_m;
   std::vector<double> thickness_m;
   double standoff_m = 1.0;
   double speed_mps = 0.15;
+  double rebound_fraction = 0.08;
 };
-/// Reads position_mm,thickness_mm CSV; throws std::invalid_argument for < 5 rows, non-numeric
-/// cells, negative or all-zero thickness.
-StrokeData read_stroke_csv(const std::string& path, double standoff_m = 1.0, double speed_mps = 0.15);
+/// Reads position_mm,thickness_mm CSV (header line optional); throws std::invalid_argument for
+/// < 5 rows, non-numeric cells, negative or all-zero thickness, non-positive standoff/speed.
+StrokeData read_stroke_csv(const std::string& path, double standoff_m = 1.0, double speed_mps = 0.15,
+                           double rebound_fraction = 0.08);
 
 struct StrokeFit {
-  SpotModel model;
+  SpotModel model;               // sprayed rates: q_max = deposited fit / (1 - rebound)
   double stroke_exponent = 0.0;  // beta - 1/2
-  double peak_thickness_m = 0.0; // T(0) at the test speed
+  double peak_thickness_m = 0.0; // deposited T(0) at the test speed (the measured quantity)
   double mse_mm2 = 0.0;          // mean squared error of the stroke profile [mm^2]
   double flow_m3ph = 0.0;        // implied sprayed flow at the test speed [m^3/h]
+  double deposited_flow_m3ph = 0.0;  // what stayed on the wall: flow * (1 - rebound) [m^3/h]
+  double center_offset_m = 0.0;  // fitted pass centre in the CSV's position frame
+  double speed_mps = 0.15;
+  double rebound_fraction = 0.08;
+  int evaluations = 0;           // objective evaluations of the optimiser
+  /// Fitted deposited stroke at CSV position x [m].
+  double stroke_at_m(double x_m) const;
 };
-/// Least-squares fit of (R, beta, q_max) to a measured stroke through the closed form.
+/// Least-squares fit of (R, beta, q_max, centre offset) to a measured stroke through the closed
+/// form: q_max in closed form (linear), (R, beta, offset) by multi-start NLopt BOBYQA.
 StrokeFit fit_stroke(const StrokeData& data);
 
 /// Nozzle pose: position and unit spray axis (roll about the axis does not matter).
@@ -67,13 +83,22 @@ double point_rate_mps(const SpotModel& model, const NozzlePose& nozzle, const Ei
 /// without scanning the whole cloud. Build once per cloud; rebuild after moving points.
 class SurfaceIndex {
  public:
-  explicit SurfaceIndex(const Cloud& cloud);  // cloud must have normals
+  /// Cloud must have finite points and unit normals toward the side the nozzle sprays from.
+  /// cell_size_m: edge of the dense voxel grid (grown automatically to cap memory).
+  explicit SurfaceIndex(const Cloud& cloud, double cell_size_m = 0.05);
   ~SurfaceIndex();
   SurfaceIndex(SurfaceIndex&&) noexcept;
   SurfaceIndex& operator=(SurfaceIndex&&) noexcept;
   const Cloud& cloud() const;
   /// Indices of points within `radius_m` of `center`.
   void within(const Eigen::Vector3d& center, double radius_m, std::vector<int>& out) const;
+  double cell_size_m() const;
+  /// Ball (centre, radius) that contains every point of the cloud this nozzle can reach (inside
+  /// the cone) on the first surface along its axis; see deposition.cpp for the bound.
+  std::pair<Eigen::Vector3d, double> reach_ball(const SpotModel& model, const NozzlePose& nozzle) const;
+  /// Adds rate_mps(point) * weight to out[point] for every point reachable from `nozzle`
+  /// (eq. 2-13); only the points in reach_ball are visited.
+  void add_rates(const SpotModel& model, const NozzlePose& nozzle, double weight, Eigen::VectorXd& out) const;
 
  private:
   struct Impl;
@@ -85,6 +110,15 @@ class SurfaceIndex {
 void accumulate_dwells(const SpotModel& model, const SurfaceIndex& surface, const std::vector<NozzlePose>& poses,
                        const std::vector<double>& dwell_s, double rebound_fraction, Eigen::VectorXd& thickness_m);
 
+/// The samples of a pass: the polyline resampled at the midpoints of n = ceil(length / step_m)
+/// equal intervals (step <= step_m, midpoint rule), each dwelling step / speed.
+struct PassSamples {
+  std::vector<NozzlePose> poses;
+  std::vector<double> dwell_s;
+  double length_m = 0.0;
+};
+PassSamples resample_pass(const std::vector<NozzlePose>& polyline, double speed_mps, double step_m);
+
 /// Same for a nozzle moving along a polyline of poses at constant speed: the path is resampled at
 /// `step_m` (poses interpolated, axes renormalised) and each sample dwells step / speed.
 void accumulate_pass(const SpotModel& model, const SurfaceIndex& surface, const std::vector<NozzlePose>& polyline,
@@ -92,6 +126,8 @@ void accumulate_pass(const SpotModel& model, const SurfaceIndex& surface, const 
 
 /// Moves every point along its (unit, inward) normal by its thickness: the sprayed surface.
 Cloud apply_thickness(const Cloud& cloud, const Eigen::VectorXd& thickness_m);
+/// Lowers the TD of every valid grid cell by the mean thickness of the cloud points in it.
+void apply_thickness_to_grid(Grid& grid, const Cloud& cloud, const Eigen::VectorXd& thickness_m);
 
 /// Golden-section pass spacing (thesis 3.5): the overlap in [0, R] (design; widened if the optimum
 /// sits on the bound) of two parallel strokes that

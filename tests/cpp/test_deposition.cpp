@@ -1,0 +1,531 @@
+// Deposition model: stroke fit vs the measured CSV and an exhaustive grid, eq. 2-13 on planes and a
+// cylinder vs independent quadrature, mass balance, spatial index vs brute force, pass spacing vs
+// an exhaustive scan, bad inputs.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <iostream>
+#include <random>
+#include <string>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/deposition.hpp"
+#include "shotcrete/grid.hpp"
+#include "shotcrete/synth.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+const std::string kCsv = std::string(SHOTCRETE_DATA_DIR) + "/deposition_stroke.csv";
+
+StrokeFit measured_fit() {
+  static const StrokeFit fit = fit_stroke(read_stroke_csv(kCsv, 1.0, 0.15, 0.08));
+  return fit;
+}
+
+std::string write_tmp(const std::string& name, const std::string& text) {
+  const std::string path = ::testing::TempDir() + "/" + name;
+  std::ofstream(path) << text;
+  return path;
+}
+
+// Lattice on the plane through `origin` spanned by unit u, v, normal n = unit(u x v) flipped to
+// `toward`; spacing h, extents [-a, a] x [-b, b]. Each point stands for an area h^2.
+Cloud plane_lattice(const Eigen::Vector3d& origin, const Eigen::Vector3d& u, const Eigen::Vector3d& v, double a, double b,
+                    double h, const Eigen::Vector3d& toward) {
+  Eigen::Vector3d n = u.cross(v).normalized();
+  if (n.dot(toward) < 0) n = -n;
+  const int nu = static_cast<int>(std::round(2 * a / h)), nv = static_cast<int>(std::round(2 * b / h));
+  Cloud c;
+  c.xyz.resize(static_cast<Eigen::Index>(nu) * nv, 3);
+  c.normals.resize(c.xyz.rows(), 3);
+  Eigen::Index k = 0;
+  for (int i = 0; i < nu; ++i)
+    for (int j = 0; j < nv; ++j) {
+      c.xyz.row(k) = (origin + (-a + (i + 0.5) * h) * u + (-b + (j + 0.5) * h) * v).transpose();
+      c.normals.row(k++) = n.transpose();
+    }
+  return c;
+}
+
+// Independent eq. 2-13: r_proj from the intersection of the ray with the reference plane at H0,
+// angles from acos, q0 from the spot formula.
+double reference_rate(const SpotModel& m, const Eigen::Vector3d& c, const Eigen::Vector3d& axis, const Eigen::Vector3d& p,
+                      const Eigen::Vector3d& n) {
+  const Eigen::Vector3d a = axis.normalized(), d = p - c;
+  const double L = d.norm();
+  if (d.dot(a) <= 0) return 0;
+  const Eigen::Vector3d hit = c + d * (m.reference_standoff_m / d.dot(a));
+  const double r_proj = (hit - (c + m.reference_standoff_m * a)).norm();
+  const double theta = std::acos(std::min(1.0, d.dot(a) / L));
+  const double gamma = std::acos(std::clamp(n.normalized().dot(-d / L), -1.0, 1.0));
+  if (r_proj >= m.radius_m || gamma >= kPi / 2) return 0;
+  const double q0 = m.peak_rate_mps * std::pow(1 - r_proj * r_proj / (m.radius_m * m.radius_m), m.beta - 1);
+  return q0 * std::pow(m.reference_standoff_m / L, 2) * std::cos(gamma) / std::pow(std::cos(theta), 3);
+}
+
+// Composite Simpson over the straight pass c(s) = c0 + s e, s in [0, len], at speed v.
+double reference_pass(const SpotModel& m, const Eigen::Vector3d& c0, const Eigen::Vector3d& e, double len,
+                      const Eigen::Vector3d& axis, double v, double rebound, const Eigen::Vector3d& p,
+                      const Eigen::Vector3d& n, int intervals = 20000) {
+  const double h = len / intervals;
+  double sum = 0;
+  for (int k = 0; k <= intervals; ++k) {
+    const double w = (k == 0 || k == intervals) ? 1 : (k % 2 ? 4 : 2);
+    sum += w * reference_rate(m, c0 + k * h * e, axis, p, n);
+  }
+  return sum * h / 3 / v * (1 - rebound);
+}
+
+SpotModel default_model() { return spot_model_from_config(DepositionConfig{}); }
+
+}  // namespace
+
+// ------------------------------------------------------------------ fit
+
+TEST(Fit, BeatsPublishedStrokeMse) {
+  const StrokeFit fit = measured_fit();
+  std::cout << "fit: R = " << fit.model.radius_m * 1e3 << " mm, cone half-angle = "
+            << fit.model.cone_half_angle_rad() * 180 / kPi << " deg, beta = " << fit.model.beta
+            << ", stroke exponent = " << fit.stroke_exponent << ", q_max = " << fit.model.peak_rate_mps * 1e3
+            << " mm/s, peak = " << fit.peak_thickness_m * 1e3 << " mm, offset = " << fit.center_offset_m * 1e3
+            << " mm, MSE = " << fit.mse_mm2 << " mm^2, flow = " << fit.flow_m3ph << " m^3/h sprayed, "
+            << fit.deposited_flow_m3ph << " m^3/h deposited, " << fit.evaluations << " evaluations\n";
+  EXPECT_LT(fit.mse_mm2, 1.2);
+  // The published parameters (stroke exponent 1.7, R 201 mm, peak 39.6 mm) on the same data.
+  const StrokeData d = read_stroke_csv(kCsv);
+  double pub = 0, ours = 0;
+  for (size_t i = 0; i < d.position_m.size(); ++i) {
+    const double x = d.position_m[i] * 1e3, u = x / 201.0;
+    const double tp = u * u < 1 ? 39.6 * std::pow(1 - u * u, 1.7) : 0.0;
+    pub += std::pow(tp - d.thickness_m[i] * 1e3, 2);
+    ours += std::pow(fit.stroke_at_m(d.position_m[i]) * 1e3 - d.thickness_m[i] * 1e3, 2);
+  }
+  pub /= d.position_m.size();
+  ours /= d.position_m.size();
+  EXPECT_NEAR(ours, fit.mse_mm2, 1e-9);  // the reported MSE is the MSE of the reported profile
+  EXPECT_LT(fit.mse_mm2, pub);
+}
+
+TEST(Fit, OptimumNotBeatenByExhaustiveGrid) {
+  // Independent brute force: grid over (R, p, x0) with the amplitude by linear least squares.
+  const StrokeData d = read_stroke_csv(kCsv);
+  const StrokeFit fit = measured_fit();
+  double best = 1e300;
+  for (double R = 150; R <= 260; R += 0.5)
+    for (double p = 0.8; p <= 3.0; p += 0.01)
+      for (double x0 = -10; x0 <= 10; x0 += 1.0) {
+        double ft = 0, ff = 0;
+        std::vector<double> f(d.position_m.size());
+        for (size_t i = 0; i < f.size(); ++i) {
+          const double u = (d.position_m[i] * 1e3 - x0) / R;
+          f[i] = u * u < 1 ? std::pow(1 - u * u, p) : 0;
+          ft += f[i] * d.thickness_m[i] * 1e3;
+          ff += f[i] * f[i];
+        }
+        double s = 0;
+        for (size_t i = 0; i < f.size(); ++i) s += std::pow(ft / ff * f[i] - d.thickness_m[i] * 1e3, 2);
+        best = std::min(best, s / f.size());
+      }
+  EXPECT_LE(fit.mse_mm2, best + 1e-9);
+  EXPECT_GT(fit.mse_mm2, best - 0.02);  // a 0.5 mm / 0.01 / 1 mm grid lands close to the optimum
+}
+
+TEST(Fit, RecoversKnownParameters) {
+  SpotModel truth;
+  truth.radius_m = 0.23;
+  truth.beta = 2.7;
+  truth.peak_rate_mps = 0.03;
+  StrokeData d;
+  d.speed_mps = 0.2;
+  d.rebound_fraction = 0.1;
+  for (double x = -0.3; x <= 0.3001; x += 0.015) {
+    d.position_m.push_back(x + 0.004);
+    d.thickness_m.push_back(stroke_thickness_m(truth, x, d.speed_mps) * (1 - d.rebound_fraction));
+  }
+  const StrokeFit fit = fit_stroke(d);
+  EXPECT_NEAR(fit.model.radius_m, truth.radius_m, 1e-5);
+  EXPECT_NEAR(fit.model.beta, truth.beta, 1e-4);
+  EXPECT_NEAR(fit.model.peak_rate_mps / truth.peak_rate_mps, 1.0, 1e-4);
+  EXPECT_NEAR(fit.center_offset_m, 0.004, 1e-6);
+  EXPECT_LT(fit.mse_mm2, 1e-8);
+}
+
+TEST(Fit, FlowAgreesWithNominalWithinRebound) {
+  // The stroke is what stayed on the wall, so the deposited flow must lie between the nominal
+  // pump flow (nothing lost) and the nominal flow minus the assumed rebound share (8%).
+  const StrokeFit fit = measured_fit();
+  const DepositionConfig cfg;
+  EXPECT_LE(fit.deposited_flow_m3ph, cfg.nominal_flow_m3ph);
+  EXPECT_GE(fit.deposited_flow_m3ph, cfg.nominal_flow_m3ph * (1 - cfg.rebound_fraction));
+  // Second method: trapezoid area of the measured points times the speed.
+  const StrokeData d = read_stroke_csv(kCsv);
+  double area = 0;
+  for (size_t i = 1; i < d.position_m.size(); ++i)
+    area += 0.5 * (d.thickness_m[i] + d.thickness_m[i - 1]) * (d.position_m[i] - d.position_m[i - 1]);
+  EXPECT_NEAR(area * d.speed_mps * 3600 / fit.deposited_flow_m3ph, 1.0, 0.03);
+  EXPECT_NEAR(fit.flow_m3ph * (1 - 0.08), fit.deposited_flow_m3ph, 1e-12);
+}
+
+TEST(Fit, ConfigDefaultsMatchFreshFit) {
+  const StrokeFit fit = measured_fit();
+  const DepositionConfig cfg;
+  EXPECT_NEAR(cfg.spot_radius_m, fit.model.radius_m, 1e-4);
+  EXPECT_NEAR(cfg.spot_beta, fit.model.beta, 1e-3);
+  EXPECT_NEAR(cfg.peak_rate_mps / fit.model.peak_rate_mps, 1.0, 1e-3);
+  EXPECT_EQ(cfg.reference_standoff_m, 1.0);
+  const SpotModel m = spot_model_from_config(cfg);
+  EXPECT_NEAR(m.volume_rate_m3ps() * 3600, fit.flow_m3ph, 0.01);
+}
+
+TEST(Fit, ZeroPeakRateInConfigIsRejected) {
+  DepositionConfig cfg;
+  cfg.peak_rate_mps = 0;
+  try {
+    spot_model_from_config(cfg);
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("peak_rate_mps"), std::string::npos);
+  }
+}
+
+TEST(Csv, BadInputsGiveClearErrors) {
+  auto expect_error = [](const std::string& text, const std::string& fragment) {
+    const std::string path = write_tmp("bad.csv", text);
+    try {
+      read_stroke_csv(path);
+      ADD_FAILURE() << "no error for:\n" << text;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+    }
+  };
+  expect_error("position_mm,thickness_mm\n0,1\n10,2\n20,3\n30,1\n", "at least 5");
+  expect_error("position_mm,thickness_mm\n0,1\n10,abc\n20,3\n30,1\n40,1\n", "non-numeric thickness 'abc'");
+  expect_error("position_mm,thickness_mm\n0,1\nx,2\n20,3\n30,1\n40,1\n", "non-numeric position");
+  expect_error("position_mm,thickness_mm\n0,1\n10,-2\n20,3\n30,1\n40,1\n", "negative thickness");
+  expect_error("position_mm,thickness_mm\n0,0\n10,0\n20,0\n30,0\n40,0\n", "all thickness values are zero");
+  expect_error("position_mm,thickness_mm\n0,1,3\n10,2\n20,3\n30,1\n40,1\n", "expected 2 columns");
+  expect_error("position_mm,thickness_mm\n0,1\n10,\n20,3\n30,1\n40,1\n", "non-numeric thickness");
+  EXPECT_THROW(read_stroke_csv("/nonexistent/stroke.csv"), std::invalid_argument);
+  // A valid file without header parses.
+  const StrokeData ok = read_stroke_csv(write_tmp("ok.csv", "0,1\n10,2\n20,3\n30,1\n40,1\n"));
+  EXPECT_EQ(ok.position_m.size(), 5u);
+  EXPECT_DOUBLE_EQ(ok.thickness_m[2], 0.003);
+}
+
+// ------------------------------------------------------------------ eq. 2-13
+
+TEST(PointRate, ReducesToSpotOnReferencePlaneAndCuts) {
+  const SpotModel m = default_model();
+  const NozzlePose nz{Eigen::Vector3d(0.3, -0.2, 0.1), Eigen::Vector3d(0, 0, 2)};
+  const Eigen::Vector3d n(0, 0, -1);
+  for (double r : {0.0, 0.05, 0.1, 0.15, 0.19}) {
+    const Eigen::Vector3d p = nz.position_m + Eigen::Vector3d(r * 0.6, r * 0.8, 1.0);
+    EXPECT_NEAR(point_rate_mps(m, nz, p, n), m.rate_at(r), 1e-12);
+    EXPECT_NEAR(point_rate_mps(m, nz, p, n), reference_rate(m, nz.position_m, nz.axis, p, n), 1e-12);
+  }
+  // Twice the standoff: r_proj halves, rate falls with (H0 / L)^2 cos(gamma) / cos^3(theta).
+  const Eigen::Vector3d p2 = nz.position_m + Eigen::Vector3d(0.2, 0, 2.0);
+  EXPECT_NEAR(point_rate_mps(m, nz, p2, n), m.rate_at(0.1) / 4, 1e-12);
+  EXPECT_EQ(point_rate_mps(m, nz, nz.position_m + Eigen::Vector3d(0.25, 0, 1.0), n), 0.0);  // outside the cone
+  EXPECT_EQ(point_rate_mps(m, nz, nz.position_m + Eigen::Vector3d(0, 0, 1.0), -n), 0.0);     // faces away
+  EXPECT_EQ(point_rate_mps(m, nz, nz.position_m + Eigen::Vector3d(0, 0, -1.0), n), 0.0);     // behind
+  // gamma just below / above 90 deg on a steep wall inside the cone.
+  const Eigen::Vector3d p3 = nz.position_m + Eigen::Vector3d(0.1, 0, 1.0);
+  const Eigen::Vector3d ray = (p3 - nz.position_m).normalized(), perp = ray.cross(Eigen::Vector3d::UnitY());
+  EXPECT_GT(point_rate_mps(m, nz, p3, perp * (perp.dot(ray) > 0 ? -1 : 1) - 1e-3 * ray), 0.0);
+  EXPECT_EQ(point_rate_mps(m, nz, p3, perp * (perp.dot(ray) > 0 ? -1 : 1) + 1e-3 * ray), 0.0);
+}
+
+// ------------------------------------------------------------------ index
+
+TEST(SurfaceIndex, WithinMatchesBruteForce) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Cloud c;
+  c.xyz.resize(5000, 3);
+  c.normals.resize(5000, 3);
+  for (int i = 0; i < 5000; ++i) {
+    c.xyz.row(i) << u(rng), 2 * u(rng), 0.3 * u(rng);
+    c.normals.row(i) << 0, 0, 1;
+  }
+  const SurfaceIndex idx(c, 0.07);
+  std::vector<int> got;
+  for (int q = 0; q < 50; ++q) {
+    const Eigen::Vector3d center(1.2 * u(rng), 2.2 * u(rng), 0.5 * u(rng));
+    const double r = 0.05 + 0.5 * std::abs(u(rng));
+    idx.within(center, r, got);
+    std::vector<int> want;
+    for (int i = 0; i < 5000; ++i)
+      if ((c.xyz.row(i).transpose() - center).norm() <= r) want.push_back(i);
+    ASSERT_EQ(got, want) << "query " << q;
+  }
+  EXPECT_THROW(SurfaceIndex(Cloud{c.xyz, Points()}), std::invalid_argument);
+}
+
+TEST(SurfaceIndex, ReachBallHoldsEveryReachablePoint) {
+  // Synthetic bay with pits: for random nozzle poses, every point with a non-zero rate
+  // (brute force over the whole cloud) lies inside the query ball.
+  SynthConfig sc;
+  sc.points_per_cell = 6;
+  const SyntheticBay bay = make_synthetic_bay(sc);
+  Cloud c = bay.sample(0.05);
+  c.normals.resize(c.size(), 3);
+  for (Eigen::Index i = 0; i < c.size(); ++i) {  // exact-enough normals: radial, toward the axis
+    const Eigen::Vector3d p = c.xyz.row(i);
+    c.normals.row(i) = -Eigen::Vector3d(0, p.y(), p.z()).normalized().transpose();
+  }
+  const SurfaceIndex idx(c);
+  const SpotModel m = default_model();
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0, 1);
+  int reached_total = 0;
+  for (int q = 0; q < 40; ++q) {
+    const double th = 0.2 + 2.7 * u(rng), d = 1.2 * u(rng), tilt = 0.5 * (u(rng) - 0.5);
+    const Eigen::Vector3d radial(0, std::cos(th), std::sin(th)), along(1, 0, 0);
+    NozzlePose nz{Eigen::Vector3d(d, 0, 0) + (5.6 + 0.15 - 1.0 - 0.3 * u(rng)) * radial,
+                  (radial + tilt * along + 0.3 * (u(rng) - 0.5) * radial.cross(along)).normalized()};
+    const auto [center, radius] = idx.reach_ball(m, nz);
+    for (Eigen::Index i = 0; i < c.size(); ++i) {
+      if (point_rate_mps(m, nz, c.xyz.row(i).transpose(), c.normals.row(i).transpose()) <= 0) continue;
+      ++reached_total;
+      ASSERT_LE((c.xyz.row(i).transpose() - center).norm(), radius) << "pose " << q;
+    }
+  }
+  EXPECT_GT(reached_total, 1000);
+}
+
+// ------------------------------------------------------------------ passes vs closed form / quadrature
+
+TEST(Pass, PlaneReproducesMeasuredStroke) {
+  // Nozzle 1 m below the plane z = 1, passing along x at y = the fitted centre; the deposited
+  // cross profile at x = 0 must match the CSV within the fit's own error.
+  const StrokeFit fit = measured_fit();
+  const StrokeData d = read_stroke_csv(kCsv);
+  Cloud c;
+  c.xyz.resize(d.position_m.size(), 3);
+  c.normals.resize(d.position_m.size(), 3);
+  for (size_t i = 0; i < d.position_m.size(); ++i) {
+    c.xyz.row(i) << 0.0, d.position_m[i], 1.0;
+    c.normals.row(i) << 0, 0, -1;
+  }
+  const SurfaceIndex idx(c);
+  const std::vector<NozzlePose> line{{Eigen::Vector3d(-0.6, fit.center_offset_m, 0), Eigen::Vector3d::UnitZ()},
+                                     {Eigen::Vector3d(0.6, fit.center_offset_m, 0), Eigen::Vector3d::UnitZ()}};
+  Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+  accumulate_pass(fit.model, idx, line, 0.15, 0.005, 0.08, t);
+  double mse = 0;
+  for (size_t i = 0; i < d.position_m.size(); ++i) {
+    mse += std::pow((t[i] - d.thickness_m[i]) * 1e3, 2);
+    EXPECT_NEAR(t[i], fit.stroke_at_m(d.position_m[i]), 2e-5) << "closed form at " << d.position_m[i];
+  }
+  mse /= d.position_m.size();
+  EXPECT_LT(mse, fit.mse_mm2 * 1.02 + 1e-3);
+}
+
+TEST(Pass, InclinedPlaneMatchesQuadrature) {
+  const SpotModel m = default_model();
+  const double tilt = 30 * kPi / 180;
+  const Eigen::Vector3d u(1, 0, 0), v(0, std::cos(tilt), std::sin(tilt));
+  const Cloud c = plane_lattice(Eigen::Vector3d(0, 0, 1.0), u, v, 0.5, 0.5, 0.01, -Eigen::Vector3d::UnitZ());
+  const SurfaceIndex idx(c);
+  const Eigen::Vector3d c0(-0.4, 0.05, 0.0), e(1, 0, 0), axis(0, 0.2, 1);
+  const std::vector<NozzlePose> line{{c0, axis}, {c0 + 0.8 * e, axis}};
+  Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+  accumulate_pass(m, idx, line, 0.2, 0.001, 0.08, t);
+  const double peak = t.maxCoeff();
+  ASSERT_GT(peak, 0.005);
+  int checked = 0;
+  for (Eigen::Index i = 0; i < c.size(); i += 37) {
+    const double ref = reference_pass(m, c0, e, 0.8, axis, 0.2, 0.08, c.xyz.row(i).transpose(), c.normals.row(i).transpose());
+    ASSERT_NEAR(t[i], ref, 2e-3 * peak) << "point " << i;
+    if (ref > 0.1 * peak) ++checked;
+  }
+  EXPECT_GT(checked, 50);
+}
+
+TEST(Pass, CylinderInsideMatchesQuadrature) {
+  // Inside of a cylinder of radius 5.6 around x; nozzle 1 m inside, axis tilted off radial.
+  const SpotModel m = default_model();
+  const double Rc = 5.6, h = 0.01;
+  Cloud c;
+  std::vector<Eigen::Vector3d> pts, nrm;
+  for (double x = -0.5; x <= 0.5; x += h)
+    for (double th = 1.3; th <= 1.85; th += h / Rc) {
+      pts.emplace_back(x, Rc * std::cos(th), Rc * std::sin(th));
+      nrm.emplace_back(0, -std::cos(th), -std::sin(th));
+    }
+  c.xyz.resize(pts.size(), 3);
+  c.normals.resize(pts.size(), 3);
+  for (size_t i = 0; i < pts.size(); ++i) {
+    c.xyz.row(i) = pts[i].transpose();
+    c.normals.row(i) = nrm[i].transpose();
+  }
+  const SurfaceIndex idx(c);
+  const double th0 = 1.55;
+  const Eigen::Vector3d radial(0, std::cos(th0), std::sin(th0));
+  const Eigen::Vector3d c0 = Eigen::Vector3d(-0.35, 0, 0) + (Rc - 1.0) * radial, e(1, 0, 0);
+  const Eigen::Vector3d axis = (radial + 0.15 * Eigen::Vector3d(0, -std::sin(th0), std::cos(th0))).normalized();
+  const std::vector<NozzlePose> line{{c0, axis}, {c0 + 0.7 * e, axis}};
+  Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+  accumulate_pass(m, idx, line, 0.15, 0.001, 0.08, t);
+  const double peak = t.maxCoeff();
+  ASSERT_GT(peak, 0.01);
+  int checked = 0;
+  for (Eigen::Index i = 0; i < c.size(); i += 23) {
+    const double ref = reference_pass(m, c0, e, 0.7, axis, 0.15, 0.08, c.xyz.row(i).transpose(), c.normals.row(i).transpose());
+    ASSERT_NEAR(t[i], ref, 2e-3 * peak) << "point " << i;
+    if (ref > 0.1 * peak) ++checked;
+  }
+  EXPECT_GT(checked, 50);
+}
+
+TEST(Pass, ConvergesWithStep) {
+  // Halving the step changes the thickness by less than 0.5% of the peak (10 mm -> 5 mm), and
+  // the change shrinks with the step (midpoint rule).
+  const SpotModel m = default_model();
+  const double tilt = 20 * kPi / 180;
+  const Cloud c = plane_lattice(Eigen::Vector3d(0, 0, 1.0), Eigen::Vector3d(1, 0, 0),
+                                Eigen::Vector3d(0, std::cos(tilt), std::sin(tilt)), 0.6, 0.4, 0.01, -Eigen::Vector3d::UnitZ());
+  const SurfaceIndex idx(c);
+  const std::vector<NozzlePose> line{{Eigen::Vector3d(-0.4, 0, 0), Eigen::Vector3d(0, 0, 1)},
+                                     {Eigen::Vector3d(0.0, 0.1, 0.05), Eigen::Vector3d(0.1, 0, 1)},
+                                     {Eigen::Vector3d(0.4, 0.0, 0), Eigen::Vector3d(0, -0.1, 1)}};
+  std::vector<Eigen::VectorXd> t;
+  for (double step : {0.02, 0.01, 0.005, 0.0025}) {
+    t.emplace_back(Eigen::VectorXd::Zero(c.size()));
+    accumulate_pass(m, idx, line, 0.15, step, 0.08, t.back());
+  }
+  const double peak = t.back().maxCoeff();
+  const double d1 = (t[1] - t[0]).cwiseAbs().maxCoeff(), d2 = (t[2] - t[1]).cwiseAbs().maxCoeff(),
+               d3 = (t[3] - t[2]).cwiseAbs().maxCoeff();
+  std::cout << "step convergence (max change / peak): 20->10 mm " << d1 / peak << ", 10->5 mm " << d2 / peak
+            << ", 5->2.5 mm " << d3 / peak << "\n";
+  EXPECT_LT(d2, 0.005 * peak);
+  EXPECT_LT(d3, d2);
+  EXPECT_LT(d2, d1);
+}
+
+TEST(Pass, MassBalanceOnLargePlane) {
+  // Volume left on a large inclined plane = q-integral x time x (1 - rebound), within 1%.
+  const SpotModel m = default_model();
+  const double tilt = 25 * kPi / 180, h = 0.005;
+  const Cloud c = plane_lattice(Eigen::Vector3d(0, 0, 1.0), Eigen::Vector3d(1, 0, 0),
+                                Eigen::Vector3d(0, std::cos(tilt), std::sin(tilt)), 1.0, 0.6, h, -Eigen::Vector3d::UnitZ());
+  const SurfaceIndex idx(c);
+  const double len = 1.0, v = 0.25, rebound = 0.08;
+  const std::vector<NozzlePose> line{{Eigen::Vector3d(-0.5, 0, 0.1), Eigen::Vector3d(0, 0.1, 1)},
+                                     {Eigen::Vector3d(0.5, 0, 0.1), Eigen::Vector3d(0, 0.1, 1)}};
+  Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+  accumulate_pass(m, idx, line, v, 0.005, rebound, t);
+  const double volume = t.sum() * h * h;
+  const double expected = m.volume_rate_m3ps() * (len / v) * (1 - rebound);
+  std::cout << "mass balance: deposited / expected = " << volume / expected << "\n";
+  EXPECT_NEAR(volume / expected, 1.0, 0.01);
+}
+
+TEST(Pass, DwellsEqualResampledPass) {
+  const SpotModel m = default_model();
+  const Cloud c = plane_lattice(Eigen::Vector3d(0, 0, 1.0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0), 0.5,
+                                0.3, 0.02, -Eigen::Vector3d::UnitZ());
+  const SurfaceIndex idx(c);
+  const std::vector<NozzlePose> line{{Eigen::Vector3d(-0.3, 0, 0), Eigen::Vector3d(0, 0, 1)},
+                                     {Eigen::Vector3d(0.3, 0, 0), Eigen::Vector3d(0, 0, 1)}};
+  const PassSamples s = resample_pass(line, 0.2, 0.007);
+  ASSERT_EQ(s.poses.size(), 86u);  // ceil(0.6 / 0.007)
+  EXPECT_NEAR(s.dwell_s[0] * s.poses.size(), 0.6 / 0.2, 1e-12);
+  EXPECT_NEAR(s.poses.front().position_m.x(), -0.3 + 0.5 * 0.6 / 86, 1e-12);
+  Eigen::VectorXd a = Eigen::VectorXd::Zero(c.size()), b = Eigen::VectorXd::Zero(c.size());
+  accumulate_pass(m, idx, line, 0.2, 0.007, 0.1, a);
+  accumulate_dwells(m, idx, s.poses, s.dwell_s, 0.1, b);
+  EXPECT_EQ(a, b);
+  // Brute force over the whole cloud with point_rate_mps gives the same sums.
+  Eigen::VectorXd brute = Eigen::VectorXd::Zero(c.size());
+  for (size_t k = 0; k < s.poses.size(); ++k)
+    for (Eigen::Index i = 0; i < c.size(); ++i)
+      brute[i] += point_rate_mps(m, s.poses[k], c.xyz.row(i).transpose(), c.normals.row(i).transpose()) * s.dwell_s[k] * 0.9;
+  EXPECT_LT((brute - a).cwiseAbs().maxCoeff(), 1e-15);
+  EXPECT_THROW(accumulate_pass(m, idx, {line[0]}, 0.2, 0.01, 0.1, a), std::invalid_argument);
+  EXPECT_THROW(accumulate_pass(m, idx, line, 0.0, 0.01, 0.1, a), std::invalid_argument);
+  EXPECT_THROW(accumulate_pass(m, idx, line, 0.2, 0.01, 1.0, a), std::invalid_argument);
+  Eigen::VectorXd wrong = Eigen::VectorXd::Zero(3);
+  EXPECT_THROW(accumulate_pass(m, idx, line, 0.2, 0.01, 0.1, wrong), std::invalid_argument);
+}
+
+TEST(Apply, MovesPointsAlongNormalsAndLowersGridTd) {
+  // Cylinder wall 0.1 m outside a 5.6 m design line; a uniform 20 mm layer lowers the TD of every
+  // cell by 20 mm, and re-gridding the moved cloud agrees.
+  const double R = 5.6, r = 5.7;
+  Cloud c;
+  std::vector<Eigen::Vector3d> pts;
+  for (double x = 0.005; x < 0.6; x += 0.01)
+    for (double th = 1.0; th < 2.0; th += 0.01 / r) pts.emplace_back(x, r * std::cos(th), r * std::sin(th));
+  c.xyz.resize(pts.size(), 3);
+  c.normals.resize(pts.size(), 3);
+  for (size_t i = 0; i < pts.size(); ++i) {
+    c.xyz.row(i) = pts[i].transpose();
+    c.normals.row(i) = -Eigen::Vector3d(0, pts[i].y(), pts[i].z()).normalized().transpose();
+  }
+  const Eigen::VectorXd t = Eigen::VectorXd::Constant(c.size(), 0.02);
+  const Cloud moved = apply_thickness(c, t);
+  for (Eigen::Index i = 0; i < c.size(); i += 97)
+    EXPECT_NEAR(Eigen::Vector3d(0, moved.xyz(i, 1), moved.xyz(i, 2)).norm(), r - 0.02, 1e-12);
+  TunnelAxis axis;
+  const DesignProfile profile{R};
+  Grid g = build_grid(c, axis, profile, GridConfig{}, 1.0);
+  const Grid after = build_grid(moved, axis, profile, GridConfig{}, 1.0);
+  const Eigen::VectorXd before = g.td_m;
+  apply_thickness_to_grid(g, c, t);
+  int checked = 0;
+  for (int cell = 0; cell < g.size(); ++cell) {
+    if (!g.valid[cell]) continue;
+    EXPECT_NEAR(g.td_m[cell], before[cell] - 0.02, 1e-12);
+    if (after.valid[cell]) {
+      EXPECT_NEAR(g.td_m[cell], after.td_m[cell], 1e-3);
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 100);
+  EXPECT_THROW(apply_thickness(c, Eigen::VectorXd::Zero(2)), std::invalid_argument);
+}
+
+// ------------------------------------------------------------------ pass spacing
+
+TEST(Spacing, GoldenMatchesExhaustiveScanAndIsScaleFree) {
+  const SpotModel m = default_model();
+  const double R = m.radius_m, p = m.beta - 0.5;
+  // Independent cost: two strokes of peak 1 at 0 and s, squared deviation from 1 on a 1 mm grid.
+  auto cost = [&](double overlap) {
+    const double s = 2 * R - overlap;
+    double j = 0;
+    for (int k = 0; k * 1e-3 <= s + 1e-12; ++k) {
+      double t = 0;
+      for (double x : {k * 1e-3, k * 1e-3 - s}) t += std::abs(x) < R ? std::pow(1 - x * x / (R * R), p) : 0;
+      j += (1 - t) * (1 - t);
+    }
+    return j;
+  };
+  double best_o = 0, best = 1e300;
+  for (double o = 0; o <= R; o += 0.0005)
+    if (const double j = cost(o); j < best) best = j, best_o = o;
+  const PassSpacing ps = pass_spacing(m, 0.05);
+  std::cout << "spacing: " << ps.spacing_m * 1e3 << " mm, overlap " << ps.overlap_m * 1e3 << " mm, band "
+            << ps.band_min_m * 1e3 << " .. " << ps.band_max_m * 1e3 << " mm for Td 50 mm (scan: overlap "
+            << best_o * 1e3 << " mm)\n";
+  EXPECT_NEAR(ps.overlap_m, best_o, 0.0005);
+  EXPECT_NEAR(ps.spacing_m, 2 * R - ps.overlap_m, 1e-12);
+  EXPECT_LE(cost(ps.overlap_m), best + 1e-9);
+  EXPECT_LT(ps.band_min_m, 0.05);
+  EXPECT_GT(ps.band_max_m, 0.05 * 0.9);
+  for (double td : {0.005, 0.02, 0.2}) {
+    const PassSpacing q = pass_spacing(m, td);
+    EXPECT_NEAR(q.overlap_m, ps.overlap_m, 1e-6);
+    EXPECT_NEAR(q.band_min_m / td, ps.band_min_m / 0.05, 1e-9);
+    EXPECT_NEAR(q.band_max_m / td, ps.band_max_m / 0.05, 1e-9);
+  }
+  EXPECT_THROW(pass_spacing(m, 0.0), std::invalid_argument);
+}

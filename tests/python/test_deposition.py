@@ -1,0 +1,148 @@
+"""Deposition model through the bindings and the CLI: JSON output, bad CSVs, dtypes and shapes."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import shotcrete
+from shotcrete import _core
+
+ROOT = Path(__file__).resolve().parents[2]
+CSV = ROOT / "data" / "deposition_stroke.csv"
+
+
+def _json(output: str) -> dict:
+    return json.loads(output[output.index("{"):])
+
+
+def plane_cloud(n_side=41, h=0.01, z=1.0):
+    g = (np.arange(n_side) - n_side // 2) * h
+    x, y = np.meshgrid(g, g, indexing="ij")
+    xyz = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+    normals = np.tile([0.0, 0.0, -1.0], (x.size, 1))
+    return shotcrete.Cloud(xyz, normals)
+
+
+def test_fit_cli_json_and_figure(run_cli, tmp_path):
+    fig = tmp_path / "stroke.png"
+    r = run_cli("deposition", "fit", CSV, "--standoff-mm", 1000, "--speed-mm-s", 150, "--json", "--figure", fig)
+    assert r.exit_code == 0, r.output
+    out = _json(r.output)
+    assert out["mse_mm2"] < out["published_mse_mm2"] == 1.2
+    assert 150 < out["radius_mm"] < 250 and 1.0 <= out["spot_beta"] < 4
+    assert out["cone_half_angle_deg"] == pytest.approx(np.degrees(np.arctan(out["radius_mm"] / 1000.0)))
+    assert out["flow_within_rebound"] is True
+    assert out["deposited_flow_m3ph"] == pytest.approx(out["flow_m3ph"] * (1 - out["rebound_fraction"]))
+    # The shipped config is the rounded fit of this file.
+    cfg = shotcrete.load_config()
+    assert cfg.deposition.spot_radius_m == out["config"]["spot_radius_m"]
+    assert cfg.deposition.spot_beta == out["config"]["spot_beta"]
+    assert cfg.deposition.peak_rate_mps == out["config"]["peak_rate_mps"]
+    assert fig.is_file() and fig.stat().st_size > 10_000
+    # Same numbers as the bindings, and the speed scales q_max linearly.
+    fit = _core.fit_stroke(_core.read_stroke_csv(str(CSV)))
+    assert out["mse_mm2"] == pytest.approx(fit.mse_mm2, rel=1e-12)
+    r2 = run_cli("deposition", "fit", CSV, "--speed-mm-s", 300, "--json")
+    assert _json(r2.output)["q_max_mm_s"] == pytest.approx(2 * out["q_max_mm_s"], rel=1e-6)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("position_mm,thickness_mm\n0,1\n10,2\n20,1\n", "at least 5"),
+    ("position_mm,thickness_mm\n0,1\n10,two\n20,1\n30,1\n40,1\n", "non-numeric thickness 'two'"),
+    ("position_mm,thickness_mm\n0,1\n10,-2\n20,1\n30,1\n40,1\n", "negative thickness"),
+    ("position_mm,thickness_mm\n0,0\n10,0\n20,0\n30,0\n40,0\n", "all thickness values are zero"),
+])
+def test_fit_cli_bad_csv_exit_2(run_cli, tmp_path, text, message):
+    bad = tmp_path / "bad.csv"
+    bad.write_text(text)
+    r = run_cli("deposition", "fit", bad)
+    assert r.exit_code == 2, r.output
+    assert message in r.output and "Traceback" not in r.output
+    with pytest.raises(ValueError, match=message):
+        _core.read_stroke_csv(str(bad))
+
+
+def test_fit_cli_missing_file_and_bad_speed(run_cli, tmp_path):
+    r = run_cli("deposition", "fit", tmp_path / "nope.csv")
+    assert r.exit_code == 2 and "cannot open" in r.output
+    r = run_cli("deposition", "fit", CSV, "--speed-mm-s", 0)
+    assert r.exit_code == 2 and "speed" in r.output
+
+
+def test_spacing_cli_json_scale_free(run_cli, tmp_path):
+    r = run_cli("deposition", "spacing", "--target-mm", 50, "--json")
+    assert r.exit_code == 0, r.output
+    a = _json(r.output)
+    assert a["spacing_mm"] + a["overlap_mm"] == pytest.approx(2 * a["radius_mm"])
+    assert a["band_min_mm"] < 50 < a["band_max_mm"] * 1.1
+    b = _json(run_cli("deposition", "spacing", "--target-mm", 100, "--json").output)
+    assert b["spacing_mm"] == pytest.approx(a["spacing_mm"], abs=1e-3)
+    assert b["band_min_mm"] == pytest.approx(2 * a["band_min_mm"], rel=1e-6)
+    # A config with a wider spot gives a wider spacing.
+    cfg = tmp_path / "wide.yaml"
+    cfg.write_text("deposition:\n  spot_radius_m: 0.3\n")
+    c = _json(run_cli("deposition", "spacing", "--target-mm", 50, "--json", "--config", cfg).output)
+    assert c["spacing_mm"] == pytest.approx(a["spacing_mm"] * 0.3 / (a["radius_mm"] / 1000), rel=2e-3)
+    r = run_cli("deposition", "spacing", "--target-mm", -1)
+    assert r.exit_code == 2 and "target" in r.output
+
+
+def test_bindings_dtypes_shapes_and_in_place_update():
+    cfg = shotcrete.load_config()
+    model = _core.spot_model_from_config(cfg.deposition)
+    cloud = plane_cloud()
+    index = _core.SurfaceIndex(cloud)
+    assert len(index) == len(cloud) and index.cell_size_m == pytest.approx(0.05)
+    poses = _core.nozzle_poses(np.array([[-0.3, 0, 0], [0.3, 0, 0]]), np.array([[0, 0, 1.0]]))
+    t = _core.accumulate_pass(model, index, poses, 0.15, 0.01, 0.08)
+    assert isinstance(t, np.ndarray) and t.dtype == np.float64 and t.shape == (len(cloud),)
+    # The cross line at x = 0 reproduces the closed-form stroke minus rebound.
+    centre = np.abs(cloud.xyz[:, 0]) < 1e-9
+    expected = _core.stroke_thickness_m(model, cloud.xyz[centre, 1], 0.15) * 0.92
+    np.testing.assert_allclose(t[centre], expected, rtol=0, atol=1e-4)  # 10 mm steps: 0.1 mm
+    # In place: the same array object is updated and returned.
+    same = _core.accumulate_pass(model, index, poses, 0.15, 0.01, 0.08, t)
+    assert same is t
+    np.testing.assert_allclose(t[centre], 2 * expected, rtol=0, atol=2e-4)
+    with pytest.raises(ValueError, match="shape"):
+        _core.accumulate_pass(model, index, poses, 0.15, 0.01, 0.08, np.zeros(3))
+    with pytest.raises(TypeError):
+        _core.accumulate_pass(model, index, poses, 0.15, 0.01, 0.08, np.zeros(len(cloud), dtype=np.float32))
+    # Dwells agree with the resampled pass.
+    samples = _core.resample_pass(poses, 0.15, 0.01)
+    assert samples.dwell_s.dtype == np.float64 and samples.dwell_s.shape == (60,)
+    d = _core.accumulate_dwells(model, index, samples.poses, list(samples.dwell_s), 0.08)
+    np.testing.assert_array_equal(d, _core.accumulate_pass(model, index, poses, 0.15, 0.01, 0.08))
+    # Spatial query, moved cloud, point rate.
+    idx = index.within(np.array([0.0, 0.0, 1.0]), 0.05)
+    assert idx.dtype == np.int32 and np.all(np.diff(idx) > 0)
+    brute = np.flatnonzero(np.linalg.norm(cloud.xyz - [0, 0, 1.0], axis=1) <= 0.05)
+    np.testing.assert_array_equal(idx, brute)
+    moved = _core.apply_thickness(cloud, t)
+    assert moved.xyz.shape == cloud.xyz.shape
+    np.testing.assert_allclose(moved.xyz[:, 2], 1.0 - t)
+    q = _core.point_rate_mps(model, _core.NozzlePose([0, 0, 0], [0, 0, 1]), [0.05, 0, 1.0], [0, 0, -1])
+    assert q == pytest.approx(float(model.rate_at(0.05)))
+    r = model.rate_at(np.linspace(0, 0.3, 7))
+    assert r.shape == (7,) and r[-1] == 0.0
+
+
+def test_stroke_data_and_fit_objects():
+    data = _core.read_stroke_csv(str(CSV), 1.0, 0.15, 0.08)
+    assert len(data) == 21 and data.position_m.dtype == np.float64 and data.thickness_m.shape == (21,)
+    fit = _core.fit_stroke(data)
+    prof = fit.stroke_at_m(data.position_m)
+    assert prof.shape == (21,)
+    assert np.mean((prof - data.thickness_m) ** 2) * 1e6 == pytest.approx(fit.mse_mm2, rel=1e-9)
+    own = _core.fit_stroke(_core.StrokeData(list(data.position_m), list(data.thickness_m), 1.0, 0.15, 0.08))
+    assert own.model.radius_m == pytest.approx(fit.model.radius_m, rel=1e-12)
+    with pytest.raises(ValueError, match="at least 5"):
+        _core.fit_stroke(_core.StrokeData([0, 1], [1, 1]))
+
+
+def test_spot_model_from_config_rejects_zero_rate():
+    cfg = shotcrete.load_config()
+    with pytest.raises(ValueError):
+        cfg.deposition.peak_rate_mps = 0.0
+        _core.spot_model_from_config(cfg.deposition)
