@@ -250,7 +250,14 @@ TEST(Ordering, BestDispatch) {
   c.aco_iterations = 30;
   const OrderingProblem big = bay_instance(30, 3);
   const OrderingResult bb = solve_ordering(big, c);
-  EXPECT_EQ(bb.method, "aco+ls");
+  EXPECT_EQ(bb.method, "aco+ils");
+  EXPECT_EQ(bb.best_per_iteration.size(), 30u);
+  c.method = "aco";
+  EXPECT_LE(bb.link_length_m, solve_ordering(big, c).link_length_m + 1e-9);  // the kicks only improve
+  c.method = "best";
+  const OrderingResult bb2 = solve_ordering(big, c);
+  EXPECT_EQ(bb2.order, bb.order);  // deterministic per seed
+  EXPECT_EQ(bb2.reversed, bb.reversed);
   expect_valid(bb, 30);
   EXPECT_LE(bb.link_length_m, solve_nearest_neighbour(big).link_length_m + 1e-9);
   c.method = "nn";
