@@ -550,9 +550,11 @@ IkResult solve_ik_kdl_nr_jl(const Robot& robot, const Eigen::Isometry3d& target,
   return out;
 }
 
-JointPath solve_path(const Robot& robot, const std::vector<NozzlePose>& waypoints, const Eigen::VectorXd& seed,
-                     const RobotConfig& config) {
-  check_q(robot, seed, "path seed");
+namespace {
+
+// One pass tracked from the first waypoint's solution nearest to `seed`.
+JointPath solve_path_once(const Robot& robot, const std::vector<NozzlePose>& waypoints, const Eigen::VectorXd& seed,
+                          const RobotConfig& config) {
   JointPath path;
   if (waypoints.empty()) return path;
   RobotConfig local = config;
@@ -639,6 +641,47 @@ JointPath solve_path(const Robot& robot, const std::vector<NozzlePose>& waypoint
     q_prev = res.q;
   }
   return path;
+}
+
+}  // namespace
+
+JointPath solve_path(const Robot& robot, const std::vector<NozzlePose>& waypoints, const Eigen::VectorXd& seed,
+                     const RobotConfig& config) {
+  check_q(robot, seed, "path seed");
+  for (const auto& wp : waypoints) to_base(robot.impl(), wp);  // validates every pose up front
+  // A branch chosen at the first waypoint can run into a limit later in the pass; then the pass is
+  // tracked again from other start configurations (neutral, then seeded random ones) and the
+  // smoothest complete path wins. The first error is reported if none completes.
+  std::mt19937 rng(0x9a7bu);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const int tries = 2 + std::min(config.ik_max_restarts, 6);
+  std::string first_error;
+  JointPath best;
+  bool have = false;
+  for (int t = 0; t < tries; ++t) {
+    Eigen::VectorXd start = seed;
+    if (t == 1) start = robot.neutral();
+    if (t >= 2)
+      for (int i = 0; i < robot.dof(); ++i)
+        start(i) = robot.lower_limits()(i) + u(rng) * (robot.upper_limits()(i) - robot.lower_limits()(i));
+    try {
+      JointPath p = solve_path_once(robot, waypoints, start, config);
+      if (!have || p.inserted_substeps < best.inserted_substeps ||
+          (p.inserted_substeps == best.inserted_substeps && p.max_joint_step < best.max_joint_step)) {
+        best = std::move(p);
+        have = true;
+      }
+      if (best.inserted_substeps == 0) break;  // smooth without interpolated poses: good enough
+    } catch (const std::runtime_error& e) {
+      if (first_error.empty()) first_error = e.what();
+      // The first waypoint itself unreachable or out of reach: no start configuration helps.
+      if (!have && (std::string(e.what()).find("waypoint 0 ") != std::string::npos ||
+                    std::string(e.what()).find("out of reach: the target is") != std::string::npos))
+        break;
+    }
+  }
+  if (!have) throw std::runtime_error(first_error);
+  return best;
 }
 
 // ---------------------------------------------------------------------------------------------

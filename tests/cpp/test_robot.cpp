@@ -341,3 +341,30 @@ TEST(Reach, DesignTunnelsAreFullyReachable) {
     EXPECT_EQ(m.n_reached, m.n_total) << "radius " << radius;
   }
 }
+
+TEST(Path, PassesOverWholeBayAreSmoothForSmallAndLargeTunnels) {
+  const RobotConfig c = cfg();
+  const Robot r = Robot::load(c);
+  for (double radius : {5.0, 8.0}) {
+    // Arc passes (springline over the crown to springline) at both ends of the bay, both directions.
+    for (double d : {0.0, 1.2}) {
+      for (int dir : {1, -1}) {
+        auto pass = arc_pass(radius, 1.0, d, dir > 0 ? 0.0 : M_PI, dir > 0 ? M_PI : 0.0,
+                             static_cast<int>(M_PI * (radius - 1.0) / 0.05) + 1);
+        const JointPath p = solve_path(r, pass, r.neutral(), c);
+        EXPECT_LE(p.max_joint_step, c.ik_max_joint_step) << radius << " " << d;
+        EXPECT_LE(p.max_position_error_m, c.ik_position_tolerance_m);
+      }
+    }
+    // Passes along the axis every 20 degrees up the wall.
+    for (int t = 0; t <= 9; ++t) {
+      const double th = M_PI * t / 9;
+      const Eigen::Vector3d n(0, std::cos(th), std::sin(th));
+      std::vector<NozzlePose> pass;
+      for (int k = 0; k <= 24; ++k) pass.push_back({Eigen::Vector3d(0.05 * k, 0, 0) + (radius - 1.0) * n, n});
+      const JointPath p = solve_path(r, pass, r.neutral(), c);
+      EXPECT_LE(p.max_joint_step, c.ik_max_joint_step) << radius << " theta " << th;
+      EXPECT_LE(p.max_angle_error_rad, c.ik_angle_tolerance_rad);
+    }
+  }
+}

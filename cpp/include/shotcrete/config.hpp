@@ -106,7 +106,7 @@ struct RobotConfig {
   double ik_angle_tolerance_rad = 0.0087;  // 0.5 degree
   int ik_max_restarts = 20;
   int ik_max_iterations = 100;      // damped least-squares iterations per attempt
-  double ik_max_joint_step = 0.35;  // largest joint change between path waypoints [rad or m]
+  double ik_max_joint_step = 0.1;   // largest joint change between path waypoints [rad or m]
 };
 
 struct TimingConfig {

@@ -1,0 +1,1051 @@
+// Motion timing: speed profiles, turn-arounds, sampling, joint-space timing, AIWCPSO.
+#include "shotcrete/timing.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <limits>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+
+#include "shotcrete/robot.hpp"
+
+namespace shotcrete {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kTwoPi = 2.0 * kPi;
+
+std::string num(double v) {
+  std::ostringstream o;
+  o << std::setprecision(6) << v;
+  return o.str();
+}
+
+// Shape function g(tau) of a speed change, its derivatives and its integral.
+double shape_g(SpeedShape s, double t) {
+  if (s == SpeedShape::Cycloid) return t - std::sin(kTwoPi * t) / kTwoPi;
+  return t * t * t * (10.0 + t * (-15.0 + 6.0 * t));
+}
+double shape_dg(SpeedShape s, double t) {
+  if (s == SpeedShape::Cycloid) return 1.0 - std::cos(kTwoPi * t);
+  return 30.0 * t * t * (1.0 - t) * (1.0 - t);
+}
+double shape_ddg(SpeedShape s, double t) {
+  if (s == SpeedShape::Cycloid) return kTwoPi * std::sin(kTwoPi * t);
+  return 60.0 * t - 180.0 * t * t + 120.0 * t * t * t;
+}
+double shape_G(SpeedShape s, double t) {
+  if (s == SpeedShape::Cycloid) return 0.5 * t * t + (std::cos(kTwoPi * t) - 1.0) / (kTwoPi * kTwoPi);
+  return t * t * t * t * (2.5 + t * (-3.0 + t));
+}
+double shape_peak_dg(SpeedShape s) { return s == SpeedShape::Cycloid ? 2.0 : 1.875; }
+
+Eigen::Vector3d normalized_or(const Eigen::Vector3d& v, const Eigen::Vector3d& fallback) {
+  const double n = v.norm();
+  return n > 1e-12 ? Eigen::Vector3d(v / n) : fallback;
+}
+
+void check_pass(const Pass& p, std::size_t i) {
+  if (p.waypoints.size() < 2)
+    throw std::invalid_argument("pass " + std::to_string(i) + " has " + std::to_string(p.waypoints.size()) +
+                                " waypoints; at least 2 are needed");
+  if (!(p.speed_mps > 0.0) || !std::isfinite(p.speed_mps))
+    throw std::invalid_argument("pass " + std::to_string(i) + " has speed_mps = " + num(p.speed_mps) +
+                                "; it must be > 0");
+}
+
+PathPiece polyline_piece(SegmentKind kind, std::vector<NozzlePose> poses, double speed, bool spraying, int pass_index) {
+  PathPiece p;
+  p.kind = kind;
+  p.pass_index = pass_index;
+  p.spraying = spraying;
+  p.speed_mps = p.speed_out_mps = speed;
+  // Drop repeated points: the arc-length table must increase strictly.
+  std::vector<NozzlePose> kept;
+  kept.reserve(poses.size());
+  for (const auto& q : poses)
+    if (kept.empty() || (q.position_m - kept.back().position_m).norm() > 1e-9) kept.push_back(q);
+  if (kept.size() == 1) kept.push_back(kept.front());
+  p.cum_m.assign(kept.size(), 0.0);
+  for (std::size_t k = 1; k < kept.size(); ++k)
+    p.cum_m[k] = p.cum_m[k - 1] + (kept[k].position_m - kept[k - 1].position_m).norm();
+  p.poses = std::move(kept);
+  return p;
+}
+
+Eigen::Vector3d start_direction(const Pass& p) {
+  return normalized_or(p.waypoints[1].position_m - p.waypoints[0].position_m, Eigen::Vector3d::UnitX());
+}
+Eigen::Vector3d end_direction(const Pass& p) {
+  const auto n = p.waypoints.size();
+  return normalized_or(p.waypoints[n - 1].position_m - p.waypoints[n - 2].position_m, Eigen::Vector3d::UnitX());
+}
+
+// Piece data needed by the speed profile: kind, length and the planned speeds.
+struct PieceSpec {
+  SegmentKind kind;
+  double length_m, v_in, v_out;
+};
+
+std::vector<PieceSpec> specs_of(const CartesianPath& path) {
+  std::vector<PieceSpec> out;
+  for (const auto& p : path.pieces()) out.push_back({p.kind, p.length_m(), p.speed_mps, p.speed_out_mps});
+  return out;
+}
+
+SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const TimingParams& params) {
+  if (specs.size() < 3 || specs.front().kind != SegmentKind::Lead || specs.back().kind != SegmentKind::Lead)
+    throw std::invalid_argument("region_profile: the path must start with a lead-in and end with a lead-out");
+  if (!(params.k1 > 0.0 && params.k1 <= 1.0)) throw std::invalid_argument("k1 = " + num(params.k1) + " must be in (0, 1]");
+  if (!(params.k2 >= 0.0 && params.k2 < 1.0)) throw std::invalid_argument("k2 = " + num(params.k2) + " must be in [0, 1)");
+  SpeedProfile prof;
+  for (std::size_t i = 0; i < specs.size(); ++i) {
+    const auto& s = specs[i];
+    if (i == 0) {
+      prof.append(cycloid_start(s.length_m, s.v_in, params.k1));
+    } else if (i + 1 == specs.size()) {
+      prof.append(cycloid_end(s.length_m, s.v_in, params.k2));
+    } else if (s.kind == SegmentKind::Turn) {
+      const double vt = params.turn_speed_mps;
+      if (vt > 0.0) {  // two cycloidal changes, each over half the arc
+        const double half = 0.5 * s.length_m;
+        prof.append(SpeedPiece{s.v_in, vt, half / (0.5 * (s.v_in + vt)), SpeedShape::Cycloid});
+        prof.append(SpeedPiece{vt, s.v_out, half / (0.5 * (vt + s.v_out)), SpeedShape::Cycloid});
+      } else {
+        prof.append(SpeedPiece{s.v_in, s.v_out, s.length_m / (0.5 * (s.v_in + s.v_out)), SpeedShape::Cycloid});
+      }
+    } else {
+      prof.append(SpeedPiece{s.v_in, s.v_in, s.length_m / s.v_in, SpeedShape::Cycloid});
+    }
+  }
+  return prof;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------
+// SpeedPiece / SpeedProfile
+// ------------------------------------------------------------------------------------------------
+
+double SpeedPiece::speed_at(double t) const {
+  if (duration_s <= 0.0) return v1_mps;
+  return v0_mps + (v1_mps - v0_mps) * shape_g(shape, std::clamp(t / duration_s, 0.0, 1.0));
+}
+double SpeedPiece::accel_at(double t) const {
+  if (duration_s <= 0.0) return 0.0;
+  return (v1_mps - v0_mps) / duration_s * shape_dg(shape, std::clamp(t / duration_s, 0.0, 1.0));
+}
+double SpeedPiece::jerk_at(double t) const {
+  if (duration_s <= 0.0) return 0.0;
+  return (v1_mps - v0_mps) / (duration_s * duration_s) * shape_ddg(shape, std::clamp(t / duration_s, 0.0, 1.0));
+}
+double SpeedPiece::distance_at(double t) const {
+  if (duration_s <= 0.0) return 0.0;
+  const double tau = std::clamp(t / duration_s, 0.0, 1.0);
+  return duration_s * (v0_mps * tau + (v1_mps - v0_mps) * shape_G(shape, tau));
+}
+double SpeedPiece::peak_accel_mps2() const {
+  if (duration_s <= 0.0) return 0.0;
+  return std::abs(v1_mps - v0_mps) / duration_s * shape_peak_dg(shape);
+}
+
+void SpeedProfile::append(const SpeedPiece& piece) {
+  if (!(piece.duration_s >= 0.0) || !std::isfinite(piece.duration_s))
+    throw std::invalid_argument("speed piece duration " + num(piece.duration_s) + " s must be finite and >= 0");
+  if (piece.v0_mps < 0.0 || piece.v1_mps < 0.0)
+    throw std::invalid_argument("speed piece speeds must be >= 0 (got " + num(piece.v0_mps) + ", " + num(piece.v1_mps) + ")");
+  if (piece.duration_s == 0.0) return;
+  pieces_.push_back(piece);
+  t_.push_back(t_.back() + piece.duration_s);
+  s_.push_back(s_.back() + piece.length_m());
+}
+
+void SpeedProfile::append(const SpeedProfile& other) {
+  for (const auto& p : other.pieces_) append(p);
+}
+
+SpeedProfile::State SpeedProfile::at(double t) const {
+  State st;
+  if (pieces_.empty()) return st;
+  t = std::clamp(t, 0.0, duration_s());
+  std::size_t i = static_cast<std::size_t>(std::upper_bound(t_.begin(), t_.end(), t) - t_.begin());
+  i = std::min(i == 0 ? 0 : i - 1, pieces_.size() - 1);
+  const double lt = t - t_[i];
+  const auto& p = pieces_[i];
+  st.s_m = s_[i] + p.distance_at(lt);
+  st.v_mps = p.speed_at(lt);
+  st.a_mps2 = p.accel_at(lt);
+  st.j_mps3 = p.jerk_at(lt);
+  return st;
+}
+
+double SpeedProfile::time_at_distance(double s) const {
+  if (pieces_.empty()) return 0.0;
+  s = std::clamp(s, 0.0, length_m());
+  std::size_t i = static_cast<std::size_t>(std::upper_bound(s_.begin(), s_.end(), s) - s_.begin());
+  i = std::min(i == 0 ? 0 : i - 1, pieces_.size() - 1);
+  const auto& p = pieces_[i];
+  double lo = 0.0, hi = p.duration_s;
+  for (int it = 0; it < 80; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (s_[i] + p.distance_at(mid) < s ? lo : hi) = mid;
+  }
+  return t_[i] + 0.5 * (lo + hi);
+}
+
+SpeedProfile cycloid_start(double s_start_m, double v_mps, double k1) {
+  if (!(s_start_m > 0.0)) throw std::invalid_argument("start length " + num(s_start_m) + " m must be > 0 (the nozzle starts from rest)");
+  if (!(v_mps > 0.0)) throw std::invalid_argument("cruise speed " + num(v_mps) + " m/s must be > 0");
+  if (!(k1 > 0.0 && k1 <= 1.0)) throw std::invalid_argument("k1 = " + num(k1) + " must be in (0, 1]");
+  const double ts = 2.0 * s_start_m / (v_mps * (2.0 - k1));
+  SpeedProfile p;
+  p.append(SpeedPiece{0.0, v_mps, k1 * ts, SpeedShape::Cycloid});
+  p.append(SpeedPiece{v_mps, v_mps, (1.0 - k1) * ts, SpeedShape::Cycloid});
+  return p;
+}
+
+SpeedProfile cycloid_end(double s_end_m, double v_mps, double k2) {
+  if (!(s_end_m > 0.0)) throw std::invalid_argument("end length " + num(s_end_m) + " m must be > 0 (the nozzle stops at rest)");
+  if (!(v_mps > 0.0)) throw std::invalid_argument("cruise speed " + num(v_mps) + " m/s must be > 0");
+  if (!(k2 >= 0.0 && k2 < 1.0)) throw std::invalid_argument("k2 = " + num(k2) + " must be in [0, 1)");
+  const double te = 2.0 * s_end_m / (v_mps * (1.0 + k2));
+  SpeedProfile p;
+  p.append(SpeedPiece{v_mps, v_mps, k2 * te, SpeedShape::Cycloid});
+  p.append(SpeedPiece{v_mps, 0.0, (1.0 - k2) * te, SpeedShape::Cycloid});
+  return p;
+}
+
+SpeedProfile rest_to_rest(double length_m, double v_mps, double accel_time_s, SpeedShape shape) {
+  if (!(length_m >= 0.0)) throw std::invalid_argument("move length " + num(length_m) + " m must be >= 0");
+  if (!(v_mps > 0.0)) throw std::invalid_argument("cruise speed " + num(v_mps) + " m/s must be > 0");
+  if (!(accel_time_s > 0.0)) throw std::invalid_argument("acceleration time " + num(accel_time_s) + " s must be > 0");
+  SpeedProfile p;
+  if (length_m == 0.0) return p;
+  if (length_m >= v_mps * accel_time_s) {
+    p.append(SpeedPiece{0.0, v_mps, accel_time_s, shape});
+    p.append(SpeedPiece{v_mps, v_mps, (length_m - v_mps * accel_time_s) / v_mps, shape});
+    p.append(SpeedPiece{v_mps, 0.0, accel_time_s, shape});
+  } else {
+    const double vp = length_m / accel_time_s;
+    p.append(SpeedPiece{0.0, vp, accel_time_s, shape});
+    p.append(SpeedPiece{vp, 0.0, accel_time_s, shape});
+  }
+  return p;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Path geometry
+// ------------------------------------------------------------------------------------------------
+
+double PathPiece::length_m() const {
+  if (is_arc) return kPi * radius_m;
+  return cum_m.empty() ? 0.0 : cum_m.back();
+}
+
+namespace {
+// Segment k of a polyline containing local arc length s, and the fraction inside it.
+std::size_t poly_segment(const std::vector<double>& cum, double s, double& frac) {
+  const std::size_t n = cum.size();
+  std::size_t k = static_cast<std::size_t>(std::upper_bound(cum.begin(), cum.end(), s) - cum.begin());
+  k = std::clamp<std::size_t>(k == 0 ? 0 : k - 1, 0, n - 2);
+  const double len = cum[k + 1] - cum[k];
+  frac = len > 0.0 ? std::clamp((s - cum[k]) / len, 0.0, 1.0) : 0.0;
+  return k;
+}
+}  // namespace
+
+NozzlePose PathPiece::pose_at(double s) const {
+  NozzlePose out;
+  if (is_arc) {
+    const double phi = std::clamp(s / radius_m, 0.0, kPi);
+    out.position_m = center + radius_m * (-std::cos(phi) * u + std::sin(phi) * d);
+    // The axis turns with the position across the passes ((1 - cos phi) / 2 along u): no angular
+    // rate at the ends, so the joint velocities stay continuous where the arc meets a pass.
+    const double w = 0.5 * (1.0 - std::cos(phi));
+    out.axis = normalized_or((1.0 - w) * axis0 + w * axis1, axis0);
+    return out;
+  }
+  double f = 0.0;
+  const std::size_t k = poly_segment(cum_m, s, f);
+  out.position_m = (1.0 - f) * poses[k].position_m + f * poses[k + 1].position_m;
+  out.axis = normalized_or((1.0 - f) * poses[k].axis + f * poses[k + 1].axis, poses[k].axis);
+  return out;
+}
+
+Eigen::Vector3d PathPiece::tangent_at(double s) const {
+  if (is_arc) {
+    const double phi = std::clamp(s / radius_m, 0.0, kPi);
+    return std::sin(phi) * u + std::cos(phi) * d;
+  }
+  double f = 0.0;
+  const std::size_t k = poly_segment(cum_m, s, f);
+  return normalized_or(poses[k + 1].position_m - poses[k].position_m, Eigen::Vector3d::UnitX());
+}
+
+double PathPiece::curvature_at(double s) const {
+  if (is_arc) return 1.0 / radius_m;
+  if (poses.size() < 3) return 0.0;
+  double f = 0.0;
+  std::size_t k = poly_segment(cum_m, s, f);
+  // Turning angle at the nearer interior vertex over the mean length of its two segments.
+  std::size_t v = f < 0.5 ? k : k + 1;
+  v = std::clamp<std::size_t>(v, 1, poses.size() - 2);
+  const Eigen::Vector3d a = poses[v].position_m - poses[v - 1].position_m;
+  const Eigen::Vector3d b = poses[v + 1].position_m - poses[v].position_m;
+  const double la = a.norm(), lb = b.norm();
+  if (la <= 0.0 || lb <= 0.0) return 0.0;
+  const double ang = std::atan2(a.cross(b).norm(), a.dot(b));
+  return ang / (0.5 * (la + lb));
+}
+
+void CartesianPath::append(PathPiece piece) {
+  const double len = piece.length_m();
+  pieces_.push_back(std::move(piece));
+  cum_.push_back(cum_.back() + len);
+}
+
+std::size_t CartesianPath::locate(double s, double& local) const {
+  if (pieces_.empty()) throw std::invalid_argument("empty Cartesian path");
+  s = std::clamp(s, 0.0, length_m());
+  std::size_t i = static_cast<std::size_t>(std::upper_bound(cum_.begin(), cum_.end(), s) - cum_.begin());
+  i = std::min(i == 0 ? 0 : i - 1, pieces_.size() - 1);
+  local = s - cum_[i];
+  return i;
+}
+NozzlePose CartesianPath::pose_at(double s) const {
+  double l = 0.0;
+  const auto i = locate(s, l);
+  return pieces_[i].pose_at(l);
+}
+Eigen::Vector3d CartesianPath::tangent_at(double s) const {
+  double l = 0.0;
+  const auto i = locate(s, l);
+  return pieces_[i].tangent_at(l);
+}
+double CartesianPath::curvature_at(double s) const {
+  double l = 0.0;
+  const auto i = locate(s, l);
+  return pieces_[i].curvature_at(l);
+}
+
+std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
+                                   double speed_a, double speed_b, bool spraying) {
+  const Eigen::Vector3d d = normalized_or(dir_a, Eigen::Vector3d::UnitX());
+  const double e = (start_b.position_m - end_a.position_m).dot(d);
+  // Align the two ends along d: the shorter side is extended by a straight line.
+  NozzlePose pa = end_a, pb = start_b;
+  pa.position_m += std::max(e, 0.0) * d;
+  pb.position_m += std::max(-e, 0.0) * d;
+  const Eigen::Vector3d w = pb.position_m - pa.position_m;  // orthogonal to d by construction
+  const double diameter = w.norm();
+  if (diameter < 1e-6)
+    throw std::invalid_argument("turn-around: the end of one pass and the start of the next coincide across the pass "
+                                "direction (spacing " + num(diameter) + " m)");
+  std::vector<PathPiece> out;
+  if (e > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
+  PathPiece arc;
+  arc.kind = SegmentKind::Turn;
+  arc.spraying = spraying;
+  arc.speed_mps = speed_a;
+  arc.speed_out_mps = speed_b;
+  arc.is_arc = true;
+  arc.radius_m = 0.5 * diameter;
+  arc.center = 0.5 * (pa.position_m + pb.position_m);
+  arc.u = w / diameter;
+  arc.d = d;
+  arc.axis0 = end_a.axis;
+  arc.axis1 = start_b.axis;
+  out.push_back(arc);
+  if (e < -1e-9) out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
+  return out;
+}
+
+CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
+                          int first_pass_index) {
+  if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
+  for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
+  if (!(lead_in_m > 0.0) || !(lead_out_m > 0.0))
+    throw std::invalid_argument("region_path: lead-in " + num(lead_in_m) + " m and lead-out " + num(lead_out_m) +
+                                " m must be > 0 (start and stop happen off the passes)");
+  CartesianPath path;
+  const Pass& first = passes.front();
+  NozzlePose lead0 = first.waypoints.front();
+  lead0.position_m -= lead_in_m * start_direction(first);
+  path.append(polyline_piece(SegmentKind::Lead, {lead0, first.waypoints.front()}, first.speed_mps, false, -1));
+  for (std::size_t i = 0; i < passes.size(); ++i) {
+    const Pass& p = passes[i];
+    path.append(polyline_piece(SegmentKind::Pass, p.waypoints, p.speed_mps, true, first_pass_index + static_cast<int>(i)));
+    if (i + 1 < passes.size()) {
+      const Pass& q = passes[i + 1];
+      for (auto& piece : turn_around(p.waypoints.back(), end_direction(p), q.waypoints.front(), p.speed_mps, q.speed_mps,
+                                     spray_on_turns))
+        path.append(std::move(piece));
+    }
+  }
+  const Pass& last = passes.back();
+  NozzlePose lead1 = last.waypoints.back();
+  lead1.position_m += lead_out_m * end_direction(last);
+  path.append(polyline_piece(SegmentKind::Lead, {last.waypoints.back(), lead1}, last.speed_mps, false, -1));
+  return path;
+}
+
+TimingParams TimingParams::from_config(const TimingConfig& c) {
+  TimingParams p;
+  p.k1 = c.start_fraction_k1;
+  p.k2 = c.end_fraction_k2;
+  p.start_length_m = c.start_length_m;
+  p.end_length_m = c.end_length_m;
+  p.turn_speed_mps = c.turn_speed_mps;
+  return p;
+}
+
+SpeedProfile region_profile(const CartesianPath& path, const TimingParams& params) {
+  return profile_from_specs(specs_of(path), params);
+}
+
+BaselinePath quintic_baseline(const std::vector<Pass>& passes, double max_accel_mps2, double stepover_speed_mps,
+                              int first_pass_index) {
+  if (passes.empty()) throw std::invalid_argument("quintic_baseline: the region has no passes");
+  for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
+  if (!(max_accel_mps2 > 0.0)) throw std::invalid_argument("quintic_baseline: max_accel_mps2 must be > 0");
+  if (!(stepover_speed_mps > 0.0)) throw std::invalid_argument("quintic_baseline: stepover_speed_mps must be > 0");
+  const double peak = shape_peak_dg(SpeedShape::Quintic);
+  BaselinePath out;
+  NozzlePose prev_end;
+  for (std::size_t i = 0; i < passes.size(); ++i) {
+    const Pass& p = passes[i];
+    const double v = p.speed_mps, ta = peak * v / max_accel_mps2, ext = 0.5 * v * ta;
+    NozzlePose a = p.waypoints.front(), b = p.waypoints.back();
+    a.position_m -= ext * start_direction(p);
+    b.position_m += ext * end_direction(p);
+    if (i > 0) {  // straight step-over, from rest to rest
+      out.path.append(polyline_piece(SegmentKind::Link, {prev_end, a}, stepover_speed_mps, false, -1));
+      const double len = out.path.pieces().back().length_m();
+      double vs = stepover_speed_mps, ts = peak * vs / max_accel_mps2;
+      if (len < vs * ts) {  // too short to reach the step-over speed at the acceleration limit
+        vs = std::sqrt(len * max_accel_mps2 / peak);
+        ts = peak * vs / max_accel_mps2;
+      }
+      if (len > 0.0) out.profile.append(rest_to_rest(len, vs, ts, SpeedShape::Quintic));
+    }
+    out.path.append(polyline_piece(SegmentKind::Lead, {a, p.waypoints.front()}, v, false, -1));
+    out.path.append(polyline_piece(SegmentKind::Pass, p.waypoints, v, true, first_pass_index + static_cast<int>(i)));
+    out.path.append(polyline_piece(SegmentKind::Lead, {p.waypoints.back(), b}, v, false, -1));
+    const double len = 2.0 * ext + out.path.pieces()[out.path.pieces().size() - 2].length_m();
+    out.profile.append(rest_to_rest(len, v, ta, SpeedShape::Quintic));
+    prev_end = b;
+  }
+  return out;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Sampling
+// ------------------------------------------------------------------------------------------------
+
+namespace {
+void check_lengths(const CartesianPath& path, const SpeedProfile& profile) {
+  const double lp = path.length_m(), ls = profile.length_m();
+  if (std::abs(lp - ls) > 1e-6 * std::max(1.0, lp))
+    throw std::invalid_argument("speed profile covers " + num(ls) + " m but the path is " + num(lp) + " m long");
+}
+// Uniform times over [0, T] with steps <= 1 / rate (no tiny last step).
+std::vector<double> time_grid(double duration_s, double rate_hz) {
+  if (!(rate_hz > 0.0)) throw std::invalid_argument("rate " + num(rate_hz) + " Hz must be > 0");
+  const int n = std::max(1, static_cast<int>(std::ceil(duration_s * rate_hz - 1e-9)));
+  std::vector<double> t(static_cast<std::size_t>(n) + 1);
+  for (int k = 0; k <= n; ++k) t[static_cast<std::size_t>(k)] = duration_s * k / n;
+  return t;
+}
+}  // namespace
+
+CartesianSamples sample_path(const CartesianPath& path, const SpeedProfile& profile, double rate_hz) {
+  check_lengths(path, profile);
+  CartesianSamples out;
+  for (double t : time_grid(profile.duration_s(), rate_hz)) {
+    const auto st = profile.at(t);
+    double local = 0.0;
+    const auto i = path.locate(st.s_m, local);
+    const auto& piece = path.pieces()[i];
+    out.t_s.push_back(t);
+    out.s_m.push_back(st.s_m);
+    out.nozzle.push_back(piece.pose_at(local));
+    out.speed_mps.push_back(st.v_mps);
+    out.tangential_accel_mps2.push_back(st.a_mps2);
+    out.normal_accel_mps2.push_back(st.v_mps * st.v_mps * piece.curvature_at(local));
+    out.spraying.push_back(piece.spraying ? 1 : 0);
+    out.pass_index.push_back(piece.pass_index);
+    out.kind.push_back(static_cast<char>(piece.kind));
+  }
+  return out;
+}
+
+std::vector<double> spray_dwells(const std::vector<double>& t, const std::vector<char>& spraying) {
+  if (t.size() != spraying.size()) throw std::invalid_argument("spray_dwells: t_s and spraying differ in size");
+  std::vector<double> dwell(t.size(), 0.0);
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    if (!spraying[i]) continue;
+    const double lo = i > 0 ? 0.5 * (t[i] - t[i - 1]) : 0.0;
+    const double hi = i + 1 < t.size() ? 0.5 * (t[i + 1] - t[i]) : 0.0;
+    dwell[i] = lo + hi;
+  }
+  return dwell;
+}
+
+NozzleCheck check_nozzle(const CartesianPath& path, const SpeedProfile& profile, const NozzleLimits& limits,
+                         double rate_hz) {
+  check_lengths(path, profile);
+  NozzleCheck c;
+  for (double t : time_grid(profile.duration_s(), rate_hz)) {
+    const auto st = profile.at(t);
+    const double an = st.v_mps * st.v_mps * path.curvature_at(st.s_m);
+    c.max_speed_mps = std::max(c.max_speed_mps, st.v_mps);
+    c.max_accel_mps2 = std::max(c.max_accel_mps2, std::hypot(st.a_mps2, an));
+  }
+  // The peaks of the speed pieces are exact, not sampled.
+  for (const auto& p : profile.pieces()) c.max_accel_mps2 = std::max(c.max_accel_mps2, p.peak_accel_mps2());
+  c.speed_ratio = c.max_speed_mps / limits.max_speed_mps;
+  c.accel_ratio = c.max_accel_mps2 / limits.max_accel_mps2;
+  return c;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Joint space
+// ------------------------------------------------------------------------------------------------
+
+double quintic_min_duration(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, const Eigen::VectorXd& vel_limit,
+                            const Eigen::VectorXd& acc_limit) {
+  const Eigen::Index n = q0.size();
+  if (q1.size() != n || vel_limit.size() != n || acc_limit.size() != n)
+    throw std::invalid_argument("quintic_min_duration: q0, q1 and the limits must have the same size");
+  const double kv = 1.875, ka = 10.0 / std::sqrt(3.0);  // peaks of s' and s'' of 10t^3-15t^4+6t^5
+  double t = 0.0;
+  for (Eigen::Index j = 0; j < n; ++j) {
+    if (!(vel_limit[j] > 0.0) || !(acc_limit[j] > 0.0))
+      throw std::invalid_argument("quintic_min_duration: joint " + std::to_string(j) + " has a non-positive limit");
+    const double dq = std::abs(q1[j] - q0[j]);
+    t = std::max({t, kv * dq / vel_limit[j], std::sqrt(ka * dq / acc_limit[j])});
+  }
+  return t;
+}
+
+void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double T, double t, Eigen::VectorXd& q,
+                   Eigen::VectorXd& qd, Eigen::VectorXd& qdd) {
+  const Eigen::VectorXd dq = q1 - q0;
+  if (T <= 0.0) {
+    q = q1;
+    qd = Eigen::VectorXd::Zero(q0.size());
+    qdd = Eigen::VectorXd::Zero(q0.size());
+    return;
+  }
+  const double x = std::clamp(t / T, 0.0, 1.0);
+  q = q0 + dq * shape_g(SpeedShape::Quintic, x);
+  qd = dq * (shape_dg(SpeedShape::Quintic, x) / T);
+  qdd = dq * (shape_ddg(SpeedShape::Quintic, x) / (T * T));
+}
+
+Eigen::MatrixXd TimedTrajectory::joint_table() const {
+  const Eigen::Index n = static_cast<Eigen::Index>(t_s.size());
+  const Eigen::Index dof = q.empty() ? 0 : q.front().size();
+  Eigen::MatrixXd m(n, 1 + 3 * dof);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    m(i, 0) = t_s[k];
+    m.block(i, 1, 1, dof) = q[k].transpose();
+    m.block(i, 1 + dof, 1, dof) = qd[k].transpose();
+    m.block(i, 1 + 2 * dof, 1, dof) = qdd[k].transpose();
+  }
+  return m;
+}
+
+std::vector<std::string> TimedTrajectory::joint_table_header() const {
+  const std::size_t dof = q.empty() ? 0 : static_cast<std::size_t>(q.front().size());
+  std::vector<std::string> h{"t_s"};
+  for (const char* p : {"q", "qd", "qdd"})
+    for (std::size_t j = 0; j < dof; ++j) h.push_back(std::string(p) + std::to_string(j));
+  return h;
+}
+
+std::string TimedTrajectory::to_csv() const {
+  std::ostringstream o;
+  o << std::setprecision(10);
+  const auto h = joint_table_header();
+  for (std::size_t k = 0; k < h.size(); ++k) o << (k ? "," : "") << h[k];
+  o << ",x_m,y_m,z_m,ax,ay,az,spraying,pass_index,region_index,kind\n";
+  const Eigen::MatrixXd m = joint_table();
+  for (Eigen::Index i = 0; i < m.rows(); ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    for (Eigen::Index j = 0; j < m.cols(); ++j) o << (j ? "," : "") << m(i, j);
+    const auto& p = nozzle[k];
+    o << "," << p.position_m.x() << "," << p.position_m.y() << "," << p.position_m.z() << "," << p.axis.x() << ","
+      << p.axis.y() << "," << p.axis.z() << "," << int(spraying[k]) << "," << pass_index[k] << "," << region_index[k]
+      << "," << int(kind[k]) << "\n";
+  }
+  return o.str();
+}
+
+namespace {
+
+// Velocities and accelerations by 3-point finite differences on a non-uniform grid; the ends are at
+// rest (every timed trajectory starts and stops standing still).
+void finite_differences(const std::vector<double>& t, const std::vector<Eigen::VectorXd>& q,
+                        std::vector<Eigen::VectorXd>& qd, std::vector<Eigen::VectorXd>& qdd) {
+  const std::size_t n = q.size();
+  const Eigen::Index dof = n ? q[0].size() : 0;
+  qd.assign(n, Eigen::VectorXd::Zero(dof));
+  qdd.assign(n, Eigen::VectorXd::Zero(dof));
+  for (std::size_t i = 1; i + 1 < n; ++i) {
+    const double h1 = t[i] - t[i - 1], h2 = t[i + 1] - t[i];
+    qd[i] = (-h2 / (h1 * (h1 + h2))) * q[i - 1] + ((h2 - h1) / (h1 * h2)) * q[i] + (h1 / (h2 * (h1 + h2))) * q[i + 1];
+    qdd[i] = 2.0 * (q[i - 1] / (h1 * (h1 + h2)) - q[i] / (h1 * h2) + q[i + 1] / (h2 * (h1 + h2)));
+  }
+  if (n >= 3) {
+    qdd[0] = qdd[1];
+    qdd[n - 1] = qdd[n - 2];
+  }
+}
+
+// Task error of the 5-DOF spraying task at q: position (3) and the axis error expressed in the
+// nozzle's x/y directions (2); A is the matching 5 x dof task Jacobian.
+void task_error(const Robot& robot, const Eigen::VectorXd& q, const NozzlePose& target, Eigen::Matrix<double, 5, 1>& e,
+                Eigen::MatrixXd* A) {
+  const Eigen::Isometry3d T = robot.fk(q);
+  const Eigen::Matrix3d R = T.linear();
+  const Eigen::Vector3d zt = target.axis.normalized();
+  const Eigen::Vector3d w = R.col(2).cross(zt);  // rotation (small angle) taking z onto the target
+  e.head<3>() = target.position_m - T.translation();
+  e(3) = R.col(0).dot(w);
+  e(4) = R.col(1).dot(w);
+  if (R.col(2).dot(zt) < 0.0) e(3) += 2.0;  // far side: push away from the antipodal fixed point
+  if (A) {
+    const Eigen::MatrixXd J = robot.jacobian(q);
+    A->resize(5, q.size());
+    A->topRows<3>() = J.topRows<3>();
+    A->row(3) = R.col(0).transpose() * J.bottomRows<3>();
+    A->row(4) = R.col(1).transpose() * J.bottomRows<3>();
+  }
+}
+
+}  // namespace
+
+std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
+                                              const Eigen::VectorXd& q0, double limit_gain, double* max_error_m,
+                                              double* max_error_rad) {
+  if (q0.size() != robot.dof()) throw std::invalid_argument("track_joint_path: q0 does not match the robot");
+  const Eigen::VectorXd lo = robot.lower_limits(), hi = robot.upper_limits();
+  const Eigen::VectorXd range = (hi - lo).cwiseMax(1e-9);
+  const int n = robot.dof();
+  std::vector<Eigen::VectorXd> out;
+  out.reserve(poses.size());
+  Eigen::VectorXd q = q0;
+  Eigen::Matrix<double, 5, 1> e;
+  Eigen::MatrixXd A;
+  double emax = 0.0, amax = 0.0;
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    const double ds = k == 0 ? 0.0 : (poses[k].position_m - poses[k - 1].position_m).norm();
+    // Null-space drift away from the limits, proportional to the path step: q(s) depends on the
+    // path only, and is as smooth as the path.
+    if (ds > 0.0 && limit_gain > 0.0) {
+      task_error(robot, q, poses[k - 1], e, &A);
+      Eigen::VectorXd g(n);
+      for (int i = 0; i < n; ++i) {
+        const double x = std::clamp((q(i) - lo(i)) / range(i), 1e-3, 1.0 - 1e-3);
+        g(i) = std::clamp(limit_gain * (1.0 - 2.0 * x) / (4.0 * x * x * (1.0 - x) * (1.0 - x)), -5.0, 5.0) * range(i) * ds;
+      }
+      const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-12 * Eigen::Matrix<double, 5, 5>::Identity();
+      q += g - A.transpose() * M.ldlt().solve(A * g);
+    }
+    // Minimal-norm Gauss-Newton onto the exact target.
+    for (int it = 0; it < 30; ++it) {
+      task_error(robot, q, poses[k], e, &A);
+      if (e.head<3>().norm() < 1e-10 && e.tail<2>().norm() < 1e-10) break;
+      const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-10 * Eigen::Matrix<double, 5, 5>::Identity();
+      Eigen::VectorXd dq = A.transpose() * M.ldlt().solve(e);
+      const double big = dq.cwiseAbs().maxCoeff();
+      if (big > 0.2) dq *= 0.2 / big;
+      q += dq;
+    }
+    task_error(robot, q, poses[k], e, nullptr);
+    emax = std::max(emax, e.head<3>().norm());
+    amax = std::max(amax, std::asin(std::min(1.0, e.tail<2>().norm())));
+    out.push_back(q);
+  }
+  if (max_error_m) *max_error_m = emax;
+  if (max_error_rad) *max_error_rad = amax;
+  return out;
+}
+
+namespace {
+
+// Joint path for timing: solve_path (limits, restarts, no flips) gives the branch and the start
+// configuration; the config's tolerances (1 mm) are coarse next to the motion between two samples,
+// and a warm-started solver that stops inside them returns a staircase whose finite differences are
+// meaningless. So the samples are tracked exactly (minimal-norm steps + smooth null-space limit
+// avoidance) from the first solution; if that leaves the limits or misses a target, the
+// solve_path result is kept.
+std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
+                                               const Eigen::VectorXd& seed, const RobotConfig& rc, bool* tracked) {
+  const JointPath jp = solve_path(robot, poses, seed, rc);
+  double em = 0.0, ea = 0.0;
+  auto q = track_joint_path(robot, poses, jp.q.front(), 0.02, &em, &ea);
+  bool ok = em <= rc.ik_position_tolerance_m && ea <= rc.ik_angle_tolerance_rad;
+  for (const auto& x : q) ok = ok && robot.within_limits(x);
+  if (tracked) *tracked = ok;
+  return ok ? q : jp.q;
+}
+
+NozzlePose pose_of(const Eigen::Isometry3d& T) {
+  NozzlePose p;
+  p.position_m = T.translation();
+  p.axis = T.linear().col(2);
+  return p;
+}
+
+}  // namespace
+
+TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
+                          const TimingConfig& timing, const RobotConfig& robot_config, const TimingParams* params_in) {
+  const int dof = robot.dof();
+  if (q_start.size() != dof)
+    throw std::invalid_argument("time_plan: q_start has " + std::to_string(q_start.size()) + " entries, the robot has " +
+                                std::to_string(dof) + " joints");
+  const TimingParams params = params_in ? *params_in : TimingParams::from_config(timing);
+  const double rate = timing.trajectory_rate_hz;
+  const double max_lead = std::max({timing.max_lead_length_m, params.start_length_m, params.end_length_m});
+  TimedTrajectory tr;
+  double t0 = 0.0;
+  Eigen::VectorXd q_prev = q_start;
+  auto push = [&](double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass, int region, char kind) {
+    tr.t_s.push_back(t);
+    tr.q.push_back(q);
+    tr.nozzle.push_back(pose);
+    tr.spraying.push_back(spray);
+    tr.pass_index.push_back(pass);
+    tr.region_index.push_back(region);
+    tr.kind.push_back(kind);
+  };
+  push(0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
+  int pass_offset = 0;
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    const CartesianPath path =
+        region_path(regions[r], params.start_length_m, params.end_length_m, timing.spray_on_turns, pass_offset);
+    const SpeedProfile prof = region_profile(path, params);
+    const CartesianSamples cs = sample_path(path, prof, rate);
+    // The joint path starts where the swarm's RegionJointModel starts it (at the longest lead-in)
+    // so that both see the same q(s): the unused part of that lead-in is prepended, then dropped.
+    std::vector<NozzlePose> poses;
+    const double unused = max_lead - params.start_length_m;
+    if (unused > 0.0) {
+      const CartesianPath long_path = region_path(regions[r], max_lead, max_lead, timing.spray_on_turns);
+      const int m = static_cast<int>(std::ceil(unused / 0.005));
+      for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
+    }
+    const std::size_t prefix = poses.size();
+    poses.insert(poses.end(), cs.nozzle.begin(), cs.nozzle.end());
+    std::vector<Eigen::VectorXd> jq;
+    bool tracked = false;
+    try {
+      jq = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
+    } catch (const std::exception& e) {
+      throw std::runtime_error("time_plan: region " + std::to_string(r) + ": " + e.what());
+    }
+    jq.erase(jq.begin(), jq.begin() + static_cast<std::ptrdiff_t>(prefix));
+    // Transit from the previous rest configuration to the region's first one.
+    if (!tracked) ++tr.untracked_regions;
+    const Eigen::VectorXd q_first = jq.front();
+    const double T = quintic_min_duration(q_prev, q_first, robot.velocity_limits(), robot.acceleration_limits());
+    if (T > 0.0) {
+      for (double t : time_grid(T, rate)) {
+        if (t == 0.0) continue;
+        Eigen::VectorXd q, qd, qdd;
+        quintic_joint(q_prev, q_first, T, t, q, qd, qdd);
+        push(t0 + t, q, pose_of(robot.fk(q)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
+      }
+      t0 += T;
+      tr.transit_time_s += T;
+    }
+    for (std::size_t k = 1; k < cs.t_s.size(); ++k)
+      push(t0 + cs.t_s[k], jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], static_cast<int>(r), cs.kind[k]);
+    t0 += prof.duration_s();
+    q_prev = jq.back();
+    pass_offset += static_cast<int>(regions[r].size());
+  }
+  finite_differences(tr.t_s, tr.q, tr.qd, tr.qdd);
+  tr.duration_s = t0;
+  const auto dw = spray_dwells(tr.t_s, tr.spraying);
+  for (double d : dw) tr.spray_time_s += d;
+  const Eigen::VectorXd& vl = robot.velocity_limits();
+  const Eigen::VectorXd& al = robot.acceleration_limits();
+  for (std::size_t i = 0; i < tr.size(); ++i)
+    for (int j = 0; j < dof; ++j) {
+      const double rv = std::abs(tr.qd[i][j]) / vl[j], ra = std::abs(tr.qdd[i][j]) / al[j];
+      if (rv > tr.max_velocity_ratio) { tr.max_velocity_ratio = rv; tr.worst_velocity_joint = j; }
+      if (ra > tr.max_acceleration_ratio) { tr.max_acceleration_ratio = ra; tr.worst_acceleration_joint = j; }
+      tr.max_position_violation_rad = std::max({tr.max_position_violation_rad, robot.lower_limits()[j] - tr.q[i][j],
+                                                tr.q[i][j] - robot.upper_limits()[j]});
+    }
+  return tr;
+}
+
+// ------------------------------------------------------------------------------------------------
+// RegionJointModel
+// ------------------------------------------------------------------------------------------------
+
+RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m,
+                                   bool spray_on_turns, const Eigen::VectorXd& seed, const RobotConfig& robot_config,
+                                   double step_m)
+    : path_(region_path(passes, max_lead_m, max_lead_m, spray_on_turns)),
+      max_lead_m_(max_lead_m),
+      vel_limit_(robot.velocity_limits()),
+      acc_limit_(robot.acceleration_limits()) {
+  if (!(step_m > 0.0)) throw std::invalid_argument("RegionJointModel: step_m must be > 0");
+  const double L = path_.length_m();
+  const int n = std::max(2, static_cast<int>(std::ceil(L / step_m)));
+  std::vector<NozzlePose> poses;
+  for (int k = 0; k <= n; ++k) {
+    s_.push_back(L * k / n);
+    poses.push_back(path_.pose_at(s_.back()));
+  }
+  q_ = timing_joint_path(robot, poses, seed, robot_config, &tracked_);
+  const std::size_t m = q_.size();
+  const double h = L / n;
+  dq_.assign(m, Eigen::VectorXd::Zero(robot.dof()));
+  ddq_.assign(m, Eigen::VectorXd::Zero(robot.dof()));
+  for (std::size_t k = 1; k + 1 < m; ++k) {
+    dq_[k] = (q_[k + 1] - q_[k - 1]) / (2.0 * h);
+    ddq_[k] = (q_[k + 1] - 2.0 * q_[k] + q_[k - 1]) / (h * h);
+  }
+  dq_[0] = (q_[1] - q_[0]) / h;
+  dq_[m - 1] = (q_[m - 1] - q_[m - 2]) / h;
+  ddq_[0] = ddq_[1];
+  ddq_[m - 1] = ddq_[m - 2];
+}
+
+void RegionJointModel::interpolate(double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const {
+  const double L = s_.back();
+  const double x = std::clamp(s / L, 0.0, 1.0) * (static_cast<double>(s_.size()) - 1.0);
+  const std::size_t k = std::min(static_cast<std::size_t>(x), s_.size() - 2);
+  const double f = x - static_cast<double>(k);
+  q = (1.0 - f) * q_[k] + f * q_[k + 1];
+  dq = (1.0 - f) * dq_[k] + f * dq_[k + 1];
+  ddq = (1.0 - f) * ddq_[k] + f * ddq_[k + 1];
+}
+
+RegionJointModel::Evaluation RegionJointModel::evaluate(const TimingParams& params, const NozzleLimits& limits,
+                                                        double rate_hz) const {
+  if (params.start_length_m > max_lead_m_ + 1e-12 || params.end_length_m > max_lead_m_ + 1e-12)
+    throw std::invalid_argument("RegionJointModel: lead lengths above the modelled " + num(max_lead_m_) + " m");
+  auto specs = specs_of(path_);
+  specs.front().length_m = params.start_length_m;
+  specs.back().length_m = params.end_length_m;
+  const SpeedProfile prof = profile_from_specs(specs, params);
+  const double offset = max_lead_m_ - params.start_length_m;
+  Evaluation ev;
+  ev.duration_s = prof.duration_s();
+  Eigen::VectorXd q, dq, ddq;
+  for (double t : time_grid(prof.duration_s(), rate_hz)) {
+    const auto st = prof.at(t);
+    const double s = offset + st.s_m;
+    interpolate(s, q, dq, ddq);
+    const Eigen::VectorXd qd = dq * st.v_mps;
+    const Eigen::VectorXd qdd = ddq * (st.v_mps * st.v_mps) + dq * st.a_mps2;
+    ev.velocity_ratio = std::max(ev.velocity_ratio, qd.cwiseAbs().cwiseQuotient(vel_limit_).maxCoeff());
+    ev.acceleration_ratio = std::max(ev.acceleration_ratio, qdd.cwiseAbs().cwiseQuotient(acc_limit_).maxCoeff());
+    const double an = st.v_mps * st.v_mps * path_.curvature_at(s);
+    ev.nozzle.max_speed_mps = std::max(ev.nozzle.max_speed_mps, st.v_mps);
+    ev.nozzle.max_accel_mps2 = std::max(ev.nozzle.max_accel_mps2, std::hypot(st.a_mps2, an));
+  }
+  for (const auto& p : prof.pieces()) ev.nozzle.max_accel_mps2 = std::max(ev.nozzle.max_accel_mps2, p.peak_accel_mps2());
+  ev.nozzle.speed_ratio = ev.nozzle.max_speed_mps / limits.max_speed_mps;
+  ev.nozzle.accel_ratio = ev.nozzle.max_accel_mps2 / limits.max_accel_mps2;
+  interpolate(offset, q, dq, ddq);
+  ev.q_first = q;
+  interpolate(offset + prof.length_m(), q, dq, ddq);
+  ev.q_last = q;
+  return ev;
+}
+
+// ------------------------------------------------------------------------------------------------
+// AIWCPSO
+// ------------------------------------------------------------------------------------------------
+
+PsoOptions PsoOptions::from_config(const TimingConfig& c) {
+  PsoOptions o;
+  o.particles = c.pso_particles;
+  o.iterations = c.pso_iterations;
+  o.seed = c.pso_seed;
+  o.a = c.pso_a;
+  o.b = c.pso_b;
+  o.w_min = c.pso_w_min;
+  o.w_max = c.pso_w_max;
+  return o;
+}
+
+PsoResult pso_minimize(const std::function<double(const Eigen::VectorXd&)>& f, const Eigen::VectorXd& lower,
+                       const Eigen::VectorXd& upper, const PsoOptions& o, const std::vector<Eigen::VectorXd>& initial) {
+  const Eigen::Index D = lower.size();
+  if (D == 0 || upper.size() != D) throw std::invalid_argument("pso_minimize: lower and upper must be non-empty and of equal size");
+  if ((upper.array() < lower.array()).any()) throw std::invalid_argument("pso_minimize: upper bound below lower bound");
+  if (o.particles < 1 || o.iterations < 0) throw std::invalid_argument("pso_minimize: particles must be >= 1, iterations >= 0");
+  const int N = o.particles;
+  std::mt19937_64 rng(o.seed);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  const Eigen::VectorXd range = upper - lower;
+  const Eigen::VectorXd vmax = 0.5 * range;  // velocity clamp: half the box per step
+  std::vector<Eigen::VectorXd> x(N), v(N), pb(N);
+  std::vector<double> pf(N);
+  PsoResult res;
+  auto eval = [&](const Eigen::VectorXd& p) {
+    ++res.evaluations;
+    const double y = f(p);
+    return std::isnan(y) ? std::numeric_limits<double>::infinity() : y;
+  };
+  for (int i = 0; i < N; ++i) {
+    x[i].resize(D);
+    v[i].resize(D);
+    for (Eigen::Index d = 0; d < D; ++d) x[i][d] = lower[d] + U(rng) * range[d];
+    for (Eigen::Index d = 0; d < D; ++d) v[i][d] = (2.0 * U(rng) - 1.0) * 0.1 * range[d];
+    if (static_cast<std::size_t>(i) < initial.size()) {
+      if (initial[i].size() != D) throw std::invalid_argument("pso_minimize: initial particle of the wrong size");
+      x[i] = initial[i].cwiseMax(lower).cwiseMin(upper);
+    }
+    pb[i] = x[i];
+    pf[i] = eval(x[i]);
+  }
+  int g = static_cast<int>(std::min_element(pf.begin(), pf.end()) - pf.begin());
+  res.best_history.push_back(pf[g]);
+  double bs = 1.0;  // every personal best is new after the initial evaluation
+  for (int it = 0; it < o.iterations; ++it) {
+    const double w = (o.w_max - o.w_min) * bs + o.w_min;
+    const double c1 = o.a * bs + o.b, c2 = o.a * (1.0 - bs) + o.b;
+    int improved = 0;
+    for (int i = 0; i < N; ++i) {
+      for (Eigen::Index d = 0; d < D; ++d) {
+        const double r1 = U(rng), r2 = U(rng);
+        double vd = w * v[i][d] + c1 * r1 * (pb[i][d] - x[i][d]) + c2 * r2 * (pb[g][d] - x[i][d]);
+        vd = std::clamp(vd, -vmax[d], vmax[d]);
+        double xd = x[i][d] + vd;
+        if (xd < lower[d] || xd > upper[d]) {  // stop at the wall
+          xd = std::clamp(xd, lower[d], upper[d]);
+          vd = 0.0;
+        }
+        v[i][d] = vd;
+        x[i][d] = xd;
+      }
+    }
+    for (int i = 0; i < N; ++i) {
+      const double y = eval(x[i]);
+      if (y < pf[i]) {
+        pf[i] = y;
+        pb[i] = x[i];
+        ++improved;
+      }
+    }
+    g = static_cast<int>(std::min_element(pf.begin(), pf.end()) - pf.begin());
+    bs = static_cast<double>(improved) / N;
+    res.best_history.push_back(pf[g]);
+    res.success_history.push_back(bs);
+  }
+  res.best_x = pb[g];
+  res.best_f = pf[g];
+  return res;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Tuning
+// ------------------------------------------------------------------------------------------------
+
+namespace {
+
+TimingParams params_of(const Eigen::VectorXd& x) {
+  TimingParams p;
+  p.k1 = x[0];
+  p.k2 = x[1];
+  p.start_length_m = x[2];
+  p.end_length_m = x[3];
+  p.turn_speed_mps = x[4];
+  return p;
+}
+
+}  // namespace
+
+TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
+                         const TimingConfig& timing, const RobotConfig& robot_config) {
+  if (regions.empty()) throw std::invalid_argument("tune_timing: no regions");
+  const NozzleLimits limits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2};
+  const double max_lead = timing.max_lead_length_m;
+  const double min_lead = std::min(0.02, max_lead);
+  std::vector<RegionJointModel> models;
+  std::vector<CartesianPath> paths_unused;
+  if (robot) {
+    if (q_start.size() != robot->dof()) throw std::invalid_argument("tune_timing: q_start does not match the robot");
+    Eigen::VectorXd seed = q_start;
+    for (std::size_t r = 0; r < regions.size(); ++r) {
+      try {
+        models.emplace_back(*robot, regions[r], max_lead, timing.spray_on_turns, seed, robot_config);
+      } catch (const std::exception& e) {
+        throw std::runtime_error("tune_timing: region " + std::to_string(r) + " (with " + num(max_lead) +
+                                 " m leads): " + e.what());
+      }
+      seed = models.back().evaluate(TimingParams::from_config(timing), limits).q_last;
+    }
+  }
+  // Execution time of every region plus the joint transits; infeasible -> penalty above any time.
+  auto total = [&](const TimingParams& p, bool& feasible) {
+    double time = 0.0, worst = 0.0;
+    Eigen::VectorXd q_prev = q_start;
+    for (std::size_t r = 0; r < regions.size(); ++r) {
+      if (robot) {
+        const auto ev = models[r].evaluate(p, limits);
+        time += ev.duration_s + quintic_min_duration(q_prev, ev.q_first, robot->velocity_limits(), robot->acceleration_limits());
+        q_prev = ev.q_last;
+        worst = std::max({worst, ev.velocity_ratio, ev.acceleration_ratio, ev.nozzle.speed_ratio, ev.nozzle.accel_ratio});
+      } else {
+        const CartesianPath path = region_path(regions[r], p.start_length_m, p.end_length_m, timing.spray_on_turns);
+        const SpeedProfile prof = region_profile(path, p);
+        const auto c = check_nozzle(path, prof, limits, 100.0);
+        time += prof.duration_s();
+        worst = std::max({worst, c.speed_ratio, c.accel_ratio});
+      }
+    }
+    feasible = worst <= 1.0;
+    return feasible ? time : 1e6 * worst;
+  };
+  TimingTuning out;
+  const TimingParams p0 = TimingParams::from_config(timing);
+  {
+    bool feas = false;
+    TimingParams p = p0;
+    p.start_length_m = std::clamp(p.start_length_m, min_lead, max_lead);
+    p.end_length_m = std::clamp(p.end_length_m, min_lead, max_lead);
+    const double v = total(p, feas);
+    out.initial_feasible = feas;
+    out.initial_duration_s = feas ? v : std::numeric_limits<double>::infinity();
+  }
+  double vmin_pass = std::numeric_limits<double>::infinity(), vsum = 0.0;
+  int npass = 0;
+  for (const auto& reg : regions)
+    for (const auto& p : reg) {
+      vmin_pass = std::min(vmin_pass, p.speed_mps);
+      vsum += p.speed_mps;
+      ++npass;
+    }
+  Eigen::VectorXd lo(5), hi(5);
+  lo << 0.05, 0.0, min_lead, min_lead, std::min(0.02, vmin_pass);
+  hi << 1.0, 0.95, max_lead, max_lead, timing.nozzle_max_speed_mps;
+  Eigen::VectorXd x0(5);
+  x0 << p0.k1, p0.k2, p0.start_length_m, p0.end_length_m, p0.turn_speed_mps > 0.0 ? p0.turn_speed_mps : vsum / npass;
+  out.pso = pso_minimize(
+      [&](const Eigen::VectorXd& x) {
+        bool feas = false;
+        return total(params_of(x), feas);
+      },
+      lo, hi, PsoOptions::from_config(timing), {x0});
+  out.params = params_of(out.pso.best_x);
+  out.duration_s = out.pso.best_f;
+  return out;
+}
+
+}  // namespace shotcrete

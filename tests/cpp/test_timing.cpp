@@ -1,0 +1,464 @@
+// Motion timing: the paper's start/end profiles against their closed forms integrated numerically,
+// turn-around geometry, quintic boundary conditions, sampling/dwells, the swarm on functions with a
+// known minimum, joint-space transits and the timed trajectory of real passes on the robot.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <algorithm>
+#include <functional>
+
+#include "shotcrete/robot.hpp"
+#include "shotcrete/timing.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Composite Simpson on [a, b] with n (even) intervals.
+double simpson(const std::function<double(double)>& f, double a, double b, int n = 2000) {
+  const double h = (b - a) / n;
+  double s = f(a) + f(b);
+  for (int i = 1; i < n; ++i) s += (i % 2 ? 4.0 : 2.0) * f(a + i * h);
+  return s * h / 3.0;
+}
+
+// The paper's formulas written out literally (design 7b), independent of the implementation.
+double paper_start_v(double t, double s_start, double vmax, double k1) {
+  const double Ts = 2.0 * s_start / (vmax * (2.0 - k1)), t1 = k1 * Ts;
+  if (t >= t1) return vmax;
+  const double m = 2.0 * kPi * t / t1;
+  return vmax / (2.0 * kPi) * (m - std::sin(m));
+}
+double paper_end_v(double t, double s_end, double vmax, double k2) {
+  const double Te = 2.0 * s_end / (vmax * (1.0 + k2)), t2 = k2 * Te;
+  if (t <= t2) return vmax;
+  const double m = 2.0 * kPi * (Te - t) / (Te - t2);
+  return vmax / (2.0 * kPi) * (m - std::sin(m));
+}
+
+// Axial passes on a nozzle cylinder of radius rn (wall 5.6 m at 1 m standoff), serpentine.
+std::vector<Pass> axial_region(int n, double length, double wall_spacing, double x0, double theta0,
+                               const std::vector<double>& speeds, double rn = 4.6, double R = 5.6) {
+  std::vector<Pass> passes;
+  for (int i = 0; i < n; ++i) {
+    const double th = theta0 + i * wall_spacing / R;
+    Pass p;
+    const int m = static_cast<int>(std::round(length / 0.01));
+    for (int k = 0; k <= m; ++k) {
+      const double f = static_cast<double>(k) / m;
+      const double x = x0 + (i % 2 == 0 ? f : 1.0 - f) * length;
+      NozzlePose w;
+      w.position_m = Eigen::Vector3d(x, rn * std::cos(th), rn * std::sin(th));
+      w.axis = Eigen::Vector3d(0, std::cos(th), std::sin(th));
+      p.waypoints.push_back(w);
+    }
+    p.speed_mps = speeds[static_cast<std::size_t>(i) % speeds.size()];
+    p.length_m = length;
+    passes.push_back(p);
+  }
+  return passes;
+}
+
+}  // namespace
+
+TEST(Profiles, CycloidStartMatchesPaperAndCoversStartLength) {
+  for (double k1 : {0.2, 0.5, 0.8, 1.0}) {
+    const double s = 0.15, v = 0.35;
+    const SpeedProfile p = cycloid_start(s, v, k1);
+    const double Ts = 2.0 * s / (v * (2.0 - k1));
+    EXPECT_NEAR(p.duration_s(), Ts, 1e-12);
+    // Distance of the paper's v(t) integrated numerically equals s_start: Ts formula is consistent.
+    const double dist = simpson([&](double t) { return paper_start_v(t, s, v, k1); }, 0.0, k1 * Ts) +
+                        v * (1.0 - k1) * Ts;
+    EXPECT_NEAR(dist, s, 1e-9) << "k1 " << k1;
+    EXPECT_NEAR(p.length_m(), s, 1e-12);
+    for (int i = 0; i <= 200; ++i) {
+      const double t = Ts * i / 200.0;
+      const auto st = p.at(t);
+      ASSERT_NEAR(st.v_mps, paper_start_v(t, s, v, k1), 1e-12) << "t " << t;
+      // s(t) against the numerical integral of the paper's v(t).
+      const double ref = simpson([&](double x) { return paper_start_v(x, s, v, k1); }, 0.0, t, 400);
+      ASSERT_NEAR(st.s_m, ref, 1e-6) << "t " << t;
+    }
+    // Acceleration starts and ends at zero (no jumps), velocity continuous at t1.
+    const double t1 = k1 * Ts;
+    EXPECT_NEAR(p.at(0.0).a_mps2, 0.0, 1e-12);
+    EXPECT_NEAR(p.at(t1 - 1e-9).a_mps2, 0.0, 1e-5);
+    EXPECT_NEAR(p.at(t1 - 1e-9).v_mps, v, 1e-8);
+    EXPECT_NEAR(p.at(t1 + 1e-9).v_mps, v, 1e-12);
+    // Peak acceleration of the cycloid is 2 v / t1 at t1 / 2.
+    EXPECT_NEAR(p.at(0.5 * t1).a_mps2, 2.0 * v / t1, 1e-9);
+  }
+}
+
+TEST(Profiles, CycloidEndMatchesPaperAndCoversEndLength) {
+  for (double k2 : {0.0, 0.3, 0.5, 0.9}) {
+    const double s = 0.2, v = 0.25;
+    const SpeedProfile p = cycloid_end(s, v, k2);
+    const double Te = 2.0 * s / (v * (1.0 + k2));
+    EXPECT_NEAR(p.duration_s(), Te, 1e-12);
+    const double dist = v * k2 * Te + simpson([&](double t) { return paper_end_v(t, s, v, k2); }, k2 * Te, Te);
+    EXPECT_NEAR(dist, s, 1e-9) << "k2 " << k2;
+    for (int i = 0; i <= 200; ++i) {
+      const double t = Te * i / 200.0;
+      ASSERT_NEAR(p.at(t).v_mps, paper_end_v(t, s, v, k2), 1e-12) << "t " << t;
+    }
+    EXPECT_NEAR(p.at(Te).v_mps, 0.0, 1e-12);
+    EXPECT_NEAR(p.at(Te).a_mps2, 0.0, 1e-12);
+    EXPECT_NEAR(p.at(k2 * Te + 1e-9).a_mps2, 0.0, 1e-5);
+    EXPECT_NEAR(p.at(Te).s_m, s, 1e-12);
+  }
+}
+
+TEST(Profiles, DerivativesAreConsistent) {
+  // v = ds/dt, a = dv/dt, j = da/dt by central differences on a composite profile.
+  SpeedProfile p = cycloid_start(0.1, 0.3, 0.6);
+  p.append(SpeedPiece{0.3, 0.1, 0.8, SpeedShape::Cycloid});
+  p.append(rest_to_rest(0.5, 0.4, 0.7, SpeedShape::Quintic));
+  const double h = 1e-5;
+  for (int i = 1; i < 400; ++i) {
+    const double t = p.duration_s() * i / 400.0;
+    const auto a = p.at(t - h), b = p.at(t + h), c = p.at(t);
+    ASSERT_NEAR((b.s_m - a.s_m) / (2 * h), c.v_mps, 1e-6) << t;
+    ASSERT_NEAR((b.v_mps - a.v_mps) / (2 * h), c.a_mps2, 1e-4) << t;
+  }
+  // Jerk inside one piece (the jerk of a cycloid jumps at piece ends by design).
+  const SpeedPiece q{0.0, 0.5, 1.3, SpeedShape::Quintic};
+  for (double t : {0.1, 0.4, 0.77, 1.2})
+    EXPECT_NEAR((q.accel_at(t + h) - q.accel_at(t - h)) / (2 * h), q.jerk_at(t), 1e-4);
+  // Bisection for the time of a distance.
+  for (double s : {0.0, 0.05, 0.3, p.length_m()}) EXPECT_NEAR(p.at(p.time_at_distance(s)).s_m, s, 1e-9);
+}
+
+TEST(Profiles, QuinticBoundaryConditions) {
+  const double L = 1.0, v = 0.3, ta = 0.9;
+  const SpeedProfile p = rest_to_rest(L, v, ta, SpeedShape::Quintic);
+  ASSERT_EQ(p.pieces().size(), 3u);
+  const double T = p.duration_s();
+  EXPECT_NEAR(T, ta + (L - v * ta) / v + ta, 1e-12);
+  // Start and end at rest with zero acceleration and zero jerk; cruise reached with zero a and j.
+  for (double t : {0.0, T}) {
+    const auto st = p.at(t);
+    EXPECT_NEAR(st.v_mps, 0.0, 1e-12);
+    EXPECT_NEAR(st.a_mps2, 0.0, 1e-12);
+    EXPECT_NEAR(st.j_mps3, 0.0, 1e-12);
+  }
+  const SpeedPiece& acc = p.pieces()[0];
+  EXPECT_NEAR(acc.speed_at(ta), v, 1e-12);
+  EXPECT_NEAR(acc.accel_at(ta), 0.0, 1e-12);
+  EXPECT_NEAR(acc.jerk_at(ta), 0.0, 1e-12);
+  EXPECT_NEAR(acc.jerk_at(0.0), 0.0, 1e-12);
+  // v(t) = v (10 tau^3 - 15 tau^4 + 6 tau^5): independent closed form, peak accel 1.875 v / ta.
+  for (double tau : {0.1, 0.37, 0.5, 0.81}) {
+    EXPECT_NEAR(acc.speed_at(tau * ta), v * (10 * std::pow(tau, 3) - 15 * std::pow(tau, 4) + 6 * std::pow(tau, 5)), 1e-12);
+  }
+  EXPECT_NEAR(acc.peak_accel_mps2(), 1.875 * v / ta, 1e-12);
+  EXPECT_NEAR(acc.accel_at(0.5 * ta), 1.875 * v / ta, 1e-12);
+  EXPECT_NEAR(simpson([&](double t) { return p.at(t).v_mps; }, 0.0, T, 4000), L, 1e-7);
+  // Too short to reach v: the peak drops, length kept.
+  const SpeedProfile s = rest_to_rest(0.1, 0.3, 0.9, SpeedShape::Quintic);
+  EXPECT_NEAR(s.length_m(), 0.1, 1e-12);
+  EXPECT_NEAR(s.at(0.9).v_mps, 0.1 / 0.9, 1e-12);
+  EXPECT_THROW(rest_to_rest(1.0, 0.0, 1.0, SpeedShape::Quintic), std::invalid_argument);
+  EXPECT_THROW(cycloid_start(0.0, 0.3, 0.5), std::invalid_argument);
+  EXPECT_THROW(cycloid_end(0.1, 0.3, 1.0), std::invalid_argument);
+}
+
+TEST(Geometry, TurnAroundDiameterIsSpacingAndTangentsContinuous) {
+  // Pass a ends at x = 1.0 going +x; pass b starts at x = 1.15 going -x, 0.2 m across (in y).
+  NozzlePose ea, sb;
+  ea.position_m = {1.0, 0.0, 2.0};
+  sb.position_m = {1.15, 0.2, 2.0};
+  ea.axis = sb.axis = Eigen::Vector3d(0, 0, 1);
+  const auto pieces = turn_around(ea, Eigen::Vector3d::UnitX(), sb, 0.3, 0.2, false);
+  ASSERT_EQ(pieces.size(), 2u);  // extension of a (0.15 m) + arc
+  EXPECT_EQ(pieces[0].kind, SegmentKind::Link);
+  EXPECT_NEAR(pieces[0].length_m(), 0.15, 1e-12);
+  const PathPiece& arc = pieces[1];
+  ASSERT_TRUE(arc.is_arc);
+  EXPECT_NEAR(2.0 * arc.radius_m, 0.2, 1e-12);  // diameter = spacing
+  EXPECT_NEAR(arc.length_m(), kPi * 0.1, 1e-12);
+  // Every arc point is r from the centre, the arc bulges beyond the pass ends by r.
+  double max_x = -1e9;
+  for (int i = 0; i <= 100; ++i) {
+    const auto p = arc.pose_at(arc.length_m() * i / 100.0).position_m;
+    ASSERT_NEAR((p - arc.center).norm(), 0.1, 1e-12);
+    max_x = std::max(max_x, p.x());
+  }
+  EXPECT_NEAR(max_x, 1.15 + 0.1, 1e-6);
+  // Positions and tangents continuous at the joints; the arc ends heading -x onto pass b.
+  EXPECT_NEAR((pieces[0].pose_at(0.15).position_m - arc.pose_at(0).position_m).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((arc.pose_at(arc.length_m()).position_m - sb.position_m).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((pieces[0].tangent_at(0.1) - arc.tangent_at(0.0)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((arc.tangent_at(arc.length_m()) - Eigen::Vector3d(-1, 0, 0)).norm(), 0.0, 1e-12);
+  // Tangent is the derivative of position along the arc.
+  const double h = 1e-6, s0 = 0.13;
+  const Eigen::Vector3d fd = (arc.pose_at(s0 + h).position_m - arc.pose_at(s0 - h).position_m) / (2 * h);
+  EXPECT_NEAR((fd - arc.tangent_at(s0)).norm(), 0.0, 1e-6);
+  EXPECT_NEAR(arc.curvature_at(0.1), 10.0, 1e-12);
+  // The other way round: b sticks out less -> b gets the extension.
+  sb.position_m = {0.9, 0.2, 2.0};
+  const auto p2 = turn_around(ea, Eigen::Vector3d::UnitX(), sb, 0.3, 0.3, false);
+  ASSERT_EQ(p2.size(), 2u);
+  EXPECT_TRUE(p2[0].is_arc);
+  EXPECT_NEAR(p2[1].length_m(), 0.1, 1e-12);
+  EXPECT_NEAR((p2[1].tangent_at(0.05) - Eigen::Vector3d(-1, 0, 0)).norm(), 0.0, 1e-12);
+  sb.position_m = {1.2, 0.0, 2.0};
+  EXPECT_THROW(turn_around(ea, Eigen::Vector3d::UnitX(), sb, 0.3, 0.3, false), std::invalid_argument);
+}
+
+TEST(Region, SerpentineNeverStopsAndKeepsPassSpeeds) {
+  const auto passes = axial_region(6, 1.2, 0.2, 0.0, 1.2, {0.2, 0.3, 0.25});
+  TimingParams prm;
+  prm.k1 = 0.6;
+  prm.k2 = 0.4;
+  prm.start_length_m = prm.end_length_m = 0.12;
+  const CartesianPath path = region_path(passes, prm.start_length_m, prm.end_length_m, false);
+  const SpeedProfile prof = region_profile(path, prm);
+  EXPECT_NEAR(prof.length_m(), path.length_m(), 1e-9);
+  // Path length: passes + leads + half circles of the spacing at the nozzle radius.
+  const double chord = 2.0 * 4.6 * std::sin(0.5 * 0.2 / 5.6);
+  EXPECT_NEAR(path.length_m(), 6 * 1.2 + 0.24 + 5 * kPi * chord / 2.0, 1e-6);
+  const CartesianSamples cs = sample_path(path, prof, 200.0);
+  ASSERT_GT(cs.t_s.size(), 100u);
+  double max_dv = 0.0, max_step = 0.0;
+  std::vector<double> pass_time(6, 0.0);
+  const auto dw = spray_dwells(cs.t_s, cs.spraying);
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+    if (i > 0) {
+      max_dv = std::max(max_dv, std::abs(cs.speed_mps[i] - cs.speed_mps[i - 1]));
+      max_step = std::max(max_step, cs.t_s[i] - cs.t_s[i - 1]);
+      // Position continuity: the nozzle moves at most v dt between samples.
+      ASSERT_LE((cs.nozzle[i].position_m - cs.nozzle[i - 1].position_m).norm(), 0.3 * (cs.t_s[i] - cs.t_s[i - 1]) + 1e-9);
+    }
+    if (cs.kind[i] != static_cast<char>(SegmentKind::Lead)) {
+      ASSERT_GT(cs.speed_mps[i], 0.05) << "stopped inside the region at t = " << cs.t_s[i];
+    }
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_TRUE(cs.spraying[i]);
+      ASSERT_NEAR(cs.speed_mps[i], passes[static_cast<std::size_t>(cs.pass_index[i])].speed_mps, 1e-12);
+      pass_time[static_cast<std::size_t>(cs.pass_index[i])] += dw[i];
+    } else {
+      ASSERT_FALSE(cs.spraying[i]);
+      ASSERT_EQ(cs.pass_index[i], -1);
+    }
+  }
+  EXPECT_LE(max_step, 1.0 / 200.0 + 1e-12);
+  EXPECT_LT(max_dv, 0.01);  // no speed jumps at 200 Hz
+  // Dwells add up to each pass's duration within one sample.
+  for (int i = 0; i < 6; ++i) EXPECT_NEAR(pass_time[static_cast<std::size_t>(i)], 1.2 / passes[static_cast<std::size_t>(i)].speed_mps, 1.0 / 200.0);
+  EXPECT_NEAR(cs.speed_mps.front(), 0.0, 1e-12);
+  EXPECT_NEAR(cs.speed_mps.back(), 0.0, 1e-12);
+  // Turn speed > 0: the middle of each arc runs at the turn speed.
+  prm.turn_speed_mps = 0.5;
+  const SpeedProfile fast = region_profile(path, prm);
+  EXPECT_LT(fast.duration_s(), prof.duration_s());
+  double vmax_turn = 0.0;
+  for (const auto& s : sample_path(path, fast, 500.0).speed_mps) vmax_turn = std::max(vmax_turn, s);
+  EXPECT_NEAR(vmax_turn, 0.5, 1e-4);
+}
+
+TEST(Region, NozzleCheckSeesCentripetalAcceleration) {
+  const auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.4});
+  TimingParams prm;
+  prm.k1 = 1.0;
+  prm.k2 = 0.0;
+  prm.start_length_m = prm.end_length_m = 0.5;  // gentle start/stop: the arc dominates
+  const CartesianPath path = region_path(passes, 0.5, 0.5, false);
+  const auto c = check_nozzle(path, region_profile(path, prm), NozzleLimits{1.0, 1.0});
+  double r = 0.0;
+  for (const auto& p : path.pieces())
+    if (p.is_arc) r = p.radius_m;
+  ASSERT_GT(r, 0.0);
+  EXPECT_NEAR(c.max_accel_mps2, 0.4 * 0.4 / r, 1e-6);
+  EXPECT_NEAR(c.max_speed_mps, 0.4, 1e-12);
+  EXPECT_EQ(c.ok(), 0.16 / r <= 1.0);
+}
+
+TEST(Baseline, FullStopsAtEveryCorner) {
+  const auto passes = axial_region(4, 1.2, 0.2, 0.0, 1.2, {0.3});
+  const BaselinePath b = quintic_baseline(passes, 0.5, 0.3);
+  EXPECT_NEAR(b.profile.length_m(), b.path.length_m(), 1e-9);
+  // The speed is zero where each piece of the baseline path starts (lead-in starts, step-overs).
+  int stops = 0;
+  for (std::size_t i = 0; i < b.path.pieces().size(); ++i) {
+    const auto& p = b.path.pieces()[i];
+    if (p.kind == SegmentKind::Link || (p.kind == SegmentKind::Lead && (i == 0 || b.path.pieces()[i - 1].kind == SegmentKind::Link))) {
+      const double t = b.profile.time_at_distance(b.path.piece_start_m(i));
+      EXPECT_NEAR(b.profile.at(t).v_mps, 0.0, 1e-6);
+      ++stops;
+    }
+  }
+  EXPECT_EQ(stops, 4 + 3);
+  const auto c = check_nozzle(b.path, b.profile, NozzleLimits{1.0, 0.5});
+  EXPECT_NEAR(c.max_accel_mps2, 0.5, 1e-9);  // accelerations sized to the limit
+  // Passes are sprayed at their speed.
+  for (const auto& s : [&] { return sample_path(b.path, b.profile, 100.0); }().speed_mps) EXPECT_LE(s, 0.3 + 1e-12);
+  // Cycloid + arcs with the same acceleration limit is faster.
+  TimingParams prm;
+  prm.k1 = 1.0;
+  prm.k2 = 0.0;
+  prm.start_length_m = prm.end_length_m = 0.5 * 0.3 * (2.0 * 0.3 / 0.5);  // peak 0.5 m/s^2
+  const CartesianPath path = region_path(passes, prm.start_length_m, prm.end_length_m, false);
+  EXPECT_LT(region_profile(path, prm).duration_s(), b.profile.duration_s());
+}
+
+TEST(Joint, QuinticMinDurationHitsTheBindingLimit) {
+  Eigen::VectorXd q0(3), q1(3), vl(3), al(3);
+  q0 << 0.0, 1.0, -0.5;
+  q1 << 1.2, 0.8, 0.5;
+  vl << 0.5, 1.0, 2.0;
+  al << 2.0, 1.0, 0.2;
+  const double T = quintic_min_duration(q0, q1, vl, al);
+  EXPECT_NEAR(T, std::max({1.875 * 1.2 / 0.5, std::sqrt(10.0 / std::sqrt(3.0) * 1.0 / 0.2)}), 1e-12);
+  double rv = 0.0, ra = 0.0;
+  Eigen::VectorXd q, qd, qdd;
+  for (int i = 0; i <= 10000; ++i) {
+    quintic_joint(q0, q1, T, T * i / 10000.0, q, qd, qdd);
+    rv = std::max(rv, qd.cwiseAbs().cwiseQuotient(vl).maxCoeff());
+    ra = std::max(ra, qdd.cwiseAbs().cwiseQuotient(al).maxCoeff());
+  }
+  EXPECT_LE(rv, 1.0 + 1e-9);
+  EXPECT_LE(ra, 1.0 + 1e-9);
+  EXPECT_NEAR(std::max(rv, ra), 1.0, 1e-6);  // minimum: one limit is reached
+  quintic_joint(q0, q1, T, T, q, qd, qdd);
+  EXPECT_NEAR((q - q1).norm(), 0.0, 1e-12);
+  EXPECT_NEAR(qd.norm() + qdd.norm(), 0.0, 1e-12);
+}
+
+TEST(Pso, FindsKnownMinima) {
+  PsoOptions o;
+  o.particles = 15;
+  o.iterations = 200;
+  o.seed = 7;
+  // Shifted sphere in 5-D, minimum 0 at c.
+  Eigen::VectorXd c(5), lo(5), hi(5);
+  c << 0.3, -1.2, 2.5, 0.0, 1.7;
+  lo.setConstant(-5.0);
+  hi.setConstant(5.0);
+  auto sphere = [&](const Eigen::VectorXd& x) { return (x - c).squaredNorm(); };
+  const PsoResult r = pso_minimize(sphere, lo, hi, o);
+  EXPECT_LT((r.best_x - c).norm(), 1e-3);
+  EXPECT_LT(r.best_f, 1e-6);
+  EXPECT_EQ(r.evaluations, 15 * 201);
+  for (std::size_t i = 1; i < r.best_history.size(); ++i) EXPECT_LE(r.best_history[i], r.best_history[i - 1]);
+  for (double b : r.success_history) {
+    EXPECT_GE(b, 0.0);
+    EXPECT_LE(b, 1.0);
+  }
+  // Deterministic for a seed.
+  const PsoResult r2 = pso_minimize(sphere, lo, hi, o);
+  EXPECT_EQ(r.best_x, r2.best_x);
+  // Rosenbrock, minimum 0 at (1, 1); Himmelblau-like box with the optimum on a bound.
+  auto rosen = [](const Eigen::VectorXd& x) { return 100 * std::pow(x[1] - x[0] * x[0], 2) + std::pow(1 - x[0], 2); };
+  Eigen::VectorXd l2(2), h2(2);
+  l2 << -2, -1;
+  h2 << 2, 3;
+  o.iterations = 300;
+  const PsoResult rr = pso_minimize(rosen, l2, h2, o);
+  EXPECT_LT(std::abs(rr.best_x[0] - 1.0), 0.05);
+  EXPECT_LT(std::abs(rr.best_x[1] - 1.0), 0.1);
+  auto onbound = [](const Eigen::VectorXd& x) { return x[0] + (x[1] - 0.5) * (x[1] - 0.5); };
+  const PsoResult rb = pso_minimize(onbound, l2, h2, o);
+  EXPECT_NEAR(rb.best_x[0], -2.0, 1e-9);
+  EXPECT_NEAR(rb.best_x[1], 0.5, 1e-3);
+  EXPECT_THROW(pso_minimize(sphere, hi, lo, o), std::invalid_argument);
+}
+
+TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
+  const auto passes = axial_region(8, 1.2, 0.2, 0.0, 1.0, {0.25, 0.2});
+  for (double amax : {2.0, 1.2}) {
+    TimingConfig tc;
+    tc.nozzle_max_accel_mps2 = amax;
+    const TimingTuning t = tune_timing(nullptr, {passes}, Eigen::VectorXd(), tc, RobotConfig{});
+    // Defaults: start peak 2 v / t1 = 1.875 m/s^2 at 0.25 m/s, end 1.2 at 0.2 -> feasible at 2.0 only.
+    EXPECT_EQ(t.initial_feasible, amax == 2.0);
+    if (t.initial_feasible) {
+      EXPECT_LE(t.duration_s, t.initial_duration_s);
+    }
+    ASSERT_LT(t.duration_s, 1e5) << "no feasible timing found at " << amax;
+    // Re-check the tuned particle independently, on a finer sampling.
+    const CartesianPath path = region_path(passes, t.params.start_length_m, t.params.end_length_m, false);
+    const SpeedProfile prof = region_profile(path, t.params);
+    EXPECT_NEAR(prof.duration_s(), t.duration_s, 1e-9);
+    EXPECT_LE(check_nozzle(path, prof, NozzleLimits{tc.nozzle_max_speed_mps, amax}, 2000.0).accel_ratio, 1.0 + 1e-3);
+  }
+}
+
+TEST(RobotTiming, TunedRegionsRespectJointLimits) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const RobotConfig rc;
+  TimingConfig tc;
+  // Two regions of a 5.6 m wall (nozzle at 1 m standoff): 4 axial passes each, 0.2 m apart.
+  const std::vector<std::vector<Pass>> regions{axial_region(4, 1.2, 0.2, 0.0, 1.2, {0.25, 0.2}),
+                                               axial_region(3, 1.0, 0.2, 0.1, 0.7, {0.3})};
+  const TimingTuning tun = tune_timing(&robot, regions, robot.neutral(), tc, rc);
+  ASSERT_LT(tun.duration_s, 1e5) << "no feasible timing";
+  const TimedTrajectory tr = time_plan(robot, regions, robot.neutral(), tc, rc, &tun.params);
+  EXPECT_EQ(tr.untracked_regions, 0);
+  // Finite-difference velocities / accelerations of the sampled joint path within the limits
+  // (the swarm judged them on its arc-length model; the tolerance covers the two discretisations).
+  EXPECT_LE(tr.max_velocity_ratio, 1.0 + 1e-3);
+  EXPECT_LE(tr.max_acceleration_ratio, 1.03);
+  EXPECT_LE(tr.max_position_violation_rad, 0.0);
+  EXPECT_NEAR(tr.duration_s, tun.duration_s, 0.05);
+  ASSERT_EQ(tr.q.size(), tr.size());
+  ASSERT_EQ(tr.qdd.size(), tr.size());
+  double pass_time = 0.0;
+  for (const auto& reg : regions)
+    for (const auto& p : reg) pass_time += p.length_m / p.speed_mps;
+  EXPECT_NEAR(tr.spray_time_s, pass_time, 2.0 / tc.trajectory_rate_hz);
+  int checked = 0, transit = 0;
+  for (std::size_t i = 0; i < tr.size(); ++i) {
+    if (i > 0) {
+      ASSERT_LE(tr.t_s[i] - tr.t_s[i - 1], 1.0 / tc.trajectory_rate_hz + 1e-12);
+    }
+    const Eigen::Isometry3d T = robot.fk(tr.q[i]);
+    if (tr.kind[i] == static_cast<char>(SegmentKind::Transit)) {
+      ++transit;
+      EXPECT_EQ(tr.region_index[i], -1);
+      continue;
+    }
+    // FK of the timed joints is the nozzle pose of the sample (exact tracking).
+    ASSERT_LT((T.translation() - tr.nozzle[i].position_m).norm(), 1e-6) << "sample " << i;
+    ASSERT_LT(std::acos(std::min(1.0, T.linear().col(2).dot(tr.nozzle[i].axis))), 1e-5) << "sample " << i;
+    // J(q) qd reproduces the planned nozzle speed on the passes (independent of the profile code).
+    if (tr.kind[i] == static_cast<char>(SegmentKind::Pass) && i + 1 < tr.size() &&
+        tr.kind[i - 1] == tr.kind[i] && tr.kind[i + 1] == tr.kind[i]) {
+      const double v = (robot.jacobian(tr.q[i]).topRows<3>() * tr.qd[i]).norm();
+      const auto& reg = regions[static_cast<std::size_t>(tr.region_index[i])];
+      const int first = tr.region_index[i] == 0 ? 0 : static_cast<int>(regions[0].size());
+      ASSERT_NEAR(v, reg[static_cast<std::size_t>(tr.pass_index[i] - first)].speed_mps, 2e-3) << "sample " << i;
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 500);
+  EXPECT_GT(transit, 10);
+  EXPECT_GT(tr.transit_time_s, 0.0);
+  // The CSV carries every sample.
+  const std::string csv = tr.to_csv();
+  EXPECT_EQ(static_cast<std::size_t>(std::count(csv.begin(), csv.end(), '\n')), tr.size() + 1);
+  EXPECT_EQ(tr.joint_table().cols(), 1 + 3 * robot.dof());
+  // The config's untuned defaults start too hard for the slew joint: the check reports it.
+  const TimedTrajectory raw = time_plan(robot, {regions[0]}, robot.neutral(), tc, rc);
+  EXPECT_GT(raw.max_acceleration_ratio, 1.0);
+  EXPECT_FALSE(tun.initial_feasible);
+}
+
+TEST(RobotTiming, BadInput) {
+  const Robot robot = Robot::load(RobotConfig{});
+  EXPECT_THROW(time_plan(robot, {}, Eigen::VectorXd::Zero(3), TimingConfig{}, RobotConfig{}), std::invalid_argument);
+  auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.2});
+  passes[1].speed_mps = 0.0;
+  EXPECT_THROW(time_plan(robot, {passes}, robot.neutral(), TimingConfig{}, RobotConfig{}), std::invalid_argument);
+  // A pass far outside the reach: a runtime_error naming the region.
+  auto far = axial_region(2, 1.0, 0.2, 30.0, 1.0, {0.2});
+  try {
+    time_plan(robot, {far}, robot.neutral(), TimingConfig{}, RobotConfig{});
+    FAIL() << "no error for an unreachable region";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("region 0"), std::string::npos) << e.what();
+  }
+}
