@@ -229,10 +229,12 @@ class ShotcreteNode {
     }
     std::shared_ptr<const Surface> surface;
     std::shared_ptr<const shotcrete::TimedTrajectory> traj;
+    std::shared_ptr<const Plan> plan;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface = surface_;
       traj = trajectory_;
+      plan = plan_;
       if (!plan_) {
         summary = "no plan: call " + pnh_.resolveName("plan") + " first";
         return false;
@@ -284,8 +286,10 @@ class ShotcreteNode {
     std::ostringstream s;
     s << std::fixed << std::setprecision(3) << "executed " << traj->duration_s << " s of trajectory in "
       << seconds_since(t0) << " s wall (time scale " << time_scale << "), " << published
-      << " joint states; mean TD " << td0.mean() * 1000 << " -> " << td1.mean() * 1000 << " mm, deposited max "
-      << deposited.maxCoeff() * 1000 << " mm";
+      << " joint states; mean TD " << td0.mean() * 1000 << " -> " << td1.mean() * 1000 << " mm";
+    if (plan->deposited_m.size() == td0.size())  // the planner's own simulation, for comparison
+      s << " (plan predicted " << (td0 - plan->deposited_m).mean() * 1000 << " mm)";
+    s << ", deposited max " << deposited.maxCoeff() * 1000 << " mm";
     summary = s.str();
     return ros::ok();
   }

@@ -90,6 +90,11 @@ class PlanExecute(unittest.TestCase):
         self.assertLess(means[-1], sum(td_first) / len(td_first) - 0.005, "mean TD did not go down")
         for a, b in zip(means, means[1:]):
             self.assertLessEqual(b, a + 1e-6)  # concrete is only added
+        # The replayed trajectory and the planner's own simulation are two computations of the
+        # same spraying: their final mean TD must agree to a tenth of the starting mean.
+        mean0 = sum(td_first) / len(td_first)
+        predicted_mm = float(ex.message.split("plan predicted ")[1].split()[0])
+        self.assertAlmostEqual(means[-1] * 1000.0, predicted_mm, delta=0.1 * mean0 * 1000.0)
         td_last = u.cloud_arrays(after[-1])[1]
         self.assertEqual(len(td_last), len(td_first))
         self.assertTrue(all(b <= a + 1e-6 for a, b in zip(td_first, td_last)))
