@@ -705,6 +705,10 @@ NozzlePose pose_of(const Eigen::Isometry3d& T) {
 
 }  // namespace
 
+namespace {
+void finish_trajectory(const Robot& robot, TimedTrajectory& tr);
+}  // namespace
+
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
                           const TimingConfig& timing, const RobotConfig& robot_config, const TimingParams* params_in) {
   const int dof = robot.dof();
@@ -772,8 +776,15 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     q_prev = jq.back();
     pass_offset += static_cast<int>(regions[r].size());
   }
-  finite_differences(tr.t_s, tr.q, tr.qd, tr.qdd);
   tr.duration_s = t0;
+  finish_trajectory(robot, tr);
+  return tr;
+}
+
+namespace {
+void finish_trajectory(const Robot& robot, TimedTrajectory& tr) {
+  const int dof = robot.dof();
+  finite_differences(tr.t_s, tr.q, tr.qd, tr.qdd);
   const auto dw = spray_dwells(tr.t_s, tr.spraying);
   for (double d : dw) tr.spray_time_s += d;
   const Eigen::VectorXd& vl = robot.velocity_limits();
@@ -786,6 +797,25 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
       tr.max_position_violation_rad = std::max({tr.max_position_violation_rad, robot.lower_limits()[j] - tr.q[i][j],
                                                 tr.q[i][j] - robot.upper_limits()[j]});
     }
+}
+}  // namespace
+
+TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const SpeedProfile& profile,
+                          const Eigen::VectorXd& seed, double rate_hz, const RobotConfig& robot_config) {
+  const CartesianSamples cs = sample_path(path, profile, rate_hz);
+  bool tracked = false;
+  const auto jq = timing_joint_path(robot, cs.nozzle, seed, robot_config, &tracked);
+  TimedTrajectory tr;
+  tr.t_s = cs.t_s;
+  tr.q = jq;
+  tr.nozzle = cs.nozzle;
+  tr.spraying = cs.spraying;
+  tr.pass_index = cs.pass_index;
+  tr.region_index.assign(cs.t_s.size(), 0);
+  tr.kind = cs.kind;
+  tr.duration_s = profile.duration_s();
+  tr.untracked_regions = tracked ? 0 : 1;
+  finish_trajectory(robot, tr);
   return tr;
 }
 

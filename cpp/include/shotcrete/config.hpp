@@ -117,6 +117,16 @@ struct TimingConfig {
   double end_length_m = 0.1;         // nozzle path length of the end segment
   int pso_particles = 15;
   int pso_iterations = 30;
+  std::uint64_t pso_seed = 1;
+  double pso_a = 2.05;               // c1 = a Bs + b, c2 = a (1 - Bs) + b
+  double pso_b = 0.5;
+  double pso_w_min = 0.0;            // w = (w_max - w_min) Bs + w_min
+  double pso_w_max = 1.0;
+  double max_lead_length_m = 0.5;    // swarm bound of the start/end lengths
+  double turn_speed_mps = 0.0;       // nozzle speed mid turn-around; 0 = keep the pass speeds
+  bool spray_on_turns = false;       // spray on the turn-arounds (the planner's deposit assumes not)
+  double nozzle_max_speed_mps = 1.0; // nozzle speed limit (also the swarm bound of the turn speed)
+  double nozzle_max_accel_mps2 = 2.0;  // nozzle acceleration limit, tangential + centripetal
 };
 
 struct Config {

@@ -107,6 +107,16 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("end_length_m", &TimingConfig::end_length_m, 0.0, 5.0, "end segment length [m]");
   f("pso_particles", &TimingConfig::pso_particles, 2, 1000, "swarm size");
   f("pso_iterations", &TimingConfig::pso_iterations, 1, 10000, "swarm iterations");
+  f("pso_seed", &TimingConfig::pso_seed, 0, 0, "swarm random seed");
+  f("pso_a", &TimingConfig::pso_a, 0.0, 10.0, "acceleration coefficient slope a");
+  f("pso_b", &TimingConfig::pso_b, 0.0, 10.0, "acceleration coefficient offset b");
+  f("pso_w_min", &TimingConfig::pso_w_min, 0.0, 2.0, "smallest inertia weight");
+  f("pso_w_max", &TimingConfig::pso_w_max, 0.0, 2.0, "largest inertia weight");
+  f("max_lead_length_m", &TimingConfig::max_lead_length_m, 0.01, 5.0, "swarm bound of start/end lengths [m]");
+  f("turn_speed_mps", &TimingConfig::turn_speed_mps, 0.0, 10.0, "nozzle speed mid turn-around [m/s]; 0 = pass speeds");
+  f("spray_on_turns", &TimingConfig::spray_on_turns, 0, 0, "spray on the turn-arounds");
+  f("nozzle_max_speed_mps", &TimingConfig::nozzle_max_speed_mps, 0.01, 10.0, "nozzle speed limit [m/s]");
+  f("nozzle_max_accel_mps2", &TimingConfig::nozzle_max_accel_mps2, 0.01, 100.0, "nozzle acceleration limit [m/s^2]");
 }
 
 // g(name, member pointer to the section) for every section of Config.

@@ -252,6 +252,12 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
                           const TimingParams* params = nullptr);
 
+/// One timed Cartesian path (e.g. a region, or the quintic baseline) in joint space from rest to
+/// rest: sampled at rate_hz, joints tracked from the solve_path start found from `seed`,
+/// velocities / accelerations by finite differences and the limit check; no transits.
+TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const SpeedProfile& profile,
+                          const Eigen::VectorXd& seed, double rate_hz, const RobotConfig& robot_config);
+
 /// Joint-space feasibility of a region timing without re-solving IK for every candidate: the joint
 /// path q(s) is solved once on the region path with the longest lead lengths at a fine arc-length
 /// step, then q' = dq/ds and q'' = d2q/ds2 give qd = q' v and qdd = q'' v^2 + q' a.
