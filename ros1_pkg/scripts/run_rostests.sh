@@ -54,7 +54,7 @@ done
 
 if [ "${SKIP_SCREENSHOT:-0}" != 1 ]; then
   ts=$(date +%s%N)
-  shot="$PKG_DIR/../out/rviz.png"
+  shot="$(cd "$PKG_DIR/.." && pwd)/out/rviz.png"
   if bash "$PKG_DIR/scripts/rviz_screenshot.sh" "$shot"; then
     passed=$((passed + 1)); verdict=ok
   else
