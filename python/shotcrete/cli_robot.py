@@ -216,7 +216,8 @@ def reach_cmd(radius_m: Optional[float] = typer.Option(None, "--radius-m", help=
             return
         for s in summaries:
             console.print(f"R = {s['radius_m']:g} m: reached {s['reached']}/{s['total']} "
-                          f"({100 * s['fraction']:.1f} %), worst limit margin {s['min_limit_margin']}",
+                          f"({100 * s['fraction']:.1f} %), worst joint-limit margin "
+                          f"{(s['min_limit_margin'] or 0.0):.3f} of range",
                           highlight=False)
         if figure is not None:
             console.print(f"figure: {figure}")
