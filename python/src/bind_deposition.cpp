@@ -68,8 +68,9 @@ void bind_deposition(py::module_& m) {
       .def(py::init([](double reference_standoff_m, double radius_m, double beta, double peak_rate_mps) {
              return SpotModel{reference_standoff_m, radius_m, beta, peak_rate_mps};
            }),
-           py::arg("reference_standoff_m") = 1.0, py::arg("radius_m") = 0.1924, py::arg("beta") = 2.015,
-           py::arg("peak_rate_mps") = 0.025)
+           py::arg("reference_standoff_m") = SpotModel{}.reference_standoff_m, py::arg("radius_m") = SpotModel{}.radius_m,
+           py::arg("beta") = SpotModel{}.beta, py::arg("peak_rate_mps") = SpotModel{}.peak_rate_mps,
+           "Defaults: the config defaults (fit of data/deposition_stroke.csv).")
       .def_readwrite("reference_standoff_m", &SpotModel::reference_standoff_m, "H0 [m]")
       .def_readwrite("radius_m", &SpotModel::radius_m, "spot radius R at H0 [m]")
       .def_readwrite("beta", &SpotModel::beta, "spot exponent beta (stroke exponent = beta - 1/2)")

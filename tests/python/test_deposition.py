@@ -124,6 +124,8 @@ def test_bindings_dtypes_shapes_and_in_place_update():
     np.testing.assert_allclose(moved.xyz[:, 2], 1.0 - t)
     q = _core.point_rate_mps(model, _core.NozzlePose([0, 0, 0], [0, 0, 1]), [0.05, 0, 1.0], [0, 0, -1])
     assert q == pytest.approx(float(model.rate_at(0.05)))
+    default = _core.SpotModel()
+    assert (default.radius_m, default.beta, default.peak_rate_mps) == (model.radius_m, model.beta, model.peak_rate_mps)
     r = model.rate_at(np.linspace(0, 0.3, 7))
     assert r.shape == (7,) and r[-1] == 0.0
 

@@ -15,11 +15,12 @@ namespace shotcrete {
 
 /// Spot model at the reference standoff H0: q(r) = q_max (1 - r^2/R^2)^(beta - 1) for r <= R.
 /// Rates are thickness per second in m/s (sprayed, before rebound).
+/// Defaults are the config defaults (the fit of data/deposition_stroke.csv).
 struct SpotModel {
-  double reference_standoff_m = 1.0;  // H0
-  double radius_m = 0.201;            // R at H0
-  double beta = 2.2;                  // spot exponent
-  double peak_rate_mps = 0.0;         // q_max
+  double reference_standoff_m = DepositionConfig{}.reference_standoff_m;  // H0
+  double radius_m = DepositionConfig{}.spot_radius_m;                     // R at H0
+  double beta = DepositionConfig{}.spot_beta;                             // spot exponent
+  double peak_rate_mps = DepositionConfig{}.peak_rate_mps;                // q_max
 
   double rate_at(double r_m) const;
   double cone_half_angle_rad() const;  // atan(R / H0)
