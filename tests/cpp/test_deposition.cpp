@@ -297,6 +297,19 @@ TEST(SurfaceIndex, ReachBallHoldsEveryReachablePoint) {
     }
   }
   EXPECT_GT(reached_total, 1000);
+  // Axis past the end of the bay (d < 0): only the cone rim reaches the wall, via the fallback ball.
+  for (double d : {-0.05, -0.12}) {
+    const Eigen::Vector3d radial(0, 0, 1);
+    const NozzlePose nz{Eigen::Vector3d(d, 0, 4.75), radial};
+    const auto [center, radius] = idx.reach_ball(m, nz);
+    int reached = 0;
+    for (Eigen::Index i = 0; i < c.size(); ++i) {
+      if (point_rate_mps(m, nz, c.xyz.row(i).transpose(), c.normals.row(i).transpose()) <= 0) continue;
+      ++reached;
+      ASSERT_LE((c.xyz.row(i).transpose() - center).norm(), radius) << "edge pose d = " << d;
+    }
+    EXPECT_GT(reached, 10);
+  }
 }
 
 // ------------------------------------------------------------------ passes vs closed form / quadrature
