@@ -76,7 +76,8 @@ geometry_msgs::Point point_msg(const Eigen::Vector3d& p) {
 class ShotcreteNode {
  public:
   ShotcreteNode(ros::NodeHandle nh, ros::NodeHandle pnh) : nh_(nh), pnh_(pnh) {
-    const std::string default_config = std::string(SHOTCRETE_REPO_DIR) + "/config/default.yaml";
+    // SHOTCRETE_SOURCE_DIR: the repository root, from the core library's target.
+    const std::string default_config = std::string(SHOTCRETE_SOURCE_DIR) + "/config/default.yaml";
     pnh_.param<std::string>("config", config_path_, default_config);
     config_ = shotcrete::load_config(config_path_);
     // ~seed is the short form of ~synth/seed (the per-key override below wins if both are set).
@@ -87,9 +88,8 @@ class ShotcreteNode {
     }
     const auto overridden = apply_param_overrides(pnh_, config_);
     pnh_.param<std::string>("frame_id", frame_id_, "tunnel");
-    pnh_.param<std::string>("urdf", urdf_path_, config_.robot.urdf_path.empty()
-                                                    ? std::string(SHOTCRETE_REPO_DIR) + "/data/shotcrete_manipulator.urdf"
-                                                    : config_.robot.urdf_path);
+    pnh_.param<std::string>("urdf", urdf_path_,
+                            config_.robot.urdf_path.empty() ? shotcrete::bundled_urdf_path() : config_.robot.urdf_path);
     pnh_.param("execute_time_scale", time_scale_, 1.0);
     pnh_.param("execute_max_wall_s", max_wall_s_, 0.0);  // > 0: raise the time scale to fit
     pnh_.param("joint_state_rate_hz", joint_rate_hz_, 50.0);
