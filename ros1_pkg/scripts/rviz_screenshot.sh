@@ -2,7 +2,8 @@
 # Starts demo.launch (small bay, node, robot_state_publisher, rviz) under a virtual screen, waits for
 # the plan, lets the execution run a few seconds (arm moving, wall filling up), saves a screenshot
 # of the screen and fails when the 3D view is blank.
-# Usage: rviz_screenshot.sh OUT.png     Env: SHOT_DELAY_S (default 6), SMALL (default true)
+# Usage: rviz_screenshot.sh OUT.png
+# Env: SMALL=true for the small crown strip (default: the whole default bay), SHOT_DELAY_S (default 8)
 set -eo pipefail
 OUT=${1:?usage: rviz_screenshot.sh OUT.png}
 PKG_DIR="$(cd "$(dirname "$0")/.." && pwd)"
@@ -20,12 +21,12 @@ trap 'rm -rf "$ROS_HOME"' EXIT
 # A free port of our own: never disturb another master (or another test run).
 PORT=$(/usr/bin/python3 -c 'import socket; s = socket.socket(); s.bind(("", 0)); print(s.getsockname()[1])')
 export ROS_MASTER_URI="http://localhost:$PORT"
-export SHOT_OUT="$OUT" SHOT_DELAY_S="${SHOT_DELAY_S:-6}" SHOT_SMALL="${SMALL:-true}" PKG_DIR
+export SHOT_OUT="$OUT" SHOT_DELAY_S="${SHOT_DELAY_S:-8}" SHOT_SMALL="${SMALL:-false}" PKG_DIR
 rm -f "$OUT"
 
 xvfb-run -a -s "-screen 0 1280x900x24" bash -c '
   set -e
-  roslaunch -p "${ROS_MASTER_URI##*:}" shotcrete_ros demo.launch small:="$SHOT_SMALL" max_wall_s:=20 \
+  roslaunch -p "${ROS_MASTER_URI##*:}" shotcrete_ros demo.launch small:="$SHOT_SMALL" max_wall_s:=30 \
     >"$ROS_HOME/demo.log" 2>&1 &
   launch=$!
   stop() { kill -INT $launch 2>/dev/null || true; wait $launch 2>/dev/null || true; }
