@@ -42,7 +42,7 @@ double link_length(const OrderingProblem& problem, const std::vector<int>& order
 /// Dispatch on config.method: aco | ga | nn | exact | best. aco/ga/nn are passed through
 /// improve_local when config.local_search is true. best = exact when n <= exact_max_regions, else
 /// the hybrid ant colony + local search (local_search forced on) followed by an iterated local
-/// search (200 double-bridge kicks, seeded from config.seed); method string "aco+ils".
+/// search (500 double-bridge kicks, seeded from config.seed); method string "aco+ils".
 OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConfig& config);
 
 /// Ant colony, Ant-Cycle model (ants = aco_ants_per_region * n, alpha, beta, rho, Q, iterations).
