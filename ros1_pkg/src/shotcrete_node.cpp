@@ -283,13 +283,19 @@ class ShotcreteNode {
     }
     q_current_ = traj->q.back();
     const Eigen::VectorXd td1 = td0 - deposited;
+    // Levels of the sprayed wall: the deposit moves the points along their normals, then re-grid.
+    Surface sprayed = *surface;
+    sprayed.cloud = shotcrete::apply_thickness(surface->cloud, deposited);
+    shotcrete::regrid(sprayed, config_);
+    publish_levels(sprayed);
     std::ostringstream s;
     s << std::fixed << std::setprecision(3) << "executed " << traj->duration_s << " s of trajectory in "
       << seconds_since(t0) << " s wall (time scale " << time_scale << "), " << published
       << " joint states; mean TD " << td0.mean() * 1000 << " -> " << td1.mean() * 1000 << " mm";
     if (plan->deposited_m.size() == td0.size())  // the planner's own simulation, for comparison
       s << " (plan predicted " << (td0 - plan->deposited_m).mean() * 1000 << " mm)";
-    s << ", deposited max " << deposited.maxCoeff() * 1000 << " mm";
+    s << ", deposited max " << deposited.maxCoeff() * 1000 << " mm, levels_after="
+      << levels_text(shotcrete::level_counts(sprayed.levels));
     summary = s.str();
     return ros::ok();
   }

@@ -62,6 +62,7 @@ class PlanExecute(unittest.TestCase):
         self.assertIsNotNone(sm, "~summary does not carry the plan summary")
 
         n_clouds = len(clouds.snapshot())
+        n_levels = len(levels.snapshot())
         limits = u.urdf_limits(rospy.get_param("~urdf"))
         t_call = time.time()
         ex = rospy.ServiceProxy(u.NS + "/execute", Trigger)()
@@ -95,6 +96,13 @@ class PlanExecute(unittest.TestCase):
         mean0 = sum(td_first) / len(td_first)
         predicted_mm = float(ex.message.split("plan predicted ")[1].split()[0])
         self.assertAlmostEqual(means[-1] * 1000.0, predicted_mm, delta=0.1 * mean0 * 1000.0)
+        # The levels are republished for the sprayed wall: its highest level is below the scan's.
+        def top_level(m):
+            return max(k.id for k in m.markers if k.ns == "levels" and k.points) - 100  # id = level - kNoDataLevel
+        lv_after = [m for _, m in levels.snapshot()[n_levels:]]
+        self.assertTrue(lv_after, "grid levels not republished after execution")
+        self.assertLess(top_level(lv_after[-1]), top_level(lv))
+        self.assertIn("levels_after=", ex.message)
         td_last = u.cloud_arrays(after[-1])[1]
         self.assertEqual(len(td_last), len(td_first))
         self.assertTrue(all(b <= a + 1e-6 for a, b in zip(td_first, td_last)))
