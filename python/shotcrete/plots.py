@@ -83,3 +83,58 @@ def level_counts_chart(rounds: list[dict[int, int]], labels: list[str], path: Pa
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def td_map_flat(grid, td_flat_m, path: Path, title: str, vmax_mm: float | None = None) -> Path:
+    """TD map from a flat per-cell array (row * n_d + col), as the planner returns it."""
+
+    class _View:
+        pass
+
+    view = _View()
+    for name in ("profile", "theta0_rad", "d0_m", "n_d", "n_theta", "cell_size_m"):
+        setattr(view, name, getattr(grid, name))
+    view.td_m = np.asarray(td_flat_m).reshape(grid.n_theta, grid.n_d)
+    return td_map(view, path, title, vmax_mm)
+
+
+def passes_map(grid, td_flat_m, tracks, path: Path, title: str, vmax_mm: float) -> Path:
+    """Pass tracks (d, s) over the TD map, coloured by nozzle speed."""
+    fig, ax, extent = _unrolled_axes(grid, title)
+    td = np.asarray(td_flat_m).reshape(grid.n_theta, grid.n_d) * 1000.0
+    ax.imshow(np.ma.masked_invalid(td), origin="lower", extent=extent, aspect="auto", cmap="Greys",
+              vmin=-vmax_mm, vmax=vmax_mm, interpolation="nearest")
+    if tracks:
+        speeds = np.array([t[2] for t in tracks])
+        norm = matplotlib.colors.Normalize(vmin=speeds.min(), vmax=max(speeds.max(), speeds.min() + 1e-3))
+        cmap = plt.get_cmap("viridis")
+        for d, s, v in tracks:
+            ax.plot(d, s, color=cmap(norm(v)), lw=1.2)
+            ax.plot(d[:1], s[:1], "o", color=cmap(norm(v)), ms=2)
+        sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
+        fig.colorbar(sm, ax=ax, label="nozzle speed [m/s] (dot: pass start)")
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def speeds_chart(plan, path: Path) -> Path:
+    """Speed of every pass in spraying order, one colour per round."""
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    start = 0
+    for i, rnd in enumerate(plan.rounds):
+        v = [p.speed_mps for reg in rnd.regions for p in reg.passes]
+        ax.plot(range(start, start + len(v)), v, ".", ms=3, label=f"round {i + 1}")
+        start += len(v)
+    ax.set_xlabel("pass (spraying order)")
+    ax.set_ylabel("speed [m/s] (mean where it varies)")
+    ax.set_yscale("log")
+    if len(plan.rounds) <= 12:
+        ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,3 +1,80 @@
 #include "bindings.hpp"
+#include "shotcrete/planner.hpp"
 
-void bind_planner(py::module_& m) {}
+using namespace shotcrete;
+
+namespace {
+
+// (N, 3) arrays of a pass's waypoints, for plotting and files.
+py::array_t<double> positions(const Pass& p) {
+  py::array_t<double> out({static_cast<py::ssize_t>(p.waypoints.size()), py::ssize_t{3}});
+  auto a = out.mutable_unchecked<2>();
+  for (std::size_t i = 0; i < p.waypoints.size(); ++i)
+    for (int k = 0; k < 3; ++k) a(i, k) = p.waypoints[i].position_m[k];
+  return out;
+}
+
+py::array_t<double> axes(const Pass& p) {
+  py::array_t<double> out({static_cast<py::ssize_t>(p.waypoints.size()), py::ssize_t{3}});
+  auto a = out.mutable_unchecked<2>();
+  for (std::size_t i = 0; i < p.waypoints.size(); ++i)
+    for (int k = 0; k < 3; ++k) a(i, k) = p.waypoints[i].axis[k];
+  return out;
+}
+
+}  // namespace
+
+void bind_planner(py::module_& m) {
+  py::class_<Pass>(m, "Pass", "A nozzle pass: waypoints along a clamped cubic spline, speed(s) in m/s.")
+      .def(py::init<>())
+      .def_readwrite("waypoints", &Pass::waypoints)
+      .def_readwrite("speed_mps", &Pass::speed_mps, "constant (graded) or mean (optimal) speed [m/s]")
+      .def_readwrite("length_m", &Pass::length_m)
+      .def_readwrite("speed_profile_mps", &Pass::speed_profile_mps, "speed per waypoint (empty: constant)")
+      .def_readwrite("line", &Pass::line, "index of the slicing plane")
+      .def_property_readonly("positions_m", &positions, "(N, 3) nozzle positions [m]")
+      .def_property_readonly("axes", &axes, "(N, 3) unit spray axes")
+      .def("duration_s", &Pass::duration_s)
+      .def("dwell_s", &Pass::dwell_s)
+      .def("speed_at", &Pass::speed_at, py::arg("waypoint"));
+  py::class_<RegionPlan>(m, "RegionPlan")
+      .def_readonly("region", &RegionPlan::region)
+      .def_readonly("target_thickness_m", &RegionPlan::target_thickness_m)
+      .def_readonly("spacing_m", &RegionPlan::spacing_m)
+      .def_readonly("passes", &RegionPlan::passes)
+      .def_readonly("reversed", &RegionPlan::reversed)
+      .def_readonly("note", &RegionPlan::note)
+      .def("entry_m", &RegionPlan::entry_m)
+      .def("exit_m", &RegionPlan::exit_m);
+  py::class_<Round>(m, "Round")
+      .def_readonly("kind", &Round::kind)
+      .def_readonly("level", &Round::level)
+      .def_readonly("regions", &Round::regions)
+      .def_readonly("order", &Round::order)
+      .def_readonly("link_length_m", &Round::link_length_m)
+      .def_readonly("order_method", &Round::order_method)
+      .def_readonly("levels_before", &Round::levels_before)
+      .def_readonly("levels_after", &Round::levels_after)
+      .def_readonly("td_after_m", &Round::td_after_m, "per grid cell (flat, row * n_d + col) [m]")
+      .def_readonly("spray_time_s", &Round::spray_time_s);
+  py::class_<Plan>(m, "Plan", "Rounds of regions and passes, with the simulated result.")
+      .def_readonly("rounds", &Plan::rounds)
+      .def_readonly("grid_before", &Plan::grid_before)
+      .def_readonly("td_after_m", &Plan::td_after_m, "per grid cell (flat) after the last round [m]")
+      .def_readonly("deposited_m", &Plan::deposited_m, "per surface point, all rounds [m]")
+      .def_readonly("sprayed_cloud", &Plan::sprayed_cloud)
+      .def_readonly("spray_time_s", &Plan::spray_time_s)
+      .def_readonly("required_volume_m3", &Plan::required_volume_m3)
+      .def_readonly("deposition_rate_m3ps", &Plan::deposition_rate_m3ps)
+      .def_readonly("physical_limit_s", &Plan::physical_limit_s)
+      .def_readonly("stop_reason", &Plan::stop_reason)
+      .def_readonly("unreachable_cells", &Plan::unreachable_cells)
+      .def_readonly("warnings", &Plan::warnings)
+      .def_readonly("timings_s", &Plan::timings_s);
+  m.def("plan_bay", &plan_bay, py::arg("surface"), py::arg("config"), py::arg("progress") = nullptr,
+        "Plan and simulate a bay: rounds until flush (graded or optimal mode, config.planner.mode).\n"
+        "progress(stage: str, fraction: float) is called between stages.");
+  m.def("plan_passes", &plan_passes, py::arg("grid"), py::arg("cells"), py::arg("spacing_m"), py::arg("config"),
+        "Pass lines over grid cells: slicing planes, crossing points, standoff offset, spline.");
+  m.def("clamped_cubic_spline", &clamped_cubic_spline, py::arg("points"), py::arg("step_m"));
+}

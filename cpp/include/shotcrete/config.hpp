@@ -17,8 +17,8 @@ struct PreprocessConfig {
   bool crop_enabled = false;
   Eigen::Vector3d crop_min_m{-1e3, -1e3, -1e3};  // tunnel frame, m
   Eigen::Vector3d crop_max_m{1e3, 1e3, 1e3};
-  double voxel_size_m = 0.0;     // voxel edge for downsampling; 0 = off
-  int outlier_neighbors = 16;    // k of the statistical outlier filter; 0 = off
+  double voxel_size_m = 0.01;    // voxel edge for downsampling (5x finer than the grid); 0 = off
+  int outlier_neighbors = 8;     // k of the statistical outlier filter; 0 = off
   double outlier_std_ratio = 3.0;  // points beyond mean + ratio * std of k-NN distance are removed
 };
 
@@ -80,6 +80,11 @@ struct PlannerConfig {
   double max_speed_mps = 1.0;
   int max_rounds = 12;
   double sample_step_m = 0.01;     // integration step of the nozzle along a pass
+  double segment_length_m = 0.1;   // optimal mode: length of a constant-speed piece of a pass
+  double time_weight_mm2_per_s = 2000.0;  // optimal mode: squared residual (mm^2, summed over cells) worth 1 s
+  double finish_tolerance_m = 0.02;    // optimal mode: stop when every cell is within this of flush
+  double edge_overrun_m = 0.1;     // passes run on this far past the bay's ends (the arches)
+  double levelling_spacing_ratio = 0.5;  // optimal mode: pass spacing as a share of the two-pass spacing
 };
 
 struct OrderingConfig {
@@ -127,6 +132,7 @@ struct TimingConfig {
   bool spray_on_turns = false;       // spray on the turn-arounds (the planner's deposit assumes not)
   double nozzle_max_speed_mps = 1.0; // nozzle speed limit (also the swarm bound of the turn speed)
   double nozzle_max_accel_mps2 = 2.0;  // nozzle acceleration limit, tangential + centripetal
+  double joint_limit_margin = 0.05;  // share of the joint velocity/acceleration limits the swarm keeps free
 };
 
 struct Config {

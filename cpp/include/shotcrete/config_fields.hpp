@@ -73,6 +73,11 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("max_speed_mps", &PlannerConfig::max_speed_mps, 0.001, 10.0, "fastest nozzle speed [m/s]");
   f("max_rounds", &PlannerConfig::max_rounds, 1, 1000, "round limit");
   f("sample_step_m", &PlannerConfig::sample_step_m, 0.001, 0.1, "integration step along a pass [m]");
+  f("segment_length_m", &PlannerConfig::segment_length_m, 0.02, 2.0, "optimal mode: constant-speed piece of a pass [m]");
+  f("time_weight_mm2_per_s", &PlannerConfig::time_weight_mm2_per_s, 0.0, 1e6, "optimal mode: residual mm^2 traded per s of spraying");
+  f("finish_tolerance_m", &PlannerConfig::finish_tolerance_m, 0.001, 0.05, "optimal mode: flush tolerance [m]");
+  f("edge_overrun_m", &PlannerConfig::edge_overrun_m, 0.0, 0.5, "pass run-on past the bay ends [m]");
+  f("levelling_spacing_ratio", &PlannerConfig::levelling_spacing_ratio, 0.2, 1.0, "optimal mode: pass spacing / two-pass spacing");
 }
 template <class F> void visit(OrderingConfig*, F&& f) {
   f("method", &OrderingConfig::method, 0, 0, "aco | ga | nn | exact | best");
@@ -117,6 +122,7 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("spray_on_turns", &TimingConfig::spray_on_turns, 0, 0, "spray on the turn-arounds");
   f("nozzle_max_speed_mps", &TimingConfig::nozzle_max_speed_mps, 0.01, 10.0, "nozzle speed limit [m/s]");
   f("nozzle_max_accel_mps2", &TimingConfig::nozzle_max_accel_mps2, 0.01, 100.0, "nozzle acceleration limit [m/s^2]");
+  f("joint_limit_margin", &TimingConfig::joint_limit_margin, 0.0, 0.5, "share of joint vel/acc limits kept free by the swarm");
 }
 
 // g(name, member pointer to the section) for every section of Config.

@@ -13,11 +13,23 @@
 
 namespace shotcrete {
 
-/// One nozzle pass: waypoints (position + spray axis, tunnel frame) at one constant speed.
+/// One nozzle pass: waypoints (position + spray axis, tunnel frame) along a clamped cubic spline.
+/// Graded mode: one constant speed. Optimal mode: the speed may change per segment
+/// (speed_profile_mps, one value per waypoint, piecewise constant); speed_mps is then the mean.
 struct Pass {
-  std::vector<NozzlePose> waypoints;  // spline samples, sample_step_m apart
+  std::vector<NozzlePose> waypoints;      // spline samples, about sample_step_m apart
   double speed_mps = 0.0;
   double length_m = 0.0;
+  std::vector<double> speed_profile_mps;  // empty: constant speed_mps
+  int line = 0;                           // index of the slicing plane the pass lies in
+
+  double speed_at(std::size_t waypoint) const {
+    return speed_profile_mps.empty() ? speed_mps : speed_profile_mps[waypoint];
+  }
+  /// Nozzle time of the pass [s].
+  double duration_s() const;
+  /// Dwell per waypoint (half of each neighbouring interval / speed), for accumulate_dwells.
+  std::vector<double> dwell_s() const;
 };
 
 struct RegionPlan {
@@ -26,9 +38,14 @@ struct RegionPlan {
   double spacing_m = 0.0;          // distance between neighbouring passes
   std::vector<Pass> passes;        // in spraying order (serpentine)
   bool reversed = false;           // sprayed from the last pass back to the first
+  std::string note;                // why a target could not be met, if so
+  /// Raster endpoints for the ordering: first waypoint of the first pass, last of the last.
+  Eigen::Vector3d entry_m() const { return passes.front().waypoints.front().position_m; }
+  Eigen::Vector3d exit_m() const { return passes.back().waypoints.back().position_m; }
 };
 
 struct Round {
+  std::string kind = "graded";              // graded (one level) or levelling (optimal mode)
   int level = 0;                            // the level sprayed in this round
   std::vector<RegionPlan> regions;          // in spraying order
   std::vector<int> order;                   // region order (indices before sorting) from the solver
@@ -46,9 +63,26 @@ struct Plan {
   Eigen::VectorXd deposited_m;              // per point of the surface cloud, all rounds
   Cloud sprayed_cloud;                      // surface cloud moved by the deposit
   double spray_time_s = 0.0;
+  double required_volume_m3 = 0.0;          // concrete missing behind the design line (TD > 0)
+  double deposition_rate_m3ps = 0.0;        // concrete that stays on the wall per second of spraying
+  double physical_limit_s = 0.0;            // required volume / deposition rate
   std::string stop_reason;                  // "flush", "no progress: ...", "max rounds"
   std::vector<int> unreachable_cells;       // cells left above level 0 that no pass could fill
+  std::vector<std::string> warnings;        // targets that could not be met, and why
+  std::map<std::string, double> timings_s;  // per stage
 };
+
+/// Pass lines over a set of grid cells (design section 5): envelope box in (d, s), slicing planes
+/// `spacing_m` apart (through the axis for axial passes, across it for circumferential ones),
+/// crossing points from pairs of neighbouring cells on either side of each plane, offset by the
+/// standoff toward the axis (along -r, or along the normal), clamped cubic spline sampled every
+/// sample_step_m. Passes alternate direction (serpentine) and step up the wall from the springline.
+std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
+                              const PlannerConfig& config);
+
+/// Clamped cubic spline through `points` (chord-length parameter; end slopes of the parabola
+/// through the three end knots), sampled about `step_m` apart including both ends.
+std::vector<Eigen::Vector3d> clamped_cubic_spline(const std::vector<Eigen::Vector3d>& points, double step_m);
 
 using ProgressFn = std::function<void(const std::string& stage, double fraction)>;
 

@@ -1,0 +1,178 @@
+// Planner: spline, pass geometry on a cylinder, rounds on analytic and synthetic bays, bad input.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "shotcrete/planner.hpp"
+#include "shotcrete/preprocess.hpp"
+#include "shotcrete/synth.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// A bay slice with a chosen TD function; theta in [t0, t1], d in [0, L].
+Surface analytic_bay(double (*td)(double d, double theta), double t0 = 0.9, double t1 = 1.6, double L = 0.8,
+                     int per_cell = 3) {
+  Config cfg;
+  const double R = cfg.profile.design_radius_m, cs = cfg.grid.cell_size_m;
+  const int rows = static_cast<int>(std::round((t1 - t0) * R / cs)), cols = static_cast<int>(std::round(L / cs));
+  Cloud c;
+  c.xyz.resize(static_cast<Eigen::Index>(rows) * cols * per_cell * per_cell, 3);
+  Eigen::Index k = 0;
+  for (int i = 0; i < rows; ++i)
+    for (int j = 0; j < cols; ++j)
+      for (int a = 0; a < per_cell; ++a)
+        for (int b = 0; b < per_cell; ++b) {
+          const double theta = t0 + (i + (a + 0.5) / per_cell) * cs / R, d = (j + (b + 0.5) / per_cell) * cs;
+          const double r = R + td(d, theta);
+          c.xyz.row(k++) << d, r * std::cos(theta), r * std::sin(theta);
+        }
+  cfg.preprocess.voxel_size_m = 0;
+  cfg.preprocess.outlier_neighbors = 0;
+  return build_surface(c, cfg);
+}
+
+double uniform_100mm(double, double) { return 0.100; }
+double flush(double, double) { return 0.0; }
+
+// One dig pit like those of the synthetic bay (radius 0.5 m, 150 mm deep) in a flush wall.
+constexpr double kPitRadius = 0.5;
+double pit(double d, double theta) {
+  const double s = theta * 5.6, q = (std::pow(d - 0.6, 2) + std::pow(s - 7.0, 2)) / (kPitRadius * kPitRadius);
+  return q < 1 ? 0.15 * std::pow(1 - q, 1.5) : 0.0;
+}
+
+}  // namespace
+
+TEST(Spline, InterpolatesKnotsAndKeepsLines) {
+  std::vector<Eigen::Vector3d> line = {{0, 0, 0}, {0.3, 0, 0}, {0.7, 0, 0}, {1.2, 0, 0}};
+  auto s = clamped_cubic_spline(line, 0.01);
+  EXPECT_EQ(s.size(), 121u);
+  for (const auto& p : s) EXPECT_NEAR(p.y(), 0.0, 1e-12);
+  for (std::size_t i = 1; i < s.size(); ++i) EXPECT_NEAR((s[i] - s[i - 1]).norm(), 0.01, 1e-9);
+  // Knots on a circle arc 0.23 m apart: straight chords sag 1.4 mm below the arc; the spline
+  // (chord-length knots, parabolic end slopes) stays within 0.1 mm everywhere.
+  std::vector<Eigen::Vector3d> arc;
+  for (int i = 0; i <= 8; ++i) arc.emplace_back(0, 4.6 * std::cos(1.0 + 0.05 * i), 4.6 * std::sin(1.0 + 0.05 * i));
+  const double sagitta = 4.6 * (1 - std::cos(0.025));
+  EXPECT_NEAR(sagitta, 0.0014, 1e-4);
+  for (const auto& p : clamped_cubic_spline(arc, 0.005)) EXPECT_NEAR(std::hypot(p.y(), p.z()), 4.6, 0.1e-3);
+  EXPECT_THROW(clamped_cubic_spline({{0, 0, 0}}, 0.01), std::invalid_argument);
+}
+
+TEST(Passes, StandoffAndAxisOnACylinder) {
+  for (const char* direction : {"axial", "circumferential"}) {
+    Surface s = analytic_bay(uniform_100mm);
+    PlannerConfig pc;
+    pc.pass_direction = direction;
+    std::vector<int> all;
+    for (int c = 0; c < s.grid.size(); ++c)
+      if (s.grid.valid[c]) all.push_back(c);
+    auto passes = plan_passes(s.grid, all, 0.2, pc);
+    ASSERT_FALSE(passes.empty());
+    const double wall = 5.6 + 0.1;
+    double worst_standoff = 0, worst_angle = 0;
+    for (const auto& p : passes)
+      for (const auto& w : p.waypoints) {
+        const Eigen::Vector3d q = w.position_m;
+        const Eigen::Vector3d radial = Eigen::Vector3d(0, q.y(), q.z()).normalized();
+        worst_standoff = std::max(worst_standoff, std::abs(wall - std::hypot(q.y(), q.z()) - pc.standoff_m));
+        worst_angle = std::max(worst_angle, std::acos(std::min(1.0, w.axis.dot(radial))));
+      }
+    EXPECT_LT(worst_standoff, 0.001) << direction;
+    EXPECT_LT(worst_angle * 180 / kPi, 1.0) << direction;
+    // Serpentine: consecutive passes run in opposite directions.
+    if (passes.size() >= 2) {
+      const Eigen::Vector3d d0 = passes[0].waypoints.back().position_m - passes[0].waypoints.front().position_m;
+      const Eigen::Vector3d d1 = passes[1].waypoints.back().position_m - passes[1].waypoints.front().position_m;
+      EXPECT_LT(d0.dot(d1), 0) << direction;
+    }
+  }
+}
+
+TEST(Planner, UniformOverbreakEndsFlush) {
+  Surface s = analytic_bay(uniform_100mm);
+  Config cfg;
+  cfg.planner.mode = "optimal";
+  cfg.planner.time_weight_mm2_per_s = 10;  // accuracy first: time barely counts
+  Plan plan = plan_bay(s, cfg);
+  EXPECT_EQ(plan.stop_reason.substr(0, 5), "flush") << plan.stop_reason;
+  const Eigen::VectorXd& td = plan.td_after_m;
+  double lo = 1, hi = -1;
+  for (int c = 0; c < td.size(); ++c)
+    if (s.grid.valid[c]) {
+      lo = std::min(lo, td[c]);
+      hi = std::max(hi, td[c]);
+    }
+  EXPECT_GT(lo, -0.010);
+  EXPECT_LT(hi, 0.010);
+}
+
+TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
+  Config cfg;
+  cfg.synth.theta_min_rad = 0.8;
+  cfg.synth.theta_max_rad = 1.4;
+  cfg.synth.length_m = 1.2;
+  cfg.synth.points_per_cell = 6;
+  cfg.synth.pit_count = 6;  // the default pit density on this fifth of the arch
+  for (std::uint64_t seed : {1, 2, 3}) {
+    cfg.synth.seed = seed;
+    Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
+    Plan plan = plan_bay(s, cfg);
+    EXPECT_EQ(plan.stop_reason, "flush") << "seed " << seed;
+    std::vector<int> prev = s.levels;
+    for (const auto& r : plan.rounds) {
+      Grid g = s.grid;
+      g.td_m = r.td_after_m;
+      const auto lv = cell_levels(g);
+      for (int c = 0; c < g.size(); ++c)
+        if (g.valid[c]) EXPECT_LE(lv[c], prev[c]) << "cell " << c;
+      prev = lv;
+    }
+    for (int c = 0; c < s.grid.size(); ++c)
+      if (s.grid.valid[c]) EXPECT_LE(prev[c], 0);
+  }
+}
+
+TEST(Planner, SinglePitIsCoveredAndNothingElseSprayed) {
+  Surface s = analytic_bay(pit, 0.9, 1.6, 1.2);
+  Config cfg;
+  cfg.planner.mode = "optimal";  // default time weight
+  Plan plan = plan_bay(s, cfg);
+  ASSERT_FALSE(plan.rounds.empty());
+  const double R = cfg.deposition.spot_radius_m;
+  double worst_pit = 0, worst_far = 0;
+  for (int c = 0; c < s.grid.size(); ++c) {
+    if (!s.grid.valid[c]) continue;
+    const double d = s.grid.d_center(s.grid.col_of(c)), theta = s.grid.theta_center(s.grid.row_of(c));
+    const double dist = std::hypot(d - 0.6, theta * 5.6 - 7.0);
+    const double deposited = s.grid.td_m[c] - plan.td_after_m[c];
+    if (pit(d, theta) > 0.02) worst_pit = std::max(worst_pit, std::abs(plan.td_after_m[c]));
+    if (dist > kPitRadius + R + 0.05) worst_far = std::max(worst_far, deposited);
+  }
+  EXPECT_LT(worst_pit, 0.025);  // the pit is filled to within the finish tolerance band
+  EXPECT_LT(worst_far, 1e-4);   // beyond the cone of the outermost pass nothing lands
+}
+
+TEST(Planner, FlushBayNeedsNoRound) {
+  Surface s = analytic_bay(flush);
+  Plan plan = plan_bay(s, Config{});
+  EXPECT_TRUE(plan.rounds.empty());
+  EXPECT_EQ(plan.stop_reason, "flush");
+  EXPECT_DOUBLE_EQ(plan.spray_time_s, 0.0);
+}
+
+TEST(Planner, SlowestSpeedTooFastIsReported) {
+  Surface s = analytic_bay(uniform_100mm);
+  Config cfg;
+  cfg.planner.min_speed_mps = 0.9;
+  cfg.planner.max_rounds = 2;
+  Plan plan = plan_bay(s, cfg);
+  ASSERT_FALSE(plan.warnings.empty());
+  EXPECT_NE(plan.warnings[0].find("slowest speed"), std::string::npos) << plan.warnings[0];
+  EXPECT_NE(plan.stop_reason, "flush");
+  EXPECT_FALSE(plan.unreachable_cells.empty());
+}
