@@ -108,7 +108,8 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def order(instance: Path = typer.Argument(..., metavar="INSTANCE.json",
-                                              help='{"regions": [{"a": [x,y,z], "b": [x,y,z]}, ...], "start": [x,y,z]}'),
+                                              help='JSON object: "regions", a list of {"a": point, "b": point}, and an '
+                                                   'optional "start" point; points are 3 numbers in metres'),
               method: Optional[str] = typer.Option(None, help="aco | ga | nn | exact | best "
                                                                "(default: ordering.method of the config)"),
               seed: Optional[int] = typer.Option(None, help="random seed (default: ordering.seed)"),
