@@ -54,6 +54,33 @@ def plan_to_dict(plan, surface) -> dict:
             "stop_reason": plan.stop_reason}
 
 
+def time_trajectory(plan, config, check_every: int = 10):
+    """IK + timing of every pass in spraying order: the timed joint trajectory of the 8-DOF arm and
+    the IK figures for report.json. An unreachable waypoint is reported (by region and waypoint, as
+    the core names it), not dropped: the trajectory is then None and ``ik["error"]`` says why."""
+    from .cli_robot import load_robot
+
+    regions = [list(reg.passes) for rnd in plan.rounds for reg in rnd.regions]
+    ik = {"poses": int(sum(len(p.waypoints) for reg in regions for p in reg)), "regions": len(regions)}
+    if not regions:
+        return None, {**ik, "solved": True}
+    robot = load_robot(config)
+    try:
+        traj = _core.time_plan(robot, regions, robot.neutral(), config.timing, config.robot)
+    except (RuntimeError, ValueError) as exc:
+        return None, {**ik, "solved": False, "error": str(exc)}
+    # Independent check of the tracking: FK of the joint samples against the nozzle poses.
+    q, pos, axes = traj.q, traj.positions, traj.axes
+    worst_m = worst_rad = 0.0
+    for i in range(0, len(traj), max(1, check_every)):
+        T = robot.fk(q[i])
+        worst_m = max(worst_m, float(np.linalg.norm(T[:3, 3] - pos[i])))
+        worst_rad = max(worst_rad, float(np.arccos(np.clip(T[:3, 2] @ axes[i], -1.0, 1.0))))
+    return traj, {**ik, "solved": True, "samples_checked": len(range(0, len(traj), max(1, check_every))),
+                  "worst_position_error_m": worst_m, "worst_angle_error_rad": worst_rad,
+                  "untracked_regions": int(traj.untracked_regions)}
+
+
 def _pass_tracks(plan_round, surface):
     """Per pass: (d, s) of the wall point it aims at, and its speed, for the map figures."""
     axis, radius = surface.axis, surface.profile.radius_m
@@ -125,7 +152,23 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
                            "levels_before": levels_dict(r.levels_before), "levels_after": levels_dict(r.levels_after)}
                           for i, r in enumerate(plan.rounds)],
     })
-    result["total_time_s"] = plan.spray_time_s  # replaced by the timed trajectory below when available
+    progress("trajectory", 0.0)
+    t_traj = time.perf_counter()
+    trajectory, result["ik"] = time_trajectory(plan, config)
+    timings["ik_and_timing"] = time.perf_counter() - t_traj
+    if trajectory is not None:
+        result["total_time_s"] = trajectory.duration_s
+        result["trajectory"] = {
+            "duration_s": trajectory.duration_s, "spray_time_s": trajectory.spray_time_s,
+            "transit_time_s": trajectory.transit_time_s, "samples": len(trajectory),
+            "rate_hz": config.timing.trajectory_rate_hz,
+            "max_velocity_ratio": trajectory.max_velocity_ratio,
+            "max_acceleration_ratio": trajectory.max_acceleration_ratio,
+            "max_position_violation": trajectory.max_position_violation,
+        }
+    else:
+        result["total_time_s"] = None
+    progress("trajectory", 1.0)
 
     progress("report", 0.0)
     t_report = time.perf_counter()
@@ -159,6 +202,11 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
                     plots.td_map_flat(grid, after, figs_dir / "td_after.png", "Residual TD after spraying", 50.0)))
 
     (out / "plan.json").write_text(json.dumps(plan_to_dict(plan, surface)) + "\n")
+    if trajectory is not None:
+        np.savez_compressed(out / "trajectory.npz", t_s=trajectory.t_s, q=trajectory.q, qd=trajectory.qd,
+                            qdd=trajectory.qdd, nozzle_position_m=trajectory.positions, nozzle_axis=trajectory.axes,
+                            spraying=trajectory.spraying, pass_index=trajectory.pass_index,
+                            region_index=trajectory.region_index)
     write_cloud(out / "surface.ply", surface.cloud, _core.point_td(surface.cloud, surface.axis, surface.profile))
     write_cloud(out / "sprayed.ply", plan.sprayed_cloud,
                 _core.point_td(plan.sprayed_cloud, surface.axis, surface.profile))
@@ -166,6 +214,8 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
     timings["total"] = time.perf_counter() - t0
     result["timings_s"] = timings
     result["files"] = {"plan": "plan.json", "surface_cloud": "surface.ply", "sprayed_cloud": "sprayed.ply"}
+    if trajectory is not None:
+        result["files"]["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle
     report.write_json(out / "report.json", result)
     report.write_html(out, result, [(cap, str(p.relative_to(out))) for cap, p in figures])
     progress("report", 1.0)

@@ -72,7 +72,7 @@ struct DepositionConfig {
 };
 
 struct PlannerConfig {
-  std::string mode = "graded";     // graded (thesis) or optimal (levelling round, residual + time)
+  std::string mode = "optimal";    // optimal (levelling rounds: residual + time) or graded (thesis)
   std::string pass_direction = "axial";  // axial: passes along the tunnel; circumferential: around
   double standoff_m = 1.0;         // nozzle to wall along the offset direction
   bool offset_along_normal = false;  // offset along -normal instead of along -r
