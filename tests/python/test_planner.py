@@ -1,0 +1,94 @@
+"""Planner through the Python API and the CLI report contract (ARCHITECTURE section 9)."""
+import json
+
+import numpy as np
+import pytest
+
+import shotcrete
+
+SMALL_BAY = """
+synth: {theta_min_rad: 1.0, theta_max_rad: 1.6, length_m: 1.2, points_per_cell: 6, pit_count: 5}
+"""
+
+REPORT_KEYS = {"cells", "levels_before", "levels_after", "residual_mm", "rounds", "passes", "spray_time_s",
+               "total_time_s", "required_volume_m3", "physical_limit_s", "spray_time_ratio", "timings_s", "ik"}
+
+
+@pytest.fixture(scope="module")
+def small():
+    cfg = shotcrete.Config.from_yaml(SMALL_BAY)
+    return cfg, shotcrete.synthetic_cloud(cfg)
+
+
+@pytest.mark.parametrize("mode", ["graded", "optimal"])
+def test_plan_api_finishes_the_bay(small, mode):
+    cfg, cloud = small
+    cfg = cfg.copy()
+    cfg.planner.mode = mode
+    stages = []
+    plan = shotcrete.plan(cloud, cfg, lambda stage, f: stages.append(stage))
+    assert plan.rounds and stages
+    surface = shotcrete.build_surface(cloud, cfg)
+    valid = np.asarray(surface.grid.valid).reshape(-1)
+    td = np.asarray(plan.td_after_m)
+    assert td.shape == valid.shape and td.dtype == np.float64
+    assert max(shotcrete.level_of_td_mm(x * 1000) for x in td[valid]) <= 0
+    # Speeds within the configured bounds, waypoints as (N, 3) arrays in metres.
+    for rnd in plan.rounds:
+        for reg in rnd.regions:
+            for p in reg.passes:
+                assert p.positions_m.shape == (len(p.waypoints), 3)
+                v = p.speed_profile_mps or [p.speed_mps]
+                assert cfg.planner.min_speed_mps - 1e-9 <= min(v) and max(v) <= cfg.planner.max_speed_mps + 1e-9
+    # Mass balance: what the plan sprays (and stays) is what the wall gained, less spray beyond the scan.
+    gained = np.sum((np.asarray(surface.grid.td_m).reshape(-1) - td)[valid]) * cfg.grid.cell_size_m ** 2
+    sprayed = plan.spray_time_s * plan.deposition_rate_m3ps
+    assert 0.75 * sprayed < gained <= 1.01 * sprayed
+
+
+def test_optimal_beats_graded_on_residual(small):
+    cfg, cloud = small
+    rms = {}
+    for mode in ("graded", "optimal"):
+        c = cfg.copy()
+        c.planner.mode = mode
+        surface = shotcrete.build_surface(cloud, c)
+        valid = np.asarray(surface.grid.valid).reshape(-1)
+        r = np.asarray(shotcrete.plan_bay(surface, c).td_after_m)[valid]
+        rms[mode] = float(np.sqrt(np.mean(r ** 2)))
+    assert rms["optimal"] < rms["graded"]
+
+
+def test_cli_demo_report_contract(tmp_path, run_cli):
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(SMALL_BAY)
+    out = tmp_path / "demo"
+    r = run_cli("demo", "--out", out, "--config", cfg, "--json")
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    assert REPORT_KEYS <= set(report)
+    assert set(report["residual_mm"]) >= {"mean", "min", "max", "rms"}
+    assert report["ik"]["solved"] and report["ik"]["worst_position_error_m"] < 1e-3
+    assert report["total_time_s"] >= report["spray_time_s"] > 0
+    assert report["spray_time_ratio"] == pytest.approx(report["spray_time_s"] / report["physical_limit_s"])
+    plan = json.loads((out / "plan.json").read_text())
+    first = plan["rounds"][0]["regions"][0]["passes"][0]
+    assert len(first["positions_m"][0]) == 3 and first["speed_mps"] > 0
+    traj = np.load(out / "trajectory.npz")
+    assert traj["q"].shape[1] == 8 and len(traj["t_s"]) == len(traj["q"])
+    html = (out / "report.html").read_text()
+    for src in [s.split('"')[0] for s in html.split('src="')[1:]]:
+        assert (out / src).is_file(), src
+    assert "Round 1" in html
+
+
+def test_bad_planner_config_names_the_key(small, tmp_path, run_cli):
+    cfg, cloud = small
+    bad = cfg.copy()
+    bad.planner.standoff_m = 2.0
+    with pytest.raises(ValueError, match="planner.standoff_m"):
+        shotcrete.plan(cloud, bad)
+    yaml = tmp_path / "bad.yaml"
+    yaml.write_text("planner: {mode: fastest}\n")
+    r = run_cli("demo", "--out", tmp_path / "o", "--config", yaml)
+    assert r.exit_code == 2 and "planner.mode" in r.output
