@@ -108,12 +108,22 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
       prof.append(cycloid_start(s.length_m, s.v_in, params.k1));
     } else if (i + 1 == specs.size()) {
       prof.append(cycloid_end(s.length_m, s.v_in, params.k2));
+    } else if (s.kind == SegmentKind::Link && params.turn_speed_mps > 0.0 &&
+               (specs[i + 1].kind == SegmentKind::Turn || specs[i - 1].kind == SegmentKind::Turn)) {
+      // Run-out before / run-in after a turn: the speed changes to / from the turn speed here.
+      const bool before = specs[i + 1].kind == SegmentKind::Turn;
+      const double va = before ? s.v_in : params.turn_speed_mps, vb = before ? params.turn_speed_mps : s.v_in;
+      prof.append(SpeedPiece{va, vb, s.length_m / (0.5 * (va + vb)), SpeedShape::Cycloid});
     } else if (s.kind == SegmentKind::Turn) {
       const double vt = params.turn_speed_mps;
-      if (vt > 0.0) {  // two cycloidal changes, each over half the arc
+      const bool run_before = specs[i - 1].kind == SegmentKind::Link, run_after = specs[i + 1].kind == SegmentKind::Link;
+      if (vt > 0.0) {
+        // Entry / exit speeds: the turn speed where a run line already changed it, else the pass
+        // speed; the rest of the change happens on the arc halves (constant when nothing is left).
+        const double v0 = run_before ? vt : s.v_in, v1 = run_after ? vt : s.v_out;
         const double half = 0.5 * s.length_m;
-        prof.append(SpeedPiece{s.v_in, vt, half / (0.5 * (s.v_in + vt)), SpeedShape::Cycloid});
-        prof.append(SpeedPiece{vt, s.v_out, half / (0.5 * (vt + s.v_out)), SpeedShape::Cycloid});
+        prof.append(SpeedPiece{v0, vt, half / (0.5 * (v0 + vt)), SpeedShape::Cycloid});
+        prof.append(SpeedPiece{vt, v1, half / (0.5 * (vt + v1)), SpeedShape::Cycloid});
       } else {
         prof.append(SpeedPiece{s.v_in, s.v_out, s.length_m / (0.5 * (s.v_in + s.v_out)), SpeedShape::Cycloid});
       }
@@ -332,20 +342,22 @@ double CartesianPath::curvature_at(double s) const {
 }
 
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
-                                   double speed_a, double speed_b, bool spraying) {
+                                   double speed_a, double speed_b, bool spraying, double run_m) {
+  if (!(run_m >= 0.0)) throw std::invalid_argument("turn_around: run length " + num(run_m) + " m must be >= 0");
   const Eigen::Vector3d d = normalized_or(dir_a, Eigen::Vector3d::UnitX());
   const double e = (start_b.position_m - end_a.position_m).dot(d);
-  // Align the two ends along d: the shorter side is extended by a straight line.
+  // Align the two ends along d: the shorter side is extended by a straight line; both then run on
+  // by run_m (room for a speed change before and after the arc).
   NozzlePose pa = end_a, pb = start_b;
-  pa.position_m += std::max(e, 0.0) * d;
-  pb.position_m += std::max(-e, 0.0) * d;
+  pa.position_m += (std::max(e, 0.0) + run_m) * d;
+  pb.position_m += (std::max(-e, 0.0) + run_m) * d;
   const Eigen::Vector3d w = pb.position_m - pa.position_m;  // orthogonal to d by construction
   const double diameter = w.norm();
   if (diameter < 1e-6)
     throw std::invalid_argument("turn-around: the end of one pass and the start of the next coincide across the pass "
                                 "direction (spacing " + num(diameter) + " m)");
   std::vector<PathPiece> out;
-  if (e > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
+  if (e + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
   PathPiece arc;
   arc.kind = SegmentKind::Turn;
   arc.spraying = spraying;
@@ -359,12 +371,12 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
   arc.axis0 = end_a.axis;
   arc.axis1 = start_b.axis;
   out.push_back(arc);
-  if (e < -1e-9) out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
+  if (-e + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
   return out;
 }
 
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
-                          int first_pass_index) {
+                          int first_pass_index, double turn_run_m) {
   if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
   for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
   if (!(lead_in_m > 0.0) || !(lead_out_m > 0.0))
@@ -381,7 +393,7 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
     if (i + 1 < passes.size()) {
       const Pass& q = passes[i + 1];
       for (auto& piece : turn_around(p.waypoints.back(), end_direction(p), q.waypoints.front(), p.speed_mps, q.speed_mps,
-                                     spray_on_turns))
+                                     spray_on_turns, turn_run_m))
         path.append(std::move(piece));
     }
   }
@@ -643,23 +655,28 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
   Eigen::Matrix<double, 5, 1> e;
   Eigen::MatrixXd A;
   double emax = 0.0, amax = 0.0;
-  for (std::size_t k = 0; k < poses.size(); ++k) {
-    const double ds = k == 0 ? 0.0 : (poses[k].position_m - poses[k - 1].position_m).norm();
-    // Null-space drift away from the limits, proportional to the path step: q(s) depends on the
-    // path only, and is as smooth as the path.
-    if (ds > 0.0 && limit_gain > 0.0) {
-      task_error(robot, q, poses[k - 1], e, &A);
-      Eigen::VectorXd g(n);
-      for (int i = 0; i < n; ++i) {
-        const double x = std::clamp((q(i) - lo(i)) / range(i), 1e-3, 1.0 - 1e-3);
-        g(i) = std::clamp(limit_gain * (1.0 - 2.0 * x) / (4.0 * x * x * (1.0 - x) * (1.0 - x)), -5.0, 5.0) * range(i) * ds;
-      }
-      const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-12 * Eigen::Matrix<double, 5, 5>::Identity();
-      q += g - A.transpose() * M.ldlt().solve(A * g);
+  // Null-space step away from the limits for a path step ds: the projection of -grad H
+  // (H = sum 1 / (4 x (1 - x)), x = normalised joint position) onto the null space of the task, a
+  // descent direction of H, times limit_gain * ds, scaled down as a whole (direction kept) so no
+  // joint drifts faster than kMaxDrift of its range per metre of path.
+  constexpr double kMaxDrift = 0.05;
+  auto null_step = [&](const NozzlePose& at, double ds) {
+    task_error(robot, q, at, e, &A);
+    Eigen::VectorXd g(n);
+    for (int i = 0; i < n; ++i) {
+      const double x = std::clamp((q(i) - lo(i)) / range(i), 1e-4, 1.0 - 1e-4);
+      g(i) = (1.0 - 2.0 * x) / (4.0 * x * x * (1.0 - x) * (1.0 - x)) / range(i);
     }
-    // Minimal-norm Gauss-Newton onto the exact target.
+    const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-12 * Eigen::Matrix<double, 5, 5>::Identity();
+    Eigen::VectorXd dq = limit_gain * ds * (g - A.transpose() * M.ldlt().solve(A * g));
+    const double worst = dq.cwiseQuotient(range).cwiseAbs().maxCoeff() / (kMaxDrift * ds);
+    if (worst > 1.0) dq /= worst;
+    q += dq;
+    return dq.cwiseQuotient(range).cwiseAbs().maxCoeff();
+  };
+  auto correct = [&](const NozzlePose& target) {
     for (int it = 0; it < 30; ++it) {
-      task_error(robot, q, poses[k], e, &A);
+      task_error(robot, q, target, e, &A);
       if (e.head<3>().norm() < 1e-10 && e.tail<2>().norm() < 1e-10) break;
       const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-10 * Eigen::Matrix<double, 5, 5>::Identity();
       Eigen::VectorXd dq = A.transpose() * M.ldlt().solve(e);
@@ -667,6 +684,22 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
       if (big > 0.2) dq *= 0.2 / big;
       q += dq;
     }
+  };
+  // Settle the start configuration at rest (free: the transit brings the arm there anyway), so the
+  // drift along the path stays small.
+  if (!poses.empty() && limit_gain > 0.0) {
+    correct(poses.front());
+    for (int it = 0; it < 2000; ++it) {
+      const double step = null_step(poses.front(), 0.05);
+      correct(poses.front());
+      if (step < 1e-6) break;
+    }
+  }
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    const double ds = k == 0 ? 0.0 : (poses[k].position_m - poses[k - 1].position_m).norm();
+    // Drift proportional to the path step: q(s) depends on the path only, as smooth as the path.
+    if (ds > 0.0 && limit_gain > 0.0) null_step(poses[k - 1], ds);
+    correct(poses[k]);  // minimal-norm Gauss-Newton onto the exact target
     task_error(robot, q, poses[k], e, nullptr);
     emax = std::max(emax, e.head<3>().norm());
     amax = std::max(amax, std::asin(std::min(1.0, e.tail<2>().norm())));
@@ -707,6 +740,16 @@ NozzlePose pose_of(const Eigen::Isometry3d& T) {
 
 namespace {
 void finish_trajectory(const Robot& robot, TimedTrajectory& tr);
+
+// Exact time spent on spraying pieces (from the profile, not from the samples).
+double spraying_time(const CartesianPath& path, const SpeedProfile& prof) {
+  double t = 0.0;
+  for (std::size_t i = 0; i < path.pieces().size(); ++i)
+    if (path.pieces()[i].spraying)
+      t += prof.time_at_distance(path.piece_start_m(i) + path.pieces()[i].length_m()) -
+           prof.time_at_distance(path.piece_start_m(i));
+  return t;
+}
 }  // namespace
 
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
@@ -734,26 +777,32 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
   int pass_offset = 0;
   for (std::size_t r = 0; r < regions.size(); ++r) {
     const CartesianPath path =
-        region_path(regions[r], params.start_length_m, params.end_length_m, timing.spray_on_turns, pass_offset);
+        region_path(regions[r], params.start_length_m, params.end_length_m, timing.spray_on_turns, pass_offset,
+                    timing.turn_run_m);
     const SpeedProfile prof = region_profile(path, params);
     const CartesianSamples cs = sample_path(path, prof, rate);
     // The joint path starts where the swarm's RegionJointModel starts it (at the longest lead-in)
     // so that both see the same q(s): the unused part of that lead-in is prepended, then dropped.
-    std::vector<NozzlePose> poses;
-    const double unused = max_lead - params.start_length_m;
-    if (unused > 0.0) {
-      const CartesianPath long_path = region_path(regions[r], max_lead, max_lead, timing.spray_on_turns);
-      const int m = static_cast<int>(std::ceil(unused / 0.005));
-      for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
-    }
-    const std::size_t prefix = poses.size();
-    poses.insert(poses.end(), cs.nozzle.begin(), cs.nozzle.end());
+    // If that longer lead-in leaves the reach, the bound is halved as in tune_timing.
     std::vector<Eigen::VectorXd> jq;
+    std::size_t prefix = 0;
     bool tracked = false;
-    try {
-      jq = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
-    } catch (const std::exception& e) {
-      throw std::runtime_error("time_plan: region " + std::to_string(r) + ": " + e.what());
+    for (double lead = max_lead;; lead = std::max(0.5 * lead, params.start_length_m)) {
+      std::vector<NozzlePose> poses;
+      const double unused = std::max(0.0, lead - params.start_length_m);
+      if (unused > 0.0) {
+        const CartesianPath long_path = region_path(regions[r], lead, lead, timing.spray_on_turns, 0, timing.turn_run_m);
+        const int m = static_cast<int>(std::ceil(unused / 0.005));
+        for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
+      }
+      prefix = poses.size();
+      poses.insert(poses.end(), cs.nozzle.begin(), cs.nozzle.end());
+      try {
+        jq = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
+        break;
+      } catch (const std::exception& e) {
+        if (unused <= 0.0) throw std::runtime_error("time_plan: region " + std::to_string(r) + ": " + e.what());
+      }
     }
     jq.erase(jq.begin(), jq.begin() + static_cast<std::ptrdiff_t>(prefix));
     // Transit from the previous rest configuration to the region's first one.
@@ -773,6 +822,7 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     for (std::size_t k = 1; k < cs.t_s.size(); ++k)
       push(t0 + cs.t_s[k], jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], static_cast<int>(r), cs.kind[k]);
     t0 += prof.duration_s();
+    tr.spray_time_s += spraying_time(path, prof);
     q_prev = jq.back();
     pass_offset += static_cast<int>(regions[r].size());
   }
@@ -785,8 +835,6 @@ namespace {
 void finish_trajectory(const Robot& robot, TimedTrajectory& tr) {
   const int dof = robot.dof();
   finite_differences(tr.t_s, tr.q, tr.qd, tr.qdd);
-  const auto dw = spray_dwells(tr.t_s, tr.spraying);
-  for (double d : dw) tr.spray_time_s += d;
   const Eigen::VectorXd& vl = robot.velocity_limits();
   const Eigen::VectorXd& al = robot.acceleration_limits();
   for (std::size_t i = 0; i < tr.size(); ++i)
@@ -815,6 +863,7 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
   tr.kind = cs.kind;
   tr.duration_s = profile.duration_s();
   tr.untracked_regions = tracked ? 0 : 1;
+  tr.spray_time_s = spraying_time(path, profile);
   finish_trajectory(robot, tr);
   return tr;
 }
@@ -825,8 +874,8 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
 
 RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m,
                                    bool spray_on_turns, const Eigen::VectorXd& seed, const RobotConfig& robot_config,
-                                   double step_m)
-    : path_(region_path(passes, max_lead_m, max_lead_m, spray_on_turns)),
+                                   double step_m, double turn_run_m)
+    : path_(region_path(passes, max_lead_m, max_lead_m, spray_on_turns, 0, turn_run_m)),
       max_lead_m_(max_lead_m),
       vel_limit_(robot.velocity_limits()),
       acc_limit_(robot.acceleration_limits()) {
@@ -1005,23 +1054,36 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
                          const TimingConfig& timing, const RobotConfig& robot_config) {
   if (regions.empty()) throw std::invalid_argument("tune_timing: no regions");
   const NozzleLimits limits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2};
-  const double max_lead = timing.max_lead_length_m;
-  const double min_lead = std::min(0.02, max_lead);
+  double max_lead = timing.max_lead_length_m;
   std::vector<RegionJointModel> models;
-  std::vector<CartesianPath> paths_unused;
   if (robot) {
     if (q_start.size() != robot->dof()) throw std::invalid_argument("tune_timing: q_start does not match the robot");
-    Eigen::VectorXd seed = q_start;
-    for (std::size_t r = 0; r < regions.size(); ++r) {
+    // The longest lead-ins / lead-outs may leave the reach: halve the bound until every region's
+    // joint path exists (time_plan does the same).
+    for (;;) {
+      models.clear();
+      Eigen::VectorXd seed = q_start;
       try {
-        models.emplace_back(*robot, regions[r], max_lead, timing.spray_on_turns, seed, robot_config);
-      } catch (const std::exception& e) {
-        throw std::runtime_error("tune_timing: region " + std::to_string(r) + " (with " + num(max_lead) +
-                                 " m leads): " + e.what());
+        for (std::size_t r = 0; r < regions.size(); ++r) {
+          try {
+            models.emplace_back(*robot, regions[r], max_lead, timing.spray_on_turns, seed, robot_config, 0.005,
+                                timing.turn_run_m);
+          } catch (const std::exception& e) {
+            throw std::runtime_error("tune_timing: region " + std::to_string(r) + " (with " + num(max_lead) +
+                                     " m leads): " + e.what());
+          }
+          TimingParams mid = TimingParams::from_config(timing);
+          mid.start_length_m = mid.end_length_m = 0.5 * max_lead;
+          seed = models.back().evaluate(mid, limits).q_last;
+        }
+        break;
+      } catch (const std::runtime_error&) {
+        if (max_lead <= 0.05) throw;
+        max_lead = std::max(0.05, 0.5 * max_lead);
       }
-      seed = models.back().evaluate(TimingParams::from_config(timing), limits).q_last;
     }
   }
+  const double min_lead = std::min(0.02, max_lead);
   // Execution time of every region plus the joint transits; infeasible -> penalty above any time.
   auto total = [&](const TimingParams& p, bool& feasible) {
     double time = 0.0, worst = 0.0;
@@ -1031,9 +1093,14 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
         const auto ev = models[r].evaluate(p, limits);
         time += ev.duration_s + quintic_min_duration(q_prev, ev.q_first, robot->velocity_limits(), robot->acceleration_limits());
         q_prev = ev.q_last;
-        worst = std::max({worst, ev.velocity_ratio, ev.acceleration_ratio, ev.nozzle.speed_ratio, ev.nozzle.accel_ratio});
+        // The swarm keeps a margin on the joint limits: its arc-length model and the final sampled
+        // trajectory differ slightly (start configuration, discretisation).
+        const double jm = 1.0 - timing.joint_limit_margin;
+        worst = std::max({worst, ev.velocity_ratio / jm, ev.acceleration_ratio / jm, ev.nozzle.speed_ratio,
+                          ev.nozzle.accel_ratio});
       } else {
-        const CartesianPath path = region_path(regions[r], p.start_length_m, p.end_length_m, timing.spray_on_turns);
+        const CartesianPath path =
+            region_path(regions[r], p.start_length_m, p.end_length_m, timing.spray_on_turns, 0, timing.turn_run_m);
         const SpeedProfile prof = region_profile(path, p);
         const auto c = check_nozzle(path, prof, limits, 100.0);
         time += prof.duration_s();

@@ -14,3 +14,4 @@ void bind_deposition(py::module_& m);
 void bind_ordering(py::module_& m);
 void bind_robot(py::module_& m);
 void bind_planner(py::module_& m);
+void bind_timing(py::module_& m);

@@ -8,4 +8,5 @@ PYBIND11_MODULE(_core, m) {
   bind_ordering(m);
   bind_robot(m);
   bind_planner(m);
+  bind_timing(m);
 }

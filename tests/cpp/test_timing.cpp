@@ -260,6 +260,39 @@ TEST(Region, SerpentineNeverStopsAndKeepsPassSpeeds) {
   EXPECT_NEAR(vmax_turn, 0.5, 1e-4);
 }
 
+TEST(Region, TurnRunsCarryTheSpeedChange) {
+  const auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.0, {0.3, 0.2});
+  TimingParams prm;
+  prm.turn_speed_mps = 0.12;
+  const CartesianPath path = region_path(passes, 0.1, 0.1, false, 0, 0.15);
+  const SpeedProfile prof = region_profile(path, prm);
+  EXPECT_NEAR(prof.length_m(), path.length_m(), 1e-9);
+  // Every arc is run entirely at the turn speed; the speed is continuous (max step at 1 kHz).
+  const CartesianSamples cs = sample_path(path, prof, 1000.0);
+  double max_dv = 0.0;
+  int on_arc = 0;
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+    if (i > 0) max_dv = std::max(max_dv, std::abs(cs.speed_mps[i] - cs.speed_mps[i - 1]));
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Turn)) {
+      ASSERT_NEAR(cs.speed_mps[i], 0.12, 1e-9);
+      ++on_arc;
+    }
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_NEAR(cs.speed_mps[i], passes[static_cast<std::size_t>(cs.pass_index[i])].speed_mps, 1e-12);
+    }
+  }
+  EXPECT_GT(on_arc, 100);
+  EXPECT_LT(max_dv, 3e-3);  // peak 2.7 m/s^2 (the lead-in start), no jumps
+  // Runs of 0.15 m on both sides of each of the 2 arcs.
+  int runs = 0;
+  for (const auto& p : path.pieces())
+    if (p.kind == SegmentKind::Link) {
+      EXPECT_NEAR(p.length_m(), 0.15, 1e-9);
+      ++runs;
+    }
+  EXPECT_EQ(runs, 4);
+}
+
 TEST(Region, NozzleCheckSeesCentripetalAcceleration) {
   const auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.4});
   TimingParams prm;
@@ -380,7 +413,7 @@ TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
     }
     ASSERT_LT(t.duration_s, 1e5) << "no feasible timing found at " << amax;
     // Re-check the tuned particle independently, on a finer sampling.
-    const CartesianPath path = region_path(passes, t.params.start_length_m, t.params.end_length_m, false);
+    const CartesianPath path = region_path(passes, t.params.start_length_m, t.params.end_length_m, false, 0, tc.turn_run_m);
     const SpeedProfile prof = region_profile(path, t.params);
     EXPECT_NEAR(prof.duration_s(), t.duration_s, 1e-9);
     EXPECT_LE(check_nozzle(path, prof, NozzleLimits{tc.nozzle_max_speed_mps, amax}, 2000.0).accel_ratio, 1.0 + 1e-3);
@@ -403,13 +436,25 @@ TEST(RobotTiming, TunedRegionsRespectJointLimits) {
   EXPECT_LE(tr.max_velocity_ratio, 1.0 + 1e-3);
   EXPECT_LE(tr.max_acceleration_ratio, 1.03);
   EXPECT_LE(tr.max_position_violation_rad, 0.0);
-  EXPECT_NEAR(tr.duration_s, tun.duration_s, 0.05);
+  // Region durations are those of the tuned profiles; the transits (joint quintics between the
+  // regions' end configurations) may differ slightly from the swarm's model.
+  double regions_s = 0.0;
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    const CartesianPath path =
+        region_path(regions[r], tun.params.start_length_m, tun.params.end_length_m, false, 0, tc.turn_run_m);
+    regions_s += region_profile(path, tun.params).duration_s();
+  }
+  EXPECT_NEAR(tr.duration_s - tr.transit_time_s, regions_s, 1e-9);
+  EXPECT_NEAR(tr.duration_s, tun.duration_s, 0.01 * tun.duration_s);
   ASSERT_EQ(tr.q.size(), tr.size());
   ASSERT_EQ(tr.qdd.size(), tr.size());
   double pass_time = 0.0;
   for (const auto& reg : regions)
     for (const auto& p : reg) pass_time += p.length_m / p.speed_mps;
-  EXPECT_NEAR(tr.spray_time_s, pass_time, 2.0 / tc.trajectory_rate_hz);
+  EXPECT_NEAR(tr.spray_time_s, pass_time, 1e-6);
+  double dwell = 0.0;
+  for (double d : spray_dwells(tr.t_s, tr.spraying)) dwell += d;
+  EXPECT_NEAR(dwell, pass_time, 7.0 / tc.trajectory_rate_hz);  // within a sample per pass
   int checked = 0, transit = 0;
   for (std::size_t i = 0; i < tr.size(); ++i) {
     if (i > 0) {
@@ -462,3 +507,4 @@ TEST(RobotTiming, BadInput) {
     EXPECT_NE(std::string(e.what()).find("region 0"), std::string::npos) << e.what();
   }
 }
+

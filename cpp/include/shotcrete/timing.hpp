@@ -129,14 +129,16 @@ class CartesianPath {
 /// the pass ends are first aligned along da by a straight extension (the "line" of line + arc),
 /// then joined by a half circle whose diameter is their distance across (the pass spacing).
 /// Returns 1 to 3 pieces (extension of a, arc, extension before b), kinds Link / Turn.
+/// run_m > 0 adds a straight run of that length on both sides of the arc (the speed change to and
+/// from the turn speed happens there, so the arc is entered at the turn speed).
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
-                                   double speed_a_mps, double speed_b_mps, bool spraying);
+                                   double speed_a_mps, double speed_b_mps, bool spraying, double run_m = 0.0);
 
 /// Region path: lead-in, passes joined by turn-arounds (serpentine as given), lead-out.
 /// first_pass_index numbers the passes globally. Throws std::invalid_argument for an empty region,
 /// a pass with fewer than 2 waypoints or a non-positive speed.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
-                          int first_pass_index = 0);
+                          int first_pass_index = 0, double turn_run_m = 0.0);
 
 /// Tunable timing parameters (the swarm's particle).
 struct TimingParams {
@@ -150,7 +152,8 @@ struct TimingParams {
 
 /// Speed profile of a region path built by region_path (same lead lengths): cycloid start, pass
 /// speeds on passes and links, cycloidal speed changes on turns (pass speed -> turn speed -> next
-/// pass speed, or pass speed -> next pass speed when turn_speed_mps == 0), cycloid end.
+/// pass speed, or pass speed -> next pass speed when turn_speed_mps == 0; with turn runs the
+/// changes happen on the runs and the arc runs at the turn speed), cycloid end.
 SpeedProfile region_profile(const CartesianPath& path, const TimingParams& params);
 
 /// Quintic baseline: every pass extended by its acceleration / deceleration run, straight
@@ -210,10 +213,12 @@ double quintic_min_duration(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1
 void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double duration_s, double t_s,
                    Eigen::VectorXd& q, Eigen::VectorXd& qd, Eigen::VectorXd& qdd);
 
-/// Joint path through closely spaced poses: minimal-norm Gauss-Newton steps onto every pose
-/// (position and spray axis to ~1e-10) from q0, plus a null-space drift away from the joint limits
-/// proportional to the path step (limit_gain per metre, normalised joint units), so q is a smooth
-/// function of the path and finite differences are meaningful. Reports the worst errors.
+/// Joint path through closely spaced poses: from q0, the start configuration is first settled in
+/// the null space away from the joint limits (at rest), then minimal-norm Gauss-Newton steps reach
+/// every pose (position and spray axis to ~1e-10) plus a null-space drift away from the limits
+/// proportional to the path step (limit_gain * dH/dx, at most 0.05 normalised joint range per metre),
+/// so q is a smooth function of the path and finite differences are meaningful. Reports the worst
+/// errors.
 std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                               const Eigen::VectorXd& q0, double limit_gain = 0.02,
                                               double* max_error_m = nullptr, double* max_error_rad = nullptr);
@@ -227,7 +232,7 @@ struct TimedTrajectory {
   std::vector<int> region_index; // -1 on transits between regions
   std::vector<char> kind;        // SegmentKind
   double duration_s = 0.0;
-  double spray_time_s = 0.0;     // time with spraying on
+  double spray_time_s = 0.0;     // time with spraying on (exact, from the profiles)
   double transit_time_s = 0.0;
   // Limit check of the finite-difference velocities / accelerations (worst |value| / limit).
   double max_velocity_ratio = 0.0;
@@ -264,7 +269,8 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
 class RegionJointModel {
  public:
   RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m, bool spray_on_turns,
-                   const Eigen::VectorXd& seed, const RobotConfig& robot_config, double step_m = 0.005);
+                   const Eigen::VectorXd& seed, const RobotConfig& robot_config, double step_m = 0.005,
+                   double turn_run_m = 0.0);
   struct Evaluation {
     double duration_s = 0.0;
     double velocity_ratio = 0.0, acceleration_ratio = 0.0;  // worst |qd| / limit, |qdd| / limit
@@ -312,8 +318,9 @@ PsoResult pso_minimize(const std::function<double(const Eigen::VectorXd&)>& f, c
 
 /// Tuning of TimingParams (k1, k2, start_length_m, end_length_m, turn_speed_mps) for a set of
 /// regions: fitness = execution time (regions + transits), infeasible when a joint velocity or
-/// acceleration limit or a nozzle limit breaks. Without a robot (robot == nullptr) only the nozzle
-/// limits apply.
+/// acceleration limit (reduced by timing.joint_limit_margin) or a nozzle limit breaks, judged on
+/// RegionJointModel. Without a robot (robot == nullptr) only the nozzle limits apply and transits
+/// are not counted.
 struct TimingTuning {
   TimingParams params;
   double duration_s = 0.0;         // of the regions with the tuned params

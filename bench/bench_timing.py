@@ -1,0 +1,147 @@
+"""Motion timing benchmark: one representative region (8 axial passes of 1.2 m, 0.2 m apart on the
+5.6 m wall, nozzle at the configured standoff) timed four ways on the bundled robot, all checked in
+joint space (finite-difference velocities / accelerations against the URDF limits):
+
+- quintic baseline: quintic acceleration / deceleration, full stop at every pass end and step-over
+  (design 7b), with the largest nozzle acceleration the joints allow (bisection);
+- cycloid + arcs at that same acceleration (k1 = 1, k2 = 0): the gain of not stopping;
+- cycloid + arcs with the config's parameters (may break limits: reported, not hidden);
+- cycloid + arcs tuned by AIWCPSO (k1, k2, start/end length, turn speed).
+
+Also a two-region plan with a joint-space transit (time_plan). Writes <out>/timing.json.
+
+    python bench/bench_timing.py --out bench/results
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from shotcrete import _core
+from shotcrete.cli_robot import load_robot
+from shotcrete.config import load_config
+
+SPEEDS = (0.22, 0.30, 0.18, 0.26, 0.34, 0.20, 0.28, 0.24)  # m/s, as the deposition would set them
+
+
+def axial_region(n, length, wall_spacing, x0, theta0, standoff, R=5.6, speeds=SPEEDS):
+    rn = R - standoff
+    passes = []
+    for i in range(n):
+        th = theta0 + i * wall_spacing / R
+        f = np.linspace(0.0, 1.0, int(round(length / 0.01)) + 1)
+        x = x0 + (f if i % 2 == 0 else 1.0 - f) * length
+        pos = np.column_stack([x, np.full_like(x, rn * math.cos(th)), np.full_like(x, rn * math.sin(th))])
+        passes.append({"positions": pos, "axes": np.array([0.0, math.cos(th), math.sin(th)]),
+                       "speed_mps": speeds[i % len(speeds)]})
+    return passes
+
+
+def joint_summary(tr) -> dict:
+    s = tr.summary()
+    s["feasible"] = bool(s["max_velocity_ratio"] <= 1.0 + 1e-3 and s["max_acceleration_ratio"] <= 1.0 + 1e-3
+                         and s["max_position_violation"] <= 0.0)
+    return s
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--out", type=Path, default=Path("bench/results"))
+    args = ap.parse_args()
+    cfg = load_config()
+    tc, rc = cfg.timing, cfg.robot
+    robot = load_robot(cfg)
+    seed = robot.neutral()
+    rate = tc.trajectory_rate_hz
+    region = axial_region(8, 1.2, 0.2, 0.0, 1.1, cfg.planner.standoff_m)
+    spray_s = sum(1.2 / p["speed_mps"] for p in region)
+    vmean = float(np.mean([p["speed_mps"] for p in region]))
+    result: dict = {"region": {"passes": 8, "pass_length_m": 1.2, "wall_spacing_m": 0.2, "wall_radius_m": 5.6,
+                               "standoff_m": cfg.planner.standoff_m, "speeds_mps": list(SPEEDS),
+                               "spray_time_s": spray_s},
+                    "rate_hz": rate}
+
+    # Quintic baseline: the largest nozzle acceleration whose joint trajectory stays within limits.
+    def baseline(acc):
+        path, prof = _core.quintic_baseline(region, acc, vmean)
+        return path, prof, _core.time_path(robot, path, prof, seed, rate, rc)
+
+    t0 = time.perf_counter()
+    lo, hi = 0.02, tc.nozzle_max_accel_mps2
+    _, _, tr = baseline(hi)
+    if joint_summary(tr)["feasible"]:
+        lo = hi
+    else:
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            if joint_summary(baseline(mid)[2])["feasible"]:
+                lo = mid
+            else:
+                hi = mid
+    a_base = lo
+    _, prof_b, tr_b = baseline(a_base)
+    result["quintic_baseline"] = {"accel_mps2": a_base, "stepover_speed_mps": vmean,
+                                  "duration_s": prof_b.duration_s, "joint": joint_summary(tr_b),
+                                  "search_s": time.perf_counter() - t0}
+
+    def cycloid(params):
+        path = _core.region_path(region, params.start_length_m, params.end_length_m, tc.spray_on_turns, tc.turn_run_m)
+        prof = _core.region_profile(path, params)
+        tr = _core.time_path(robot, path, prof, seed, rate, rc)
+        nozzle = _core.check_nozzle(path, prof, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2)
+        return {"params": params.to_dict(), "duration_s": prof.duration_s, "joint": joint_summary(tr),
+                "nozzle": nozzle}
+
+    # Same peak acceleration as the baseline at the first / last pass: s = v^2 / a (k1 = 1, k2 = 0).
+    same = _core.TimingParams()
+    same.k1, same.k2 = 1.0, 0.0
+    same.start_length_m = region[0]["speed_mps"] ** 2 / a_base
+    same.end_length_m = region[-1]["speed_mps"] ** 2 / a_base
+    result["cycloid_arcs_same_accel"] = cycloid(same)
+    result["cycloid_arcs_config"] = cycloid(_core.TimingParams.from_config(tc))
+
+    t0 = time.perf_counter()
+    tun = _core.tune_timing(robot, [region], seed, tc, rc)
+    tune_s = time.perf_counter() - t0
+    pso = cycloid(tun.params)
+    pso.update({"tune_s": tune_s, "swarm_duration_s": tun.duration_s, "evaluations": tun.pso.evaluations,
+                "best_history_s": [h if h < 1e5 else None for h in tun.pso.best_history],
+                "success_history": tun.pso.success_history,
+                "particles": tc.pso_particles, "iterations": tc.pso_iterations})
+    pso["swarm_feasible"] = bool(tun.duration_s < 1e5)
+    result["cycloid_arcs_pso"] = pso
+
+    tb = result["quintic_baseline"]["duration_s"]
+    ts = result["cycloid_arcs_same_accel"]["duration_s"]
+    tp = pso["duration_s"]
+    result["savings"] = {
+        "arcs_vs_quintic": 1.0 - ts / tb,
+        "pso_vs_quintic": 1.0 - tp / tb,
+        "pso_vs_arcs_same_accel": 1.0 - tp / ts,
+        "paper": {"vs_quintic": 0.25, "pso_extra": 0.013},
+    }
+
+    # Two regions in order with the joint transit between them (the full time_plan path).
+    region2 = axial_region(6, 1.0, 0.2, 0.1, 0.55, cfg.planner.standoff_m)
+    t0 = time.perf_counter()
+    tun2 = _core.tune_timing(robot, [region, region2], seed, tc, rc)
+    tr2 = _core.time_plan(robot, [region, region2], seed, tc, rc, tun2.params)
+    result["two_regions"] = {"duration_s": tr2.duration_s, "transit_time_s": tr2.transit_time_s,
+                             "spray_time_s": tr2.spray_time_s, "samples": len(tr2), "joint": joint_summary(tr2),
+                             "params": tun2.params.to_dict(), "wall_time_s": time.perf_counter() - t0}
+    result["machine"] = platform.platform()
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "timing.json").write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps({k: result[k] for k in ("savings",)}, indent=1))
+    print(json.dumps({k: (v["duration_s"], v["joint"]["feasible"]) for k, v in result.items()
+                      if isinstance(v, dict) and "joint" in v}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,384 @@
+#include <sstream>
+
+#include "bindings.hpp"
+#include "shotcrete/robot.hpp"
+#include "shotcrete/timing.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+template <class T> py::array_t<T> to_array(const std::vector<T>& v) {
+  py::array_t<T> out(static_cast<py::ssize_t>(v.size()));
+  std::copy(v.begin(), v.end(), out.mutable_data());
+  return out;
+}
+py::array_t<int> to_int_array(const std::vector<char>& v) {
+  py::array_t<int> out(static_cast<py::ssize_t>(v.size()));
+  std::copy(v.begin(), v.end(), out.mutable_data());
+  return out;
+}
+py::array_t<bool> to_bool_array(const std::vector<char>& v) {
+  py::array_t<bool> out(static_cast<py::ssize_t>(v.size()));
+  for (std::size_t i = 0; i < v.size(); ++i) out.mutable_data()[i] = v[i] != 0;
+  return out;
+}
+Eigen::MatrixXd rows(const std::vector<Eigen::VectorXd>& v) {
+  Eigen::MatrixXd m(static_cast<Eigen::Index>(v.size()), v.empty() ? 0 : v.front().size());
+  for (std::size_t i = 0; i < v.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = v[i].transpose();
+  return m;
+}
+Eigen::MatrixXd positions(const std::vector<NozzlePose>& p) {
+  Eigen::MatrixXd m(static_cast<Eigen::Index>(p.size()), 3);
+  for (std::size_t i = 0; i < p.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = p[i].position_m.transpose();
+  return m;
+}
+Eigen::MatrixXd axes(const std::vector<NozzlePose>& p) {
+  Eigen::MatrixXd m(static_cast<Eigen::Index>(p.size()), 3);
+  for (std::size_t i = 0; i < p.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = p[i].axis.transpose();
+  return m;
+}
+
+// A pass from Python: a dict {"positions": (K,3), "axes": (K,3) or (3,), "speed_mps": v}, a tuple
+// (positions, axes, speed_mps), or a bound Pass object.
+Pass pass_from_py(const py::handle& h, std::size_t r, std::size_t i) {
+  const std::string where = "region " + std::to_string(r) + " pass " + std::to_string(i);
+  py::object pos, ax, spd;
+  if (py::isinstance<py::dict>(h)) {
+    const auto d = py::reinterpret_borrow<py::dict>(h);
+    for (const char* k : {"positions", "axes", "speed_mps"})
+      if (!d.contains(k)) throw py::value_error(where + ": missing key '" + std::string(k) + "'");
+    pos = d["positions"];
+    ax = d["axes"];
+    spd = d["speed_mps"];
+  } else if (py::isinstance<py::tuple>(h) || py::isinstance<py::list>(h)) {
+    const auto t = py::reinterpret_borrow<py::sequence>(h);
+    if (t.size() != 3) throw py::value_error(where + ": expected (positions, axes, speed_mps)");
+    pos = t[0];
+    ax = t[1];
+    spd = t[2];
+  } else {
+    try {
+      return h.cast<Pass>();
+    } catch (const py::cast_error&) {
+      throw py::value_error(where + ": expected a dict, a (positions, axes, speed_mps) tuple or a Pass");
+    }
+  }
+  const Eigen::MatrixXd P = pos.cast<Eigen::MatrixXd>();
+  Eigen::MatrixXd A = ax.cast<Eigen::MatrixXd>();
+  if (P.cols() != 3) throw py::value_error(where + ": positions must be (K, 3)");
+  if (A.size() == 3) A = Eigen::MatrixXd(A.reshaped(1, 3).replicate(P.rows(), 1));  // no aliasing
+  if (A.rows() != P.rows() || A.cols() != 3) throw py::value_error(where + ": axes must be (K, 3) or (3,)");
+  Pass p;
+  p.speed_mps = spd.cast<double>();
+  for (Eigen::Index k = 0; k < P.rows(); ++k) {
+    NozzlePose w;
+    w.position_m = P.row(k).transpose();
+    w.axis = A.row(k).transpose();
+    p.waypoints.push_back(w);
+    if (k > 0) p.length_m += (P.row(k) - P.row(k - 1)).norm();
+  }
+  return p;
+}
+std::vector<Pass> region_from_py(const py::handle& h, std::size_t r = 0) {
+  std::vector<Pass> out;
+  std::size_t i = 0;
+  for (const auto& p : h) out.push_back(pass_from_py(p, r, i++));
+  return out;
+}
+std::vector<std::vector<Pass>> regions_from_py(const py::handle& h) {
+  std::vector<std::vector<Pass>> out;
+  std::size_t r = 0;
+  for (const auto& reg : h) out.push_back(region_from_py(reg, r++));
+  return out;
+}
+
+py::dict samples_dict(const CartesianSamples& s) {
+  py::dict d;
+  d["t_s"] = to_array(s.t_s);
+  d["s_m"] = to_array(s.s_m);
+  d["positions"] = positions(s.nozzle);
+  d["axes"] = axes(s.nozzle);
+  d["speed_mps"] = to_array(s.speed_mps);
+  d["tangential_accel_mps2"] = to_array(s.tangential_accel_mps2);
+  d["normal_accel_mps2"] = to_array(s.normal_accel_mps2);
+  d["spraying"] = to_bool_array(s.spraying);
+  d["pass_index"] = to_array(s.pass_index);
+  d["kind"] = to_int_array(s.kind);
+  d["dwell_s"] = to_array(spray_dwells(s.t_s, s.spraying));
+  return d;
+}
+
+}  // namespace
+
+void bind_timing(py::module_& m) {
+  py::enum_<SpeedShape>(m, "SpeedShape").value("CYCLOID", SpeedShape::Cycloid).value("QUINTIC", SpeedShape::Quintic);
+  py::enum_<SegmentKind>(m, "SegmentKind")
+      .value("PASS", SegmentKind::Pass)
+      .value("TURN", SegmentKind::Turn)
+      .value("LEAD", SegmentKind::Lead)
+      .value("LINK", SegmentKind::Link)
+      .value("TRANSIT", SegmentKind::Transit);
+
+  py::class_<SpeedPiece>(m, "SpeedPiece", "Speed change v0 -> v1 over duration_s (cycloid or quintic shape).")
+      .def(py::init([](double v0, double v1, double T, SpeedShape s) { return SpeedPiece{v0, v1, T, s}; }),
+           py::arg("v0_mps"), py::arg("v1_mps"), py::arg("duration_s"), py::arg("shape") = SpeedShape::Cycloid)
+      .def_readonly("v0_mps", &SpeedPiece::v0_mps)
+      .def_readonly("v1_mps", &SpeedPiece::v1_mps)
+      .def_readonly("duration_s", &SpeedPiece::duration_s)
+      .def_readonly("shape", &SpeedPiece::shape)
+      .def_property_readonly("length_m", &SpeedPiece::length_m)
+      .def_property_readonly("peak_accel_mps2", &SpeedPiece::peak_accel_mps2);
+
+  py::class_<SpeedProfile>(m, "SpeedProfile", "Speed along a path: pieces one after the other from s = 0.")
+      .def(py::init<>())
+      .def("append", py::overload_cast<const SpeedPiece&>(&SpeedProfile::append), py::arg("piece"))
+      .def("extend", py::overload_cast<const SpeedProfile&>(&SpeedProfile::append), py::arg("profile"))
+      .def_property_readonly("duration_s", &SpeedProfile::duration_s)
+      .def_property_readonly("length_m", &SpeedProfile::length_m)
+      .def_property_readonly("pieces", &SpeedProfile::pieces)
+      .def("at",
+           [](const SpeedProfile& p, double t) {
+             const auto s = p.at(t);
+             py::dict d;
+             d["s_m"] = s.s_m;
+             d["v_mps"] = s.v_mps;
+             d["a_mps2"] = s.a_mps2;
+             d["j_mps3"] = s.j_mps3;
+             return d;
+           },
+           py::arg("t_s"), "State {s_m, v_mps, a_mps2, j_mps3} at time t (clamped).")
+      .def("evaluate",
+           [](const SpeedProfile& p, const Eigen::VectorXd& t) {
+             Eigen::MatrixXd out(t.size(), 4);
+             for (Eigen::Index i = 0; i < t.size(); ++i) {
+               const auto s = p.at(t[i]);
+               out.row(i) << s.s_m, s.v_mps, s.a_mps2, s.j_mps3;
+             }
+             return out;
+           },
+           py::arg("t_s"), "(N, 4) array of s, v, a, jerk at the given times.")
+      .def("time_at_distance", &SpeedProfile::time_at_distance, py::arg("s_m"));
+
+  m.def("cycloid_start", &cycloid_start, py::arg("s_start_m"), py::arg("v_mps"), py::arg("k1"),
+        "Paper start profile: cycloidal acceleration over k1 Ts, cruise until Ts = 2 s / (v (2 - k1)).");
+  m.def("cycloid_end", &cycloid_end, py::arg("s_end_m"), py::arg("v_mps"), py::arg("k2"),
+        "Paper end profile: cruise until k2 Te, cycloidal stop at Te = 2 s / (v (1 + k2)).");
+  m.def("rest_to_rest", &rest_to_rest, py::arg("length_m"), py::arg("v_mps"), py::arg("accel_time_s"),
+        py::arg("shape") = SpeedShape::Quintic, "Rest-to-rest move (quintic: the baseline).");
+
+  py::class_<TimingParams>(m, "TimingParams", "Tunable timing parameters (the swarm's particle).")
+      .def(py::init<>())
+      .def_static("from_config", &TimingParams::from_config, py::arg("timing_config"))
+      .def_readwrite("k1", &TimingParams::k1)
+      .def_readwrite("k2", &TimingParams::k2)
+      .def_readwrite("start_length_m", &TimingParams::start_length_m)
+      .def_readwrite("end_length_m", &TimingParams::end_length_m)
+      .def_readwrite("turn_speed_mps", &TimingParams::turn_speed_mps)
+      .def("to_dict", [](const TimingParams& p) {
+        py::dict d;
+        d["k1"] = p.k1;
+        d["k2"] = p.k2;
+        d["start_length_m"] = p.start_length_m;
+        d["end_length_m"] = p.end_length_m;
+        d["turn_speed_mps"] = p.turn_speed_mps;
+        return d;
+      });
+
+  py::class_<CartesianPath>(m, "CartesianPath", "Nozzle path of a region: lead-in, passes, turn-arounds, lead-out.")
+      .def_property_readonly("length_m", &CartesianPath::length_m)
+      .def_property_readonly("piece_kinds",
+                             [](const CartesianPath& p) {
+                               std::vector<SegmentKind> k;
+                               for (const auto& x : p.pieces()) k.push_back(x.kind);
+                               return k;
+                             })
+      .def_property_readonly("piece_lengths_m",
+                             [](const CartesianPath& p) {
+                               std::vector<double> k;
+                               for (const auto& x : p.pieces()) k.push_back(x.length_m());
+                               return k;
+                             })
+      .def_property_readonly("turn_radii_m",
+                             [](const CartesianPath& p) {
+                               std::vector<double> k;
+                               for (const auto& x : p.pieces())
+                                 if (x.is_arc) k.push_back(x.radius_m);
+                               return k;
+                             })
+      .def("poses",
+           [](const CartesianPath& p, const Eigen::VectorXd& s) {
+             Eigen::MatrixXd out(s.size(), 6);
+             for (Eigen::Index i = 0; i < s.size(); ++i) {
+               const auto q = p.pose_at(s[i]);
+               out.row(i) << q.position_m.transpose(), q.axis.transpose();
+             }
+             return out;
+           },
+           py::arg("s_m"), "(N, 6) positions and axes at arc lengths s.")
+      .def("tangents",
+           [](const CartesianPath& p, const Eigen::VectorXd& s) {
+             Eigen::MatrixXd out(s.size(), 3);
+             for (Eigen::Index i = 0; i < s.size(); ++i) out.row(i) = p.tangent_at(s[i]).transpose();
+             return out;
+           },
+           py::arg("s_m"));
+
+  m.def(
+      "region_path",
+      [](const py::handle& passes, double lead_in, double lead_out, bool spray_on_turns, double turn_run_m) {
+        return region_path(region_from_py(passes), lead_in, lead_out, spray_on_turns, 0, turn_run_m);
+      },
+      py::arg("passes"), py::arg("lead_in_m"), py::arg("lead_out_m"), py::arg("spray_on_turns") = false,
+      py::arg("turn_run_m") = 0.0,
+      "Serpentine path of one region; passes as dicts {positions, axes, speed_mps}, tuples or Pass objects.");
+  m.def("region_profile", &region_profile, py::arg("path"), py::arg("params"),
+        "Cycloid start/end, pass speeds, cycloidal speed changes on the turns.");
+  m.def(
+      "quintic_baseline",
+      [](const py::handle& passes, double accel, double stepover) {
+        auto b = quintic_baseline(region_from_py(passes), accel, stepover);
+        return py::make_tuple(b.path, b.profile);
+      },
+      py::arg("passes"), py::arg("max_accel_mps2"), py::arg("stepover_speed_mps"),
+      "Baseline: quintic acceleration/deceleration, full stop at every corner -> (path, profile).");
+  m.def(
+      "sample_path",
+      [](const CartesianPath& path, const SpeedProfile& prof, double rate) { return samples_dict(sample_path(path, prof, rate)); },
+      py::arg("path"), py::arg("profile"), py::arg("rate_hz"),
+      "Samples (steps <= 1/rate) as a dict of arrays, with dwell_s for accumulate_dwells.");
+  m.def(
+      "check_nozzle",
+      [](const CartesianPath& path, const SpeedProfile& prof, double vmax, double amax) {
+        const auto c = check_nozzle(path, prof, NozzleLimits{vmax, amax});
+        py::dict d;
+        d["max_speed_mps"] = c.max_speed_mps;
+        d["max_accel_mps2"] = c.max_accel_mps2;
+        d["speed_ratio"] = c.speed_ratio;
+        d["accel_ratio"] = c.accel_ratio;
+        d["ok"] = c.ok();
+        return d;
+      },
+      py::arg("path"), py::arg("profile"), py::arg("max_speed_mps"), py::arg("max_accel_mps2"));
+  m.def("spray_dwells", &spray_dwells, py::arg("t_s"), py::arg("spraying"));
+  m.def("quintic_min_duration", &quintic_min_duration, py::arg("q0"), py::arg("q1"), py::arg("velocity_limits"),
+        py::arg("acceleration_limits"), "Shortest rest-to-rest joint quintic within the limits [s].");
+
+  py::class_<TimedTrajectory>(m, "TimedTrajectory", "Timed joint trajectory with nozzle poses and spraying flags.")
+      .def_property_readonly("t_s", [](const TimedTrajectory& t) { return to_array(t.t_s); })
+      .def_property_readonly("q", [](const TimedTrajectory& t) { return rows(t.q); })
+      .def_property_readonly("qd", [](const TimedTrajectory& t) { return rows(t.qd); })
+      .def_property_readonly("qdd", [](const TimedTrajectory& t) { return rows(t.qdd); })
+      .def_property_readonly("positions", [](const TimedTrajectory& t) { return positions(t.nozzle); })
+      .def_property_readonly("axes", [](const TimedTrajectory& t) { return axes(t.nozzle); })
+      .def_property_readonly("spraying", [](const TimedTrajectory& t) { return to_bool_array(t.spraying); })
+      .def_property_readonly("pass_index", [](const TimedTrajectory& t) { return to_array(t.pass_index); })
+      .def_property_readonly("region_index", [](const TimedTrajectory& t) { return to_array(t.region_index); })
+      .def_property_readonly("kind", [](const TimedTrajectory& t) { return to_int_array(t.kind); })
+      .def_property_readonly("dwell_s", [](const TimedTrajectory& t) { return to_array(spray_dwells(t.t_s, t.spraying)); })
+      .def_readonly("duration_s", &TimedTrajectory::duration_s)
+      .def_readonly("spray_time_s", &TimedTrajectory::spray_time_s)
+      .def_readonly("transit_time_s", &TimedTrajectory::transit_time_s)
+      .def_readonly("max_velocity_ratio", &TimedTrajectory::max_velocity_ratio)
+      .def_readonly("max_acceleration_ratio", &TimedTrajectory::max_acceleration_ratio)
+      .def_readonly("worst_velocity_joint", &TimedTrajectory::worst_velocity_joint)
+      .def_readonly("worst_acceleration_joint", &TimedTrajectory::worst_acceleration_joint)
+      .def_readonly("max_position_violation", &TimedTrajectory::max_position_violation_rad)
+      .def_readonly("untracked_regions", &TimedTrajectory::untracked_regions)
+      .def("joint_table", &TimedTrajectory::joint_table, "(N, 1 + 3 dof): t, q, qd, qdd")
+      .def("joint_table_header", &TimedTrajectory::joint_table_header)
+      .def("to_csv", &TimedTrajectory::to_csv)
+      .def("summary",
+           [](const TimedTrajectory& t) {
+             py::dict d;
+             d["samples"] = t.size();
+             d["duration_s"] = t.duration_s;
+             d["spray_time_s"] = t.spray_time_s;
+             d["transit_time_s"] = t.transit_time_s;
+             d["max_velocity_ratio"] = t.max_velocity_ratio;
+             d["max_acceleration_ratio"] = t.max_acceleration_ratio;
+             d["worst_velocity_joint"] = t.worst_velocity_joint;
+             d["worst_acceleration_joint"] = t.worst_acceleration_joint;
+             d["max_position_violation"] = t.max_position_violation_rad;
+             d["untracked_regions"] = t.untracked_regions;
+             return d;
+           },
+           "JSON-friendly scalars.")
+      .def("__len__", &TimedTrajectory::size);
+
+  m.def(
+      "time_plan",
+      [](const Robot& robot, const py::handle& regions, const Eigen::VectorXd& q_start, const TimingConfig& tc,
+         const RobotConfig& rc, const TimingParams* params) {
+        const auto regs = regions_from_py(regions);
+        py::gil_scoped_release release;
+        return time_plan(robot, regs, q_start, tc, rc, params);
+      },
+      py::arg("robot"), py::arg("regions"), py::arg("q_start"), py::arg("timing_config"), py::arg("robot_config"),
+      py::arg("params") = nullptr,
+      "Regions (lists of passes) in spraying order -> timed joint trajectory at the config's rate.");
+
+  m.def(
+      "time_path",
+      [](const Robot& robot, const CartesianPath& path, const SpeedProfile& prof, const Eigen::VectorXd& seed,
+         double rate, const RobotConfig& rc) {
+        py::gil_scoped_release release;
+        return time_path(robot, path, prof, seed, rate, rc);
+      },
+      py::arg("robot"), py::arg("path"), py::arg("profile"), py::arg("seed"), py::arg("rate_hz"), py::arg("robot_config"),
+      "One timed Cartesian path in joint space, rest to rest, with the limit check (no transits).");
+
+  m.def(
+      "track_joint_path",
+      [](const Robot& robot, const Eigen::MatrixXd& poses6, const Eigen::VectorXd& q0, double gain) {
+        if (poses6.cols() != 6) throw py::value_error("poses must be (N, 6): position and axis");
+        std::vector<NozzlePose> poses(static_cast<std::size_t>(poses6.rows()));
+        for (Eigen::Index i = 0; i < poses6.rows(); ++i) {
+          poses[static_cast<std::size_t>(i)].position_m = poses6.row(i).head<3>().transpose();
+          poses[static_cast<std::size_t>(i)].axis = poses6.row(i).tail<3>().transpose();
+        }
+        double em = 0.0, ea = 0.0;
+        const auto q = track_joint_path(robot, poses, q0, gain, &em, &ea);
+        return py::make_tuple(rows(q), em, ea);
+      },
+      py::arg("robot"), py::arg("poses"), py::arg("q0"), py::arg("limit_gain") = 0.02,
+      "Exact joint tracking of (N, 6) poses from q0 -> (q (N, dof), max position error, max angle error).");
+
+  py::class_<PsoOptions>(m, "PsoOptions")
+      .def(py::init<>())
+      .def_static("from_config", &PsoOptions::from_config, py::arg("timing_config"))
+      .def_readwrite("particles", &PsoOptions::particles)
+      .def_readwrite("iterations", &PsoOptions::iterations)
+      .def_readwrite("seed", &PsoOptions::seed)
+      .def_readwrite("a", &PsoOptions::a)
+      .def_readwrite("b", &PsoOptions::b)
+      .def_readwrite("w_min", &PsoOptions::w_min)
+      .def_readwrite("w_max", &PsoOptions::w_max);
+  py::class_<PsoResult>(m, "PsoResult")
+      .def_readonly("best_x", &PsoResult::best_x)
+      .def_readonly("best_f", &PsoResult::best_f)
+      .def_readonly("best_history", &PsoResult::best_history)
+      .def_readonly("success_history", &PsoResult::success_history)
+      .def_readonly("evaluations", &PsoResult::evaluations);
+  m.def("pso_minimize", &pso_minimize, py::arg("f"), py::arg("lower"), py::arg("upper"), py::arg("options"),
+        py::arg("initial") = std::vector<Eigen::VectorXd>{},
+        "Particle swarm with adaptive inertia weight and acceleration coefficients (AIWCPSO), seeded.");
+
+  py::class_<TimingTuning>(m, "TimingTuning")
+      .def_readonly("params", &TimingTuning::params)
+      .def_readonly("duration_s", &TimingTuning::duration_s)
+      .def_readonly("initial_duration_s", &TimingTuning::initial_duration_s)
+      .def_readonly("initial_feasible", &TimingTuning::initial_feasible)
+      .def_readonly("pso", &TimingTuning::pso);
+  m.def(
+      "tune_timing",
+      [](const Robot* robot, const py::handle& regions, const Eigen::VectorXd& q_start, const TimingConfig& tc,
+         const RobotConfig& rc) {
+        const auto regs = regions_from_py(regions);
+        py::gil_scoped_release release;
+        return tune_timing(robot, regs, q_start, tc, rc);
+      },
+      py::arg("robot"), py::arg("regions"), py::arg("q_start"), py::arg("timing_config"), py::arg("robot_config"),
+      "AIWCPSO over (k1, k2, start/end length, turn speed): minimum execution time within joint and nozzle limits "
+      "(robot None: nozzle limits only).");
+}

@@ -1,0 +1,126 @@
+"""Timing bindings: the paper's cycloid profiles against numpy integrals of the closed forms, the
+serpentine path and its dwells, the swarm on a Python function with a known minimum, and the timed
+joint trajectory of real passes on the bundled robot."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import shotcrete
+from shotcrete import _core
+
+
+def _axial_region(n=4, length=1.2, spacing=0.2, x0=0.0, theta0=1.2, speeds=(0.25, 0.2), rn=4.6, R=5.6):
+    passes = []
+    for i in range(n):
+        th = theta0 + i * spacing / R
+        f = np.linspace(0.0, 1.0, int(round(length / 0.01)) + 1)
+        x = x0 + (f if i % 2 == 0 else 1.0 - f) * length
+        pos = np.column_stack([x, np.full_like(x, rn * math.cos(th)), np.full_like(x, rn * math.sin(th))])
+        passes.append({"positions": pos, "axes": np.array([0.0, math.cos(th), math.sin(th)]),
+                       "speed_mps": speeds[i % len(speeds)]})
+    return passes
+
+
+@pytest.mark.parametrize("k1", [0.3, 0.5, 1.0])
+def test_cycloid_start_matches_paper(k1):
+    s, v = 0.12, 0.3
+    prof = _core.cycloid_start(s, v, k1)
+    Ts = 2 * s / (v * (2 - k1))
+    assert prof.duration_s == pytest.approx(Ts, rel=1e-12)
+    t = np.linspace(0.0, Ts, 20001)
+    t1 = k1 * Ts
+    m = 2 * np.pi * np.minimum(t, t1) / t1
+    v_paper = np.where(t < t1, v / (2 * np.pi) * (m - np.sin(m)), v)
+    got = prof.evaluate(t)
+    np.testing.assert_allclose(got[:, 1], v_paper, atol=1e-12)
+    # Distance: numpy trapezoid of the paper's v(t) = the start length (the Ts formula is consistent).
+    assert np.trapezoid(v_paper, t) == pytest.approx(s, rel=1e-6)
+    assert got[-1, 0] == pytest.approx(s, rel=1e-12)
+
+
+def test_cycloid_end_and_quintic():
+    s, v, k2 = 0.2, 0.25, 0.4
+    prof = _core.cycloid_end(s, v, k2)
+    t = np.linspace(0.0, prof.duration_s, 20001)
+    st = prof.evaluate(t)
+    assert np.trapezoid(st[:, 1], t) == pytest.approx(s, rel=1e-6)
+    assert st[-1, 1] == pytest.approx(0.0, abs=1e-12) and st[-1, 2] == pytest.approx(0.0, abs=1e-12)
+    q = _core.rest_to_rest(1.0, 0.3, 0.8)
+    st = q.evaluate(np.array([0.0, 0.8, q.duration_s]))
+    np.testing.assert_allclose(st[:, 1], [0.0, 0.3, 0.0], atol=1e-12)
+    np.testing.assert_allclose(st[:, 2:], 0.0, atol=1e-12)  # acceleration and jerk zero at the ends
+    with pytest.raises(ValueError, match="k1"):
+        _core.cycloid_start(0.1, 0.3, 0.0)
+
+
+def test_region_path_turns_and_dwells():
+    passes = _axial_region(n=5)
+    path = _core.region_path(passes, 0.1, 0.1)
+    chord = 2 * 4.6 * math.sin(0.5 * 0.2 / 5.6)
+    np.testing.assert_allclose(path.turn_radii_m, [chord / 2] * 4, rtol=1e-9)
+    params = _core.TimingParams()
+    prof = _core.region_profile(path, params)
+    assert prof.length_m == pytest.approx(path.length_m, rel=1e-12)
+    smp = _core.sample_path(path, prof, 100.0)
+    assert np.all(np.diff(smp["t_s"]) <= 0.01 + 1e-12)
+    # Dwells of each pass add up to its length / speed; nothing sprays off the passes.
+    for i, p in enumerate(passes):
+        sel = smp["pass_index"] == i
+        assert smp["dwell_s"][sel].sum() == pytest.approx(1.2 / p["speed_mps"], abs=0.011)
+        np.testing.assert_allclose(smp["speed_mps"][sel], p["speed_mps"], rtol=1e-12)
+        np.testing.assert_allclose(smp["axes"][sel], np.broadcast_to(p["axes"], (sel.sum(), 3)), atol=1e-12)
+    assert not smp["spraying"][smp["pass_index"] < 0].any()
+    # Tangents along a turn are unit and continuous.
+    tan = path.tangents(np.linspace(0.0, path.length_m, 5000))
+    np.testing.assert_allclose(np.linalg.norm(tan, axis=1), 1.0, atol=1e-9)
+    assert np.max(np.linalg.norm(np.diff(tan, axis=0), axis=1)) < 0.05
+    chk = _core.check_nozzle(path, prof, 1.0, 2.0)
+    assert chk["max_speed_mps"] == pytest.approx(0.25)
+    with pytest.raises(ValueError, match="speed_mps"):
+        _core.region_path([{"positions": passes[0]["positions"], "axes": passes[0]["axes"]}], 0.1, 0.1)
+    with pytest.raises(ValueError):
+        _core.region_path([dict(passes[0], speed_mps=0.0)], 0.1, 0.1)
+
+
+def test_pso_known_minimum():
+    opts = _core.PsoOptions()
+    opts.iterations = 150
+    opts.seed = 3
+    c = np.array([0.7, -1.1, 2.0])
+    res = _core.pso_minimize(lambda x: float(np.sum((x - c) ** 2)), -3 * np.ones(3), 3 * np.ones(3), opts)
+    np.testing.assert_allclose(res.best_x, c, atol=1e-3)
+    assert res.evaluations == opts.particles * (opts.iterations + 1)
+    assert all(0.0 <= b <= 1.0 for b in res.success_history)
+    again = _core.pso_minimize(lambda x: float(np.sum((x - c) ** 2)), -3 * np.ones(3), 3 * np.ones(3), opts)
+    np.testing.assert_array_equal(res.best_x, again.best_x)
+
+
+def test_time_plan_on_robot():
+    cfg = shotcrete.load_config()
+    from shotcrete.cli_robot import load_robot
+
+    robot = load_robot(cfg)
+    regions = [_axial_region()]
+    tun = _core.tune_timing(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
+    assert tun.duration_s < 1e5
+    tr = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot, tun.params)
+    summ = tr.summary()
+    assert summ["max_velocity_ratio"] <= 1.0 + 1e-3
+    assert summ["max_acceleration_ratio"] <= 1.03
+    assert summ["untracked_regions"] == 0
+    n = len(tr)
+    assert tr.q.shape == (n, robot.dof) and tr.qdd.shape == (n, robot.dof)
+    assert tr.joint_table().shape == (n, 1 + 3 * robot.dof)
+    assert tr.to_csv().splitlines()[0].startswith("t_s,q0,")
+    # FK of the timed joints reproduces the sampled nozzle positions on the passes.
+    on = np.where(tr.kind == int(_core.SegmentKind.PASS))[0][::50]
+    for i in on:
+        np.testing.assert_allclose(robot.fk(tr.q[i])[:3, 3], tr.positions[i], atol=1e-6)
+    assert tr.spray_time_s == pytest.approx(sum(1.2 / p["speed_mps"] for p in regions[0]), abs=1e-6)
+    assert tr.dwell_s.sum() == pytest.approx(tr.spray_time_s, abs=4 / cfg.timing.trajectory_rate_hz)
+    # Without a robot only the nozzle limits apply.
+    cart = _core.tune_timing(None, regions, np.zeros(0), cfg.timing, cfg.robot)
+    assert cart.duration_s <= tun.duration_s + 1e-9
