@@ -88,12 +88,55 @@ Eigen::Vector3d end_direction(const Pass& p) {
 struct PieceSpec {
   SegmentKind kind;
   double length_m, v_in, v_out;
+  std::vector<double> run_len_m, run_speed_mps;  // pass with a speed profile: constant-speed runs
 };
 
 std::vector<PieceSpec> specs_of(const CartesianPath& path) {
   std::vector<PieceSpec> out;
-  for (const auto& p : path.pieces()) out.push_back({p.kind, p.length_m(), p.speed_mps, p.speed_out_mps});
+  for (const auto& p : path.pieces())
+    out.push_back({p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps});
   return out;
+}
+
+// Constant-speed runs of a pass with a per-waypoint speed profile, with the planner's dwell
+// semantics: waypoint i owns half of each neighbouring interval at speed_at(i).
+void speed_runs(const Pass& p, std::vector<double>& len, std::vector<double>& speed) {
+  len.clear();
+  speed.clear();
+  const std::size_t n = p.waypoints.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    double own = 0.0;
+    if (i > 0) own += 0.5 * (p.waypoints[i].position_m - p.waypoints[i - 1].position_m).norm();
+    if (i + 1 < n) own += 0.5 * (p.waypoints[i + 1].position_m - p.waypoints[i].position_m).norm();
+    const double v = p.speed_at(i);
+    if (!(v > 0.0) || !std::isfinite(v))
+      throw std::invalid_argument("pass speed profile value " + num(v) + " m/s at waypoint " + std::to_string(i) +
+                                  " must be > 0");
+    if (!speed.empty() && std::abs(speed.back() - v) <= 1e-12 * v) {
+      len.back() += own;
+    } else {
+      len.push_back(own);
+      speed.push_back(v);
+    }
+  }
+}
+
+// Speed profile over the runs of a pass: cruise on each run, cycloidal change centred on each
+// boundary over the length that keeps the peak acceleration at accel_mps2 (at most half of each
+// neighbouring run).
+void append_runs(SpeedProfile& prof, const std::vector<double>& len, const std::vector<double>& v, double accel_mps2) {
+  const std::size_t n = len.size();
+  std::vector<double> h(n + 1, 0.0);  // half transition length at boundary b (between run b-1 and b)
+  for (std::size_t b = 1; b < n; ++b) {
+    const double full = std::abs(v[b] - v[b - 1]) * (v[b] + v[b - 1]) / accel_mps2;  // peak = accel
+    h[b] = std::min({0.5 * full, 0.5 * len[b - 1], 0.5 * len[b]});
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (i > 0 && h[i] > 0.0)
+      prof.append(SpeedPiece{v[i - 1], v[i], 2.0 * h[i] / (0.5 * (v[i - 1] + v[i])), SpeedShape::Cycloid});
+    const double cruise = len[i] - h[i] - h[i + 1];
+    if (cruise > 0.0) prof.append(SpeedPiece{v[i], v[i], cruise / v[i], SpeedShape::Cycloid});
+  }
 }
 
 SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const TimingParams& params) {
@@ -127,6 +170,8 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
       } else {
         prof.append(SpeedPiece{s.v_in, s.v_out, s.length_m / (0.5 * (s.v_in + s.v_out)), SpeedShape::Cycloid});
       }
+    } else if (!s.run_len_m.empty()) {
+      append_runs(prof, s.run_len_m, s.run_speed_mps, params.speed_change_accel_mps2);
     } else {
       prof.append(SpeedPiece{s.v_in, s.v_in, s.length_m / s.v_in, SpeedShape::Cycloid});
     }
@@ -386,21 +431,32 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
   const Pass& first = passes.front();
   NozzlePose lead0 = first.waypoints.front();
   lead0.position_m -= lead_in_m * start_direction(first);
-  path.append(polyline_piece(SegmentKind::Lead, {lead0, first.waypoints.front()}, first.speed_mps, false, -1));
+  auto v_first = [](const Pass& p) { return p.speed_at(0); };
+  auto v_last = [](const Pass& p) { return p.speed_at(p.waypoints.size() - 1); };
+  path.append(polyline_piece(SegmentKind::Lead, {lead0, first.waypoints.front()}, v_first(first), false, -1));
   for (std::size_t i = 0; i < passes.size(); ++i) {
     const Pass& p = passes[i];
-    path.append(polyline_piece(SegmentKind::Pass, p.waypoints, p.speed_mps, true, first_pass_index + static_cast<int>(i)));
+    PathPiece piece = polyline_piece(SegmentKind::Pass, p.waypoints, v_first(p), true, first_pass_index + static_cast<int>(i));
+    piece.speed_out_mps = v_last(p);
+    if (!p.speed_profile_mps.empty()) {
+      if (p.speed_profile_mps.size() != p.waypoints.size())
+        throw std::invalid_argument("pass " + std::to_string(i) + " has " + std::to_string(p.speed_profile_mps.size()) +
+                                    " speed profile values for " + std::to_string(p.waypoints.size()) + " waypoints");
+      speed_runs(p, piece.run_len_m, piece.run_speed_mps);
+      if (piece.run_len_m.size() == 1) piece.run_len_m.clear(), piece.run_speed_mps.clear();  // constant after all
+    }
+    path.append(std::move(piece));
     if (i + 1 < passes.size()) {
       const Pass& q = passes[i + 1];
-      for (auto& piece : turn_around(p.waypoints.back(), end_direction(p), q.waypoints.front(), p.speed_mps, q.speed_mps,
-                                     spray_on_turns, turn_run_m))
-        path.append(std::move(piece));
+      for (auto& t : turn_around(p.waypoints.back(), end_direction(p), q.waypoints.front(), v_last(p), v_first(q),
+                                 spray_on_turns, turn_run_m))
+        path.append(std::move(t));
     }
   }
   const Pass& last = passes.back();
   NozzlePose lead1 = last.waypoints.back();
   lead1.position_m += lead_out_m * end_direction(last);
-  path.append(polyline_piece(SegmentKind::Lead, {last.waypoints.back(), lead1}, last.speed_mps, false, -1));
+  path.append(polyline_piece(SegmentKind::Lead, {last.waypoints.back(), lead1}, v_last(last), false, -1));
   return path;
 }
 
@@ -411,6 +467,7 @@ TimingParams TimingParams::from_config(const TimingConfig& c) {
   p.start_length_m = c.start_length_m;
   p.end_length_m = c.end_length_m;
   p.turn_speed_mps = c.turn_speed_mps;
+  p.speed_change_accel_mps2 = c.speed_change_accel_mps2;
   return p;
 }
 
@@ -1038,8 +1095,8 @@ PsoResult pso_minimize(const std::function<double(const Eigen::VectorXd&)>& f, c
 
 namespace {
 
-TimingParams params_of(const Eigen::VectorXd& x) {
-  TimingParams p;
+TimingParams params_of(const Eigen::VectorXd& x, const TimingConfig& c) {
+  TimingParams p = TimingParams::from_config(c);
   p.k1 = x[0];
   p.k2 = x[1];
   p.start_length_m = x[2];
@@ -1137,10 +1194,10 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
   out.pso = pso_minimize(
       [&](const Eigen::VectorXd& x) {
         bool feas = false;
-        return total(params_of(x), feas);
+        return total(params_of(x, timing), feas);
       },
       lo, hi, PsoOptions::from_config(timing), {x0});
-  out.params = params_of(out.pso.best_x);
+  out.params = params_of(out.pso.best_x, timing);
   out.duration_s = out.pso.best_f;
   return out;
 }

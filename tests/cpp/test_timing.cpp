@@ -293,6 +293,43 @@ TEST(Region, TurnRunsCarryTheSpeedChange) {
   EXPECT_EQ(runs, 4);
 }
 
+TEST(Region, PassSpeedProfileKeptWithSmoothChanges) {
+  // One pass of 1 m: waypoints 0..50 at 0.2 m/s, 51..100 at 0.4 m/s (optimal-mode speed profile).
+  auto passes = axial_region(1, 1.0, 0.2, 0.0, 1.0, {0.3});
+  Pass& p = passes[0];
+  for (std::size_t k = 0; k < p.waypoints.size(); ++k) p.speed_profile_mps.push_back(k <= 50 ? 0.2 : 0.4);
+  TimingParams prm;
+  prm.speed_change_accel_mps2 = 0.5;
+  const CartesianPath path = region_path(passes, 0.1, 0.1, false);
+  const SpeedProfile prof = region_profile(path, prm);
+  // Planner's dwell semantics: waypoint k owns half of each neighbouring interval at its speed, so
+  // the switch sits at s = 0.505 m; the cycloid spans h = |dv| (va + vb) / (2 a) = 0.12 m each side.
+  double planned = 0.0;
+  for (std::size_t k = 0; k + 1 < p.waypoints.size(); ++k) {
+    const double len = (p.waypoints[k + 1].position_m - p.waypoints[k].position_m).norm();
+    planned += 0.5 * len / p.speed_at(k) + 0.5 * len / p.speed_at(k + 1);
+  }
+  const double h = 0.2 * 0.6 / (2 * 0.5);
+  const double expected = planned - (h / 0.2 + h / 0.4) + 2 * h / 0.3;
+  const double t0 = prof.time_at_distance(path.piece_start_m(1)), t1 = prof.time_at_distance(path.piece_start_m(2));
+  EXPECT_NEAR(t1 - t0, expected, 1e-6);
+  // Away from the switch the planned speeds hold; the change is continuous with peak 0.5 m/s^2.
+  const double s0 = path.piece_start_m(1);
+  EXPECT_NEAR(prof.at(prof.time_at_distance(s0 + 0.2)).v_mps, 0.2, 1e-12);
+  EXPECT_NEAR(prof.at(prof.time_at_distance(s0 + 0.8)).v_mps, 0.4, 1e-12);
+  const double ta = prof.time_at_distance(s0 + 0.505 - h), tb = prof.time_at_distance(s0 + 0.505 + h);
+  EXPECT_NEAR(tb - ta, 2 * h / 0.3, 1e-6);  // the change spans exactly the 2 h around the switch
+  EXPECT_NEAR(prof.at(0.5 * (ta + tb)).v_mps, 0.3, 1e-6);
+  EXPECT_NEAR(prof.at(ta).v_mps, 0.2, 1e-6);
+  EXPECT_NEAR(prof.at(tb).v_mps, 0.4, 1e-6);
+  double amax = 0.0;
+  for (const auto& pc : prof.pieces())
+    if (pc.v0_mps == 0.2 && pc.v1_mps == 0.4) amax = pc.peak_accel_mps2();
+  EXPECT_NEAR(amax, 0.5, 1e-9);
+  passes[0].speed_profile_mps.pop_back();
+  EXPECT_THROW(region_path(passes, 0.1, 0.1, false), std::invalid_argument);
+}
+
 TEST(Region, NozzleCheckSeesCentripetalAcceleration) {
   const auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.4});
   TimingParams prm;

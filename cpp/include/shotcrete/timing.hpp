@@ -101,6 +101,8 @@ struct PathPiece {
   Eigen::Vector3d center{0, 0, 0}, u{1, 0, 0}, d{0, 1, 0};
   double radius_m = 0.0;
   Eigen::Vector3d axis0{0, 0, 1}, axis1{0, 0, 1};
+  // pass with a per-waypoint speed profile (Pass::speed_profile_mps): its constant-speed runs
+  std::vector<double> run_len_m, run_speed_mps;
 
   double length_m() const;
   NozzlePose pose_at(double s_m) const;
@@ -134,7 +136,10 @@ class CartesianPath {
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
                                    double speed_a_mps, double speed_b_mps, bool spraying, double run_m = 0.0);
 
-/// Region path: lead-in, passes joined by turn-arounds (serpentine as given), lead-out.
+/// Region path: lead-in, passes joined by turn-arounds (serpentine as given), lead-out. A pass with
+/// a speed profile (optimal mode) keeps it: constant-speed runs with the planner's dwell semantics
+/// (waypoint i owns half of each neighbouring interval at speed_at(i)), joined by cycloidal
+/// changes centred on the run boundaries (peak speed_change_accel_mps2).
 /// first_pass_index numbers the passes globally. Throws std::invalid_argument for an empty region,
 /// a pass with fewer than 2 waypoints or a non-positive speed.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
@@ -147,6 +152,7 @@ struct TimingParams {
   double start_length_m = 0.1;    // lead-in length
   double end_length_m = 0.1;      // lead-out length
   double turn_speed_mps = 0.0;    // speed in the middle of a turn-around; 0 = pass speeds
+  double speed_change_accel_mps2 = 0.5;  // peak of the speed changes inside a pass (not tuned)
   static TimingParams from_config(const TimingConfig& config);
 };
 
