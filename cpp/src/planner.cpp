@@ -607,7 +607,7 @@ void order_regions(Round& round, const OrderingConfig& ocfg, const std::optional
 
 // Split the passes of the levelling round into segments, one dwell variable each.
 struct Segment {
-  int pass = 0;
+  std::size_t side = 0, pass = 0;   // which region (wall side) and which of its passes
   std::size_t first = 0, last = 0;  // waypoint range [first, last]
   double length_m = 0;
 };
@@ -756,7 +756,8 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
           const std::size_t per = std::max<std::size_t>(1, std::llround(pc.segment_length_m / pc.sample_step_m));
           for (std::size_t a = 0; a + 1 < nw; a += per) {
             Segment seg;
-            seg.pass = static_cast<int>(s * 100000 + p);
+            seg.side = s;
+            seg.pass = p;
             seg.first = a;
             seg.last = std::min(nw - 1, a + per);
             std::vector<NozzlePose> poses(pass.waypoints.begin() + seg.first, pass.waypoints.begin() + seg.last + 1);
@@ -789,7 +790,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
             cur = Pass();
           };
           for (std::size_t j = 0; j < segs.size(); ++j) {
-            if (segs[j].pass != static_cast<int>(s * 100000 + p)) continue;
+            if (segs[j].side != s || segs[j].pass != p) continue;
             if (w[j] <= 0) {
               flush_cur();
               continue;

@@ -50,7 +50,7 @@ def test_td_matches_the_generator(small_config, small_cloud):
     assert np.max(np.abs(err)) < 0.015
 
 
-@pytest.mark.parametrize("ext", [".pcd", ".ply", ".xyz", ".las"])
+@pytest.mark.parametrize("ext", [".pcd", ".ply", ".xyz", ".las", ".laz"])
 def test_io_round_trip(tmp_path, ext):
     cloud = shotcrete.Cloud(cylinder_points(300))
     path = shotcrete.write_cloud(tmp_path / f"c{ext}", cloud)
