@@ -89,12 +89,13 @@ struct PieceSpec {
   SegmentKind kind;
   double length_m, v_in, v_out;
   std::vector<double> run_len_m, run_speed_mps;  // pass with a speed profile: constant-speed runs
+  char motion;
 };
 
 std::vector<PieceSpec> specs_of(const CartesianPath& path) {
   std::vector<PieceSpec> out;
   for (const auto& p : path.pieces())
-    out.push_back({p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps});
+    out.push_back({p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps, p.motion});
   return out;
 }
 
@@ -144,21 +145,36 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
     throw std::invalid_argument("region_profile: the path must start with a lead-in and end with a lead-out");
   if (!(params.k1 > 0.0 && params.k1 <= 1.0)) throw std::invalid_argument("k1 = " + num(params.k1) + " must be in (0, 1]");
   if (!(params.k2 >= 0.0 && params.k2 < 1.0)) throw std::invalid_argument("k2 = " + num(params.k2) + " must be in [0, 1)");
+  // Speed on turn arc j: the turn speed (or the pass speeds when it is 0), capped so that the
+  // centripetal acceleration v^2 / r stays at speed_change_accel_mps2; 0 = no own turn speed (the
+  // arc changes from one pass speed to the next).
+  auto turn_v = [&](std::size_t j) {
+    const auto& t = specs[j];
+    const double r = t.length_m / kPi;
+    const double cap = std::sqrt(params.speed_change_accel_mps2 * r);
+    if (params.turn_speed_mps > 0.0) return std::min(params.turn_speed_mps, cap);
+    return std::max(t.v_in, t.v_out) > cap ? cap : 0.0;
+  };
   SpeedProfile prof;
   for (std::size_t i = 0; i < specs.size(); ++i) {
     const auto& s = specs[i];
-    if (i == 0) {
+    if (i == 0 || s.motion == 3) {
       prof.append(cycloid_start(s.length_m, s.v_in, params.k1));
-    } else if (i + 1 == specs.size()) {
+    } else if (i + 1 == specs.size() || s.motion == 1) {
       prof.append(cycloid_end(s.length_m, s.v_in, params.k2));
-    } else if (s.kind == SegmentKind::Link && params.turn_speed_mps > 0.0 &&
-               (specs[i + 1].kind == SegmentKind::Turn || specs[i - 1].kind == SegmentKind::Turn)) {
+    } else if (s.motion == 2) {
+      const double v = params.turn_speed_mps > 0.0 ? params.turn_speed_mps : s.v_in;
+      if (s.length_m > 0.0) prof.append(rest_to_rest(s.length_m, v, 2.0 * v / params.speed_change_accel_mps2, SpeedShape::Cycloid));
+    } else if (s.kind == SegmentKind::Link && s.motion == 0 &&
+               ((specs[i + 1].kind == SegmentKind::Turn && turn_v(i + 1) > 0.0) ||
+                (specs[i - 1].kind == SegmentKind::Turn && turn_v(i - 1) > 0.0))) {
       // Run-out before / run-in after a turn: the speed changes to / from the turn speed here.
-      const bool before = specs[i + 1].kind == SegmentKind::Turn;
-      const double va = before ? s.v_in : params.turn_speed_mps, vb = before ? params.turn_speed_mps : s.v_in;
+      const bool before = specs[i + 1].kind == SegmentKind::Turn && turn_v(i + 1) > 0.0;
+      const double vt = before ? turn_v(i + 1) : turn_v(i - 1);
+      const double va = before ? s.v_in : vt, vb = before ? vt : s.v_in;
       prof.append(SpeedPiece{va, vb, s.length_m / (0.5 * (va + vb)), SpeedShape::Cycloid});
     } else if (s.kind == SegmentKind::Turn) {
-      const double vt = params.turn_speed_mps;
+      const double vt = turn_v(i);
       const bool run_before = specs[i - 1].kind == SegmentKind::Link, run_after = specs[i + 1].kind == SegmentKind::Link;
       if (vt > 0.0) {
         // Entry / exit speeds: the turn speed where a run line already changed it, else the pass
@@ -402,7 +418,7 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
     throw std::invalid_argument("turn-around: the end of one pass and the start of the next coincide across the pass "
                                 "direction (spacing " + num(diameter) + " m)");
   std::vector<PathPiece> out;
-  if (e + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
+  if (std::max(e, 0.0) + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
   PathPiece arc;
   arc.kind = SegmentKind::Turn;
   arc.spraying = spraying;
@@ -416,7 +432,7 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
   arc.axis0 = end_a.axis;
   arc.axis1 = start_b.axis;
   out.push_back(arc);
-  if (-e + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
+  if (std::max(-e, 0.0) + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
   return out;
 }
 
@@ -448,9 +464,29 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
     path.append(std::move(piece));
     if (i + 1 < passes.size()) {
       const Pass& q = passes[i + 1];
-      for (auto& t : turn_around(p.waypoints.back(), end_direction(p), q.waypoints.front(), v_last(p), v_first(q),
-                                 spray_on_turns, turn_run_m))
-        path.append(std::move(t));
+      const Eigen::Vector3d da = end_direction(p), db = start_direction(q);
+      const Eigen::Vector3d gap = q.waypoints.front().position_m - p.waypoints.back().position_m;
+      const bool serpentine = da.dot(db) < -0.5 && (gap - gap.dot(da) * da).norm() > 1e-3;
+      if (serpentine) {
+        for (auto& t : turn_around(p.waypoints.back(), da, q.waypoints.front(), v_last(p), v_first(q), spray_on_turns,
+                                   turn_run_m))
+          path.append(std::move(t));
+      } else {
+        // Stop and go: the direction changes only where the nozzle stands still.
+        const double run = turn_run_m > 0.0 ? turn_run_m : 0.1;
+        NozzlePose a = p.waypoints.back(), b = q.waypoints.front();
+        a.position_m += run * da;
+        b.position_m -= run * db;
+        PathPiece out = polyline_piece(SegmentKind::Link, {p.waypoints.back(), a}, v_last(p), false, -1);
+        out.motion = 1;
+        path.append(std::move(out));
+        PathPiece mid = polyline_piece(SegmentKind::Link, {a, b}, std::max(v_last(p), v_first(q)), false, -1);
+        mid.motion = 2;
+        path.append(std::move(mid));
+        PathPiece in = polyline_piece(SegmentKind::Link, {b, q.waypoints.front()}, v_first(q), false, -1);
+        in.motion = 3;
+        path.append(std::move(in));
+      }
     }
   }
   const Pass& last = passes.back();

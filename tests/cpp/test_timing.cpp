@@ -205,6 +205,16 @@ TEST(Geometry, TurnAroundDiameterIsSpacingAndTangentsContinuous) {
   EXPECT_TRUE(p2[0].is_arc);
   EXPECT_NEAR(p2[1].length_m(), 0.1, 1e-12);
   EXPECT_NEAR((p2[1].tangent_at(0.05) - Eigen::Vector3d(-1, 0, 0)).norm(), 0.0, 1e-12);
+  // With runs, both sides get a link whatever the offset, and the pieces stay contiguous.
+  for (double xb : {0.7, 0.95, 1.05, 1.4}) {
+    sb.position_m = {xb, 0.2, 2.0};
+    const auto p3 = turn_around(ea, Eigen::Vector3d::UnitX(), sb, 0.3, 0.3, false, 0.1);
+    ASSERT_EQ(p3.size(), 3u) << xb;
+    EXPECT_NEAR((p3[0].pose_at(0).position_m - ea.position_m).norm(), 0.0, 1e-12);
+    for (int k = 0; k < 2; ++k)
+      EXPECT_NEAR((p3[k].pose_at(p3[k].length_m()).position_m - p3[k + 1].pose_at(0).position_m).norm(), 0.0, 1e-12) << xb;
+    EXPECT_NEAR((p3[2].pose_at(p3[2].length_m()).position_m - sb.position_m).norm(), 0.0, 1e-12) << xb;
+  }
   sb.position_m = {1.2, 0.0, 2.0};
   EXPECT_THROW(turn_around(ea, Eigen::Vector3d::UnitX(), sb, 0.3, 0.3, false), std::invalid_argument);
 }
@@ -251,8 +261,20 @@ TEST(Region, SerpentineNeverStopsAndKeepsPassSpeeds) {
   for (int i = 0; i < 6; ++i) EXPECT_NEAR(pass_time[static_cast<std::size_t>(i)], 1.2 / passes[static_cast<std::size_t>(i)].speed_mps, 1.0 / 200.0);
   EXPECT_NEAR(cs.speed_mps.front(), 0.0, 1e-12);
   EXPECT_NEAR(cs.speed_mps.back(), 0.0, 1e-12);
+  // With runs the arc speed is capped by the centripetal limit: sqrt(a r) = 0.2026 m/s < 0.3 m/s.
+  {
+    const CartesianPath with_runs = region_path(passes, prm.start_length_m, prm.end_length_m, false, 0, 0.1);
+    const SpeedProfile capped = region_profile(with_runs, prm);
+    const CartesianSamples c2 = sample_path(with_runs, capped, 500.0);
+    double amax = 0.0;
+    for (std::size_t i = 0; i < c2.t_s.size(); ++i)
+      if (c2.kind[i] == static_cast<char>(SegmentKind::Turn)) amax = std::max(amax, c2.normal_accel_mps2[i]);
+    EXPECT_LE(amax, 0.5 + 1e-9);
+    EXPECT_GT(amax, 0.49);
+  }
   // Turn speed > 0: the middle of each arc runs at the turn speed.
   prm.turn_speed_mps = 0.5;
+  prm.speed_change_accel_mps2 = 10.0;  // the arc speed cap sqrt(a r) above 0.5 m/s
   const SpeedProfile fast = region_profile(path, prm);
   EXPECT_LT(fast.duration_s(), prof.duration_s());
   double vmax_turn = 0.0;
@@ -330,12 +352,44 @@ TEST(Region, PassSpeedProfileKeptWithSmoothChanges) {
   EXPECT_THROW(region_path(passes, 0.1, 0.1, false), std::invalid_argument);
 }
 
+TEST(Region, SameDirectionPassesStopAndGo) {
+  // Two pieces of one line, both along +x with a gap (optimal mode splits passes like this).
+  auto line = axial_region(1, 1.2, 0.2, 0.0, 1.0, {0.3});
+  Pass a = line[0], b = line[0];
+  a.waypoints.assign(line[0].waypoints.begin(), line[0].waypoints.begin() + 51);   // x 0 .. 0.5
+  b.waypoints.assign(line[0].waypoints.begin() + 70, line[0].waypoints.end());     // x 0.7 .. 1.2
+  b.speed_mps = 0.2;
+  const CartesianPath path = region_path({a, b}, 0.1, 0.1, false, 0, 0.1);
+  const SpeedProfile prof = region_profile(path, TimingParams{});
+  ASSERT_NEAR(prof.length_m(), path.length_m(), 1e-9);
+  // The nozzle stops where the direction reverses (end of the run-out, start of the run-in) and
+  // never moves through a cusp at speed: between samples the direction turns only near rest.
+  const CartesianSamples cs = sample_path(path, prof, 500.0);
+  for (std::size_t i = 1; i + 1 < cs.t_s.size(); ++i) {
+    const Eigen::Vector3d u = cs.nozzle[i].position_m - cs.nozzle[i - 1].position_m;
+    const Eigen::Vector3d w = cs.nozzle[i + 1].position_m - cs.nozzle[i].position_m;
+    if (u.norm() < 1e-9 || w.norm() < 1e-9) continue;
+    if (u.normalized().dot(w.normalized()) < 0.9) {
+      ASSERT_LT(cs.speed_mps[i], 0.01) << "turn at speed, t = " << cs.t_s[i];
+    }
+  }
+  // Run-out and run-in meet at x = 0.6 (collinear pieces): one stop there.
+  const double t_stop = prof.time_at_distance(path.piece_start_m(4));
+  EXPECT_NEAR(prof.at(t_stop).v_mps, 0.0, 1e-6);
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_NEAR(cs.speed_mps[i], cs.pass_index[i] == 0 ? 0.3 : 0.2, 1e-12);
+    }
+  }
+}
+
 TEST(Region, NozzleCheckSeesCentripetalAcceleration) {
   const auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.4});
   TimingParams prm;
   prm.k1 = 1.0;
   prm.k2 = 0.0;
   prm.start_length_m = prm.end_length_m = 0.5;  // gentle start/stop: the arc dominates
+  prm.speed_change_accel_mps2 = 10.0;           // no arc speed cap
   const CartesianPath path = region_path(passes, 0.5, 0.5, false);
   const auto c = check_nozzle(path, region_profile(path, prm), NozzleLimits{1.0, 1.0});
   double r = 0.0;

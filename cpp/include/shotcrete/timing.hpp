@@ -92,6 +92,9 @@ struct PathPiece {
   bool spraying = false;
   double speed_mps = 0.0; // planned cruise speed (pass, lead, link); turn: speed at its start
   double speed_out_mps = 0.0;  // turn: speed at its end (next pass); others = speed_mps
+  // How the speed profile treats the piece: 0 by kind (cruise, turn), 1 stop at its end (cycloid
+  // end, k2), 2 rest to rest (cycloid, cruise at speed_mps), 3 start from rest (cycloid start, k1).
+  char motion = 0;
   // polyline
   std::vector<NozzlePose> poses;
   std::vector<double> cum_m;  // arc length at each pose, from 0
@@ -136,7 +139,11 @@ class CartesianPath {
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
                                    double speed_a_mps, double speed_b_mps, bool spraying, double run_m = 0.0);
 
-/// Region path: lead-in, passes joined by turn-arounds (serpentine as given), lead-out. A pass with
+/// Region path: lead-in, passes joined by turn-arounds (serpentine as given), lead-out. Two
+/// consecutive passes that are not serpentine neighbours (not running opposite ways side by side,
+/// e.g. pieces of one line in optimal mode) are joined by stop-and-go instead: run-out along the
+/// pass with a cycloidal stop, a straight rest-to-rest move, run-in with a cycloidal start (runs of
+/// turn_run_m, 0.1 m if that is 0). A pass with
 /// a speed profile (optimal mode) keeps it: constant-speed runs with the planner's dwell semantics
 /// (waypoint i owns half of each neighbouring interval at speed_at(i)), joined by cycloidal
 /// changes centred on the run boundaries (peak speed_change_accel_mps2).
@@ -152,7 +159,8 @@ struct TimingParams {
   double start_length_m = 0.1;    // lead-in length
   double end_length_m = 0.1;      // lead-out length
   double turn_speed_mps = 0.0;    // speed in the middle of a turn-around; 0 = pass speeds
-  double speed_change_accel_mps2 = 0.5;  // peak of the speed changes inside a pass (not tuned)
+  double speed_change_accel_mps2 = 0.5;  // peak of speed changes inside a pass and of the
+                                         // centripetal acceleration on turn arcs (not tuned)
   static TimingParams from_config(const TimingConfig& config);
 };
 
