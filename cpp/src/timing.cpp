@@ -869,10 +869,22 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
   push(0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
   int pass_offset = 0;
   for (std::size_t r = 0; r < regions.size(); ++r) {
+    // Leads at least as long as the nozzle acceleration limit needs at this region's end speeds
+    // (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast passes get
+    // longer run-ups than the config's default. The swarm's parameters already satisfy this.
+    TimingParams rp = params;
+    if (!regions[r].empty() && regions[r].front().waypoints.size() >= 2) {
+      const Pass& f = regions[r].front();
+      const Pass& l = regions[r].back();
+      const double a = timing.nozzle_max_accel_mps2;
+      const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
+      rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * a));
+      rp.end_length_m = std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * a));
+    }
     const CartesianPath path =
-        region_path(regions[r], params.start_length_m, params.end_length_m, timing.spray_on_turns, pass_offset,
+        region_path(regions[r], rp.start_length_m, rp.end_length_m, timing.spray_on_turns, pass_offset,
                     timing.turn_run_m);
-    const SpeedProfile prof = region_profile(path, params);
+    const SpeedProfile prof = region_profile(path, rp);
     const CartesianSamples cs = sample_path(path, prof, rate);
     // The joint path starts where the swarm's RegionJointModel starts it (at the longest lead-in)
     // so that both see the same q(s): the unused part of that lead-in is prepended, then dropped.
@@ -880,9 +892,9 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     std::vector<Eigen::VectorXd> jq;
     std::size_t prefix = 0;
     bool tracked = false;
-    for (double lead = max_lead;; lead = std::max(0.5 * lead, params.start_length_m)) {
+    for (double lead = std::max(max_lead, rp.start_length_m);; lead = std::max(0.5 * lead, rp.start_length_m)) {
       std::vector<NozzlePose> poses;
-      const double unused = std::max(0.0, lead - params.start_length_m);
+      const double unused = std::max(0.0, lead - rp.start_length_m);
       if (unused > 0.0) {
         const CartesianPath long_path = region_path(regions[r], lead, lead, timing.spray_on_turns, 0, timing.turn_run_m);
         const int m = static_cast<int>(std::ceil(unused / 0.005));
