@@ -162,6 +162,9 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
       prof.append(cycloid_start(s.length_m, s.v_in, params.k1));
     } else if (i + 1 == specs.size() || s.motion == 1) {
       prof.append(cycloid_end(s.length_m, s.v_in, params.k2));
+    } else if (s.motion == 4) {
+      // Spray-off gap on the same line: change smoothly from one pass speed to the next.
+      prof.append(SpeedPiece{s.v_in, s.v_out, s.length_m / (0.5 * (s.v_in + s.v_out)), SpeedShape::Cycloid});
     } else if (s.motion == 2) {
       const double v = params.turn_speed_mps > 0.0 ? params.turn_speed_mps : s.v_in;
       if (s.length_m > 0.0) prof.append(rest_to_rest(s.length_m, v, 2.0 * v / params.speed_change_accel_mps2, SpeedShape::Cycloid));
@@ -467,7 +470,16 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
       const Eigen::Vector3d da = end_direction(p), db = start_direction(q);
       const Eigen::Vector3d gap = q.waypoints.front().position_m - p.waypoints.back().position_m;
       const bool serpentine = da.dot(db) < -0.5 && (gap - gap.dot(da) * da).norm() > 1e-3;
-      if (serpentine) {
+      // The next pass continues the same line further on (the optimal planner switches the spray
+      // off over segments that would only overfill): carry on along the line, spray off, no stop.
+      const bool continuation = da.dot(db) > 0.99 && gap.dot(da) >= 0.0 && (gap - gap.dot(da) * da).norm() < 1e-3;
+      if (continuation) {
+        PathPiece link = polyline_piece(SegmentKind::Link, {p.waypoints.back(), q.waypoints.front()}, v_last(p),
+                                        false, -1);
+        link.speed_out_mps = v_first(q);
+        link.motion = 4;
+        if (link.length_m() > 0.0) path.append(std::move(link));
+      } else if (serpentine) {
         for (auto& t : turn_around(p.waypoints.back(), da, q.waypoints.front(), v_last(p), v_first(q), spray_on_turns,
                                    turn_run_m))
           path.append(std::move(t));

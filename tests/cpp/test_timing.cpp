@@ -352,37 +352,6 @@ TEST(Region, PassSpeedProfileKeptWithSmoothChanges) {
   EXPECT_THROW(region_path(passes, 0.1, 0.1, false), std::invalid_argument);
 }
 
-TEST(Region, SameDirectionPassesStopAndGo) {
-  // Two pieces of one line, both along +x with a gap (optimal mode splits passes like this).
-  auto line = axial_region(1, 1.2, 0.2, 0.0, 1.0, {0.3});
-  Pass a = line[0], b = line[0];
-  a.waypoints.assign(line[0].waypoints.begin(), line[0].waypoints.begin() + 51);   // x 0 .. 0.5
-  b.waypoints.assign(line[0].waypoints.begin() + 70, line[0].waypoints.end());     // x 0.7 .. 1.2
-  b.speed_mps = 0.2;
-  const CartesianPath path = region_path({a, b}, 0.1, 0.1, false, 0, 0.1);
-  const SpeedProfile prof = region_profile(path, TimingParams{});
-  ASSERT_NEAR(prof.length_m(), path.length_m(), 1e-9);
-  // The nozzle stops where the direction reverses (end of the run-out, start of the run-in) and
-  // never moves through a cusp at speed: between samples the direction turns only near rest.
-  const CartesianSamples cs = sample_path(path, prof, 500.0);
-  for (std::size_t i = 1; i + 1 < cs.t_s.size(); ++i) {
-    const Eigen::Vector3d u = cs.nozzle[i].position_m - cs.nozzle[i - 1].position_m;
-    const Eigen::Vector3d w = cs.nozzle[i + 1].position_m - cs.nozzle[i].position_m;
-    if (u.norm() < 1e-9 || w.norm() < 1e-9) continue;
-    if (u.normalized().dot(w.normalized()) < 0.9) {
-      ASSERT_LT(cs.speed_mps[i], 0.01) << "turn at speed, t = " << cs.t_s[i];
-    }
-  }
-  // Run-out and run-in meet at x = 0.6 (collinear pieces): one stop there.
-  const double t_stop = prof.time_at_distance(path.piece_start_m(4));
-  EXPECT_NEAR(prof.at(t_stop).v_mps, 0.0, 1e-6);
-  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
-    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
-      ASSERT_NEAR(cs.speed_mps[i], cs.pass_index[i] == 0 ? 0.3 : 0.2, 1e-12);
-    }
-  }
-}
-
 TEST(Region, NozzleCheckSeesCentripetalAcceleration) {
   const auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.4});
   TimingParams prm;
@@ -599,3 +568,37 @@ TEST(RobotTiming, BadInput) {
   }
 }
 
+
+TEST(RegionPath, SprayOffGapOnTheSameLineIsCrossedWithoutStopping) {
+  // Two passes on one line with a 0.2 m gap (the optimal planner switched the spray off there).
+  auto line = [](double x0, double x1) {
+    Pass p;
+    for (double x = x0; x <= x1 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, 4.6), Eigen::Vector3d(0, 0, 1)});
+    p.length_m = x1 - x0;
+    return p;
+  };
+  Pass a = line(0.0, 0.4), b = line(0.6, 1.2);
+  a.speed_mps = 0.2;
+  b.speed_mps = 0.3;
+  const CartesianPath path = region_path({a, b}, 0.1, 0.1, false, 0, 0.1);
+  int gaps = 0;
+  for (const auto& piece : path.pieces())
+    if (piece.motion == 4) {
+      ++gaps;
+      EXPECT_FALSE(piece.spraying);
+      EXPECT_NEAR(piece.length_m(), 0.2, 1e-9);
+    }
+  EXPECT_EQ(gaps, 1);
+  const SpeedProfile prof = region_profile(path, TimingParams::from_config(TimingConfig{}));
+  EXPECT_NEAR(prof.length_m(), path.length_m(), 1e-6);
+  // The nozzle never stops between the lead-in and the lead-out, and the speed goes 0.2 -> 0.3.
+  double vmin = 1e9;
+  for (double t = 0.2 * prof.duration_s(); t < 0.8 * prof.duration_s(); t += 0.01) vmin = std::min(vmin, prof.at(t).v_mps);
+  EXPECT_GT(vmin, 0.19);
+  // On the passes the planned speeds hold exactly.
+  const CartesianSamples cs = sample_path(path, prof, 500.0);
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i)
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_NEAR(cs.speed_mps[i], cs.pass_index[i] == 0 ? 0.2 : 0.3, 1e-12);
+    }
+}

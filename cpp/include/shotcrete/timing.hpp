@@ -91,9 +91,10 @@ struct PathPiece {
   int pass_index = -1;    // global pass number for kind == Pass, else -1
   bool spraying = false;
   double speed_mps = 0.0; // planned cruise speed (pass, lead, link); turn: speed at its start
-  double speed_out_mps = 0.0;  // turn: speed at its end (next pass); others = speed_mps
+  double speed_out_mps = 0.0;  // turn and spray-off gap: speed at its end (next pass); others = speed_mps
   // How the speed profile treats the piece: 0 by kind (cruise, turn), 1 stop at its end (cycloid
-  // end, k2), 2 rest to rest (cycloid, cruise at speed_mps), 3 start from rest (cycloid start, k1).
+  // end, k2), 2 rest to rest (cycloid, cruise at speed_mps), 3 start from rest (cycloid start, k1),
+  // 4 spray-off gap on a pass line (cycloidal change from speed_mps to speed_out_mps).
   char motion = 0;
   // polyline
   std::vector<NozzlePose> poses;
