@@ -520,8 +520,10 @@ std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per
 
 // Box-constrained least squares for the dwell per unit length of every segment (optimal mode):
 // min 1/2 |U w - t|^2 + lambda L.w,  w in {0} u [w_min, w_max]; coordinate descent.
+// w_floor[j] > 0 forces segment j to spray with at least that dwell (speed caps from the limiter).
 std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vector<double>& seg_len,
-                                   const Eigen::VectorXd& target, double lambda, double w_min, double w_max) {
+                                   const Eigen::VectorXd& target, double lambda, double w_min, double w_max,
+                                   const std::vector<double>& w_floor) {
   const std::size_t n = U.size();
   std::vector<double> w(n, 0.0), h(n, 0.0);
   Eigen::VectorXd res = -target;  // U w - t
@@ -542,7 +544,7 @@ std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vect
     double change = 0;
     for (std::size_t j = 0; j < n; ++j) {
       if (h[j] <= 0) continue;
-      const double next = std::clamp(w[j] - grad(j) / h[j], 0.0, w_max);
+      const double next = std::clamp(w[j] - grad(j) / h[j], w_floor[j], w_max);
       change = std::max(change, std::abs(next - w[j]));
       set(j, next);
     }
@@ -552,7 +554,7 @@ std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vect
   // spraying there or spray at max speed, whichever leaves the smaller objective; then polish.
   for (int pass = 0; pass < 3; ++pass) {
     for (std::size_t j = 0; j < n; ++j) {
-      if (w[j] <= 0 || w[j] >= w_min) continue;
+      if (w[j] <= 0 || w[j] >= w_min || w_floor[j] > 0) continue;
       auto objective_delta = [&](double value) {
         const double d = value - w[j];
         double delta = lambda * seg_len[j] * d;
@@ -566,9 +568,40 @@ std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vect
     }
     for (std::size_t j = 0; j < n; ++j) {
       if (w[j] <= 0 || h[j] <= 0) continue;  // skipped segments stay skipped
-      set(j, std::clamp(w[j] - grad(j) / h[j], w_min, w_max));
+      set(j, std::clamp(w[j] - grad(j) / h[j], std::max(w_min, w_floor[j]), w_max));
     }
   }
+  return w;
+}
+
+// The arm cannot change the nozzle speed at will: a cycloidal change from v0 to v1 over a length
+// D peaks at |v1^2 - v0^2| / D. Along every pass line, cap the speeds (forward, then backward) so
+// that this stays within accel_mps2; D is the shorter neighbouring segment (the timing changes
+// speed across segment boundaries) or the spray-off gap between two sprayed segments.
+template <class Seg>
+std::vector<double> limit_speed_changes(const std::vector<Seg>& segs, std::vector<double> w, double accel_mps2) {
+  auto sweep = [&](bool forward) {
+    const std::size_t n = segs.size();
+    int prev = -1;
+    double gap = 0.0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::size_t j = forward ? k : n - 1 - k;
+      if (prev >= 0 && (segs[j].side != segs[prev].side || segs[j].pass != segs[prev].pass)) prev = -1;
+      if (w[j] <= 0) {
+        if (prev >= 0) gap += segs[j].length_m;
+        continue;
+      }
+      if (prev >= 0) {
+        const double d = gap > 0 ? gap : std::min(segs[j].length_m, segs[prev].length_m);
+        const double v_prev = 1.0 / w[prev], v_cap = std::sqrt(v_prev * v_prev + accel_mps2 * d);
+        if (1.0 / w[j] > v_cap) w[j] = 1.0 / v_cap;
+      }
+      prev = static_cast<int>(j);
+      gap = 0.0;
+    }
+  };
+  sweep(true);
+  sweep(false);
   return w;
 }
 
@@ -772,8 +805,18 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
           }
         }
       report("round " + std::to_string(round_no + 1), 0.3);
-      const auto w = optimise_dwell(U, seg_len, target, pc.time_weight_mm2_per_s, 1.0 / pc.max_speed_mps,
-                                    1.0 / pc.min_speed_mps);
+      // Least squares, then the arm's speed-change limit; the capped segments become floors of
+      // the next solve so the others can compensate; the limiter has the last word.
+      std::vector<double> floor(segs.size(), 0.0);
+      std::vector<double> w;
+      for (int it = 0; it < 3; ++it) {
+        w = optimise_dwell(U, seg_len, target, pc.time_weight_mm2_per_s, 1.0 / pc.max_speed_mps,
+                           1.0 / pc.min_speed_mps, floor);
+        const auto limited = limit_speed_changes(segs, w, config.timing.speed_change_accel_mps2);
+        for (std::size_t j = 0; j < w.size(); ++j)
+          if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
+        w = limited;
+      }
       // Rebuild the passes: runs of sprayed segments become passes with a per-waypoint speed.
       for (std::size_t s = 0; s < sides.size(); ++s) {
         RegionPlan out = sides[s];

@@ -440,7 +440,7 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 }
 
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
-                          int first_pass_index, double turn_run_m) {
+                          int first_pass_index, double turn_run_m, double stop_accel_mps2, double k1, double k2) {
   if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
   for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
   if (!(lead_in_m > 0.0) || !(lead_out_m > 0.0))
@@ -486,9 +486,16 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
       } else {
         // Stop and go: the direction changes only where the nozzle stands still.
         const double run = turn_run_m > 0.0 ? turn_run_m : 0.1;
+        // Long enough to stop from / start to the pass speeds within the acceleration limit
+        // (cycloid end peak v^2 (1 + k2) / ((1 - k2) s), start peak v^2 (2 - k1) / (k1 s)).
+        double run_out = run, run_in = run;
+        if (stop_accel_mps2 > 0.0) {
+          run_out = std::max(run, v_last(p) * v_last(p) * (1.0 + k2) / ((1.0 - k2) * stop_accel_mps2));
+          run_in = std::max(run, v_first(q) * v_first(q) * (2.0 - k1) / (k1 * stop_accel_mps2));
+        }
         NozzlePose a = p.waypoints.back(), b = q.waypoints.front();
-        a.position_m += run * da;
-        b.position_m -= run * db;
+        a.position_m += run_out * da;
+        b.position_m -= run_in * db;
         PathPiece out = polyline_piece(SegmentKind::Link, {p.waypoints.back(), a}, v_last(p), false, -1);
         out.motion = 1;
         path.append(std::move(out));
@@ -895,7 +902,7 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     }
     const CartesianPath path =
         region_path(regions[r], rp.start_length_m, rp.end_length_m, timing.spray_on_turns, pass_offset,
-                    timing.turn_run_m);
+                    timing.turn_run_m, timing.nozzle_max_accel_mps2, rp.k1, rp.k2);
     const SpeedProfile prof = region_profile(path, rp);
     const CartesianSamples cs = sample_path(path, prof, rate);
     // The joint path starts where the swarm's RegionJointModel starts it (at the longest lead-in)
@@ -908,7 +915,8 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
       std::vector<NozzlePose> poses;
       const double unused = std::max(0.0, lead - rp.start_length_m);
       if (unused > 0.0) {
-        const CartesianPath long_path = region_path(regions[r], lead, lead, timing.spray_on_turns, 0, timing.turn_run_m);
+        const CartesianPath long_path = region_path(regions[r], lead, lead, timing.spray_on_turns, 0, timing.turn_run_m,
+                                                    timing.nozzle_max_accel_mps2, rp.k1, rp.k2);
         const int m = static_cast<int>(std::ceil(unused / 0.005));
         for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
       }

@@ -602,3 +602,35 @@ TEST(RegionPath, SprayOffGapOnTheSameLineIsCrossedWithoutStopping) {
       ASSERT_NEAR(cs.speed_mps[i], cs.pass_index[i] == 0 ? 0.2 : 0.3, 1e-12);
     }
 }
+
+TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
+  // Two passes along +x on neighbouring lines (not a serpentine): stop-and-go between them. At
+  // 0.8 m/s and 0.5 m/s^2 the cycloidal stop (k2 = 0.5) needs 0.8^2 * 1.5 / (0.5 * 0.5) = 3.84 m.
+  auto line = [](double z) {
+    Pass p;
+    for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
+    p.length_m = 1.2;
+    p.speed_mps = 0.8;
+    return p;
+  };
+  const std::vector<Pass> passes = {line(4.6), line(4.8)};
+  const CartesianPath fixed = region_path(passes, 0.1, 0.1, false, 0, 0.1);
+  const CartesianPath grown = region_path(passes, 0.1, 0.1, false, 0, 0.1, 0.5, 0.5, 0.5);
+  double out_fixed = 0, out_grown = 0;
+  for (const auto& p : fixed.pieces())
+    if (p.motion == 1) out_fixed = p.length_m();
+  for (const auto& p : grown.pieces())
+    if (p.motion == 1) out_grown = p.length_m();
+  EXPECT_NEAR(out_fixed, 0.1, 1e-9);
+  EXPECT_NEAR(out_grown, 0.8 * 0.8 * 1.5 / (0.5 * 0.5), 1e-9);
+  // The stop then peaks at the acceleration limit.
+  TimingParams prm = TimingParams::from_config(TimingConfig{});
+  prm.k1 = prm.k2 = 0.5;
+  const SpeedProfile prof = region_profile(grown, prm);
+  ASSERT_EQ(grown.pieces()[2].motion, 1);  // lead-in, pass, run-out, ...
+  const double t_from = prof.time_at_distance(grown.piece_start_m(2)), t_stop = prof.time_at_distance(grown.piece_start_m(3));
+  double peak = 0.0;
+  for (double t = t_from; t <= t_stop; t += 0.001) peak = std::max(peak, std::abs(prof.at(t).a_mps2));
+  EXPECT_GT(peak, 0.45);
+  EXPECT_LT(peak, 0.5 + 1e-3);
+}

@@ -150,8 +150,11 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 /// changes centred on the run boundaries (peak speed_change_accel_mps2).
 /// first_pass_index numbers the passes globally. Throws std::invalid_argument for an empty region,
 /// a pass with fewer than 2 waypoints or a non-positive speed.
+/// stop_accel_mps2 > 0: the run-out / run-in of a stop-and-go link are lengthened so that the
+/// cycloidal stop (k2) and start (k1) stay within that acceleration at the pass end speeds.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
-                          int first_pass_index = 0, double turn_run_m = 0.0);
+                          int first_pass_index = 0, double turn_run_m = 0.0, double stop_accel_mps2 = 0.0,
+                          double k1 = 0.5, double k2 = 0.5);
 
 /// Tunable timing parameters (the swarm's particle).
 struct TimingParams {
