@@ -24,7 +24,8 @@ if [ ${#missing[@]} -gt 0 ]; then
   echo "[setup] installing ${#missing[@]} Debian packages: ${missing[*]}"
   SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
   $SUDO apt-get update -q
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null
+  # With recommends, as verified: rviz under Xvfb needs the Mesa drivers and fonts they bring.
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q "${missing[@]}" >/dev/null
 fi
 
 # Debian's own interpreter: its headers come from python3-dev above, on every machine.
