@@ -3,26 +3,6 @@
 
 using namespace shotcrete;
 
-namespace {
-
-// (N, 3) arrays of a pass's waypoints, for plotting and files.
-py::array_t<double> positions(const Pass& p) {
-  py::array_t<double> out({static_cast<py::ssize_t>(p.waypoints.size()), py::ssize_t{3}});
-  auto a = out.mutable_unchecked<2>();
-  for (std::size_t i = 0; i < p.waypoints.size(); ++i)
-    for (int k = 0; k < 3; ++k) a(i, k) = p.waypoints[i].position_m[k];
-  return out;
-}
-
-py::array_t<double> axes(const Pass& p) {
-  py::array_t<double> out({static_cast<py::ssize_t>(p.waypoints.size()), py::ssize_t{3}});
-  auto a = out.mutable_unchecked<2>();
-  for (std::size_t i = 0; i < p.waypoints.size(); ++i)
-    for (int k = 0; k < 3; ++k) a(i, k) = p.waypoints[i].axis[k];
-  return out;
-}
-
-}  // namespace
 
 void bind_planner(py::module_& m) {
   py::class_<Pass>(m, "Pass", "A nozzle pass: waypoints along a clamped cubic spline, speed(s) in m/s.")
@@ -32,8 +12,8 @@ void bind_planner(py::module_& m) {
       .def_readwrite("length_m", &Pass::length_m)
       .def_readwrite("speed_profile_mps", &Pass::speed_profile_mps, "speed per waypoint (empty: constant)")
       .def_readwrite("line", &Pass::line, "index of the slicing plane")
-      .def_property_readonly("positions_m", &positions, "(N, 3) nozzle positions [m]")
-      .def_property_readonly("axes", &axes, "(N, 3) unit spray axes")
+      .def_property_readonly("positions_m", [](const Pass& p) { return pose_positions(p.waypoints); }, "(N, 3) nozzle positions [m]")
+      .def_property_readonly("axes", [](const Pass& p) { return pose_axes(p.waypoints); }, "(N, 3) unit spray axes")
       .def("duration_s", &Pass::duration_s)
       .def("dwell_s", &Pass::dwell_s)
       .def("speed_at", &Pass::speed_at, py::arg("waypoint"));

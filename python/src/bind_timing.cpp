@@ -28,16 +28,6 @@ Eigen::MatrixXd rows(const std::vector<Eigen::VectorXd>& v) {
   for (std::size_t i = 0; i < v.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = v[i].transpose();
   return m;
 }
-Eigen::MatrixXd positions(const std::vector<NozzlePose>& p) {
-  Eigen::MatrixXd m(static_cast<Eigen::Index>(p.size()), 3);
-  for (std::size_t i = 0; i < p.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = p[i].position_m.transpose();
-  return m;
-}
-Eigen::MatrixXd axes(const std::vector<NozzlePose>& p) {
-  Eigen::MatrixXd m(static_cast<Eigen::Index>(p.size()), 3);
-  for (std::size_t i = 0; i < p.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = p[i].axis.transpose();
-  return m;
-}
 
 // A pass from Python: a dict {"positions": (K,3), "axes": (K,3) or (3,), "speed_mps": v}, a tuple
 // (positions, axes, speed_mps), or a bound Pass object.
@@ -97,8 +87,8 @@ py::dict samples_dict(const CartesianSamples& s) {
   py::dict d;
   d["t_s"] = to_array(s.t_s);
   d["s_m"] = to_array(s.s_m);
-  d["positions"] = positions(s.nozzle);
-  d["axes"] = axes(s.nozzle);
+  d["positions"] = pose_positions(s.nozzle);
+  d["axes"] = pose_axes(s.nozzle);
   d["speed_mps"] = to_array(s.speed_mps);
   d["tangential_accel_mps2"] = to_array(s.tangential_accel_mps2);
   d["normal_accel_mps2"] = to_array(s.normal_accel_mps2);
@@ -269,8 +259,8 @@ void bind_timing(py::module_& m) {
       .def_property_readonly("q", [](const TimedTrajectory& t) { return rows(t.q); })
       .def_property_readonly("qd", [](const TimedTrajectory& t) { return rows(t.qd); })
       .def_property_readonly("qdd", [](const TimedTrajectory& t) { return rows(t.qdd); })
-      .def_property_readonly("positions", [](const TimedTrajectory& t) { return positions(t.nozzle); })
-      .def_property_readonly("axes", [](const TimedTrajectory& t) { return axes(t.nozzle); })
+      .def_property_readonly("positions", [](const TimedTrajectory& t) { return pose_positions(t.nozzle); })
+      .def_property_readonly("axes", [](const TimedTrajectory& t) { return pose_axes(t.nozzle); })
       .def_property_readonly("spraying", [](const TimedTrajectory& t) { return to_bool_array(t.spraying); })
       .def_property_readonly("pass_index", [](const TimedTrajectory& t) { return to_array(t.pass_index); })
       .def_property_readonly("region_index", [](const TimedTrajectory& t) { return to_array(t.region_index); })

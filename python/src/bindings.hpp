@@ -5,7 +5,21 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include "shotcrete/deposition.hpp"
+
 namespace py = pybind11;
+
+// (N, 3) arrays of nozzle positions [m] / unit spray axes, for every binding that returns poses.
+inline Eigen::MatrixXd pose_positions(const std::vector<shotcrete::NozzlePose>& poses) {
+  Eigen::MatrixXd m(static_cast<Eigen::Index>(poses.size()), 3);
+  for (std::size_t i = 0; i < poses.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = poses[i].position_m.transpose();
+  return m;
+}
+inline Eigen::MatrixXd pose_axes(const std::vector<shotcrete::NozzlePose>& poses) {
+  Eigen::MatrixXd m(static_cast<Eigen::Index>(poses.size()), 3);
+  for (std::size_t i = 0; i < poses.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = poses[i].axis.transpose();
+  return m;
+}
 
 // One function per core header; module.cpp calls them all.
 void bind_config(py::module_& m);
