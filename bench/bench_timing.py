@@ -8,7 +8,10 @@ joint space (finite-difference velocities / accelerations against the URDF limit
 - cycloid + arcs with the config's parameters (may break limits: reported, not hidden);
 - cycloid + arcs tuned by AIWCPSO (k1, k2, start/end length, turn speed).
 
-Also a two-region plan with a joint-space transit (time_plan). Writes <out>/timing.json.
+Also a two-region plan with a joint-space transit (time_plan), and the whole default bay planned in
+both modes and timed with the config's parameters (``demo_plan``): duration, the worst joint
+velocity / acceleration ratios and the share of samples over the acceleration limit by segment kind.
+Writes <out>/timing.json.
 
     python bench/bench_timing.py --out bench/results
 """
@@ -23,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shotcrete import _core
+from shotcrete import _core, synthetic_cloud
 from shotcrete.cli_robot import load_robot
 from shotcrete.config import load_config
 
@@ -135,12 +138,37 @@ def main() -> None:
     result["two_regions"] = {"duration_s": tr2.duration_s, "transit_time_s": tr2.transit_time_s,
                              "spray_time_s": tr2.spray_time_s, "samples": len(tr2), "joint": joint_summary(tr2),
                              "params": tun2.params.to_dict(), "wall_time_s": time.perf_counter() - t0}
+    result["demo_plan"] = {mode: demo_plan_timing(cfg, robot, mode) for mode in ("optimal", "graded")}
     result["machine"] = platform.platform()
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "timing.json").write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps({k: result[k] for k in ("savings",)}, indent=1))
     print(json.dumps({k: (v["duration_s"], v["joint"]["feasible"]) for k, v in result.items()
                       if isinstance(v, dict) and "joint" in v}, indent=1))
+
+
+KINDS = ("pass", "turn", "lead", "link", "transit")
+
+
+def demo_plan_timing(cfg, robot, mode):
+    """The default synthetic bay planned in ``mode`` and timed with the config's parameters."""
+    cfg.planner.mode = mode
+    surface = _core.build_surface(synthetic_cloud(cfg), cfg)
+    plan = _core.plan_bay(surface, cfg)
+    regions = [list(r.passes) for rnd in plan.rounds for r in rnd.regions]
+    t0 = time.perf_counter()
+    tr = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
+    wall = time.perf_counter() - t0
+    ratio = (np.abs(tr.qdd) / np.asarray(robot.acceleration_limits)).max(axis=1)
+    kind = np.asarray(tr.kind)
+    over = {name: {"samples": int((kind == k).sum()), "over_accel_limit": int(((kind == k) & (ratio > 1.0)).sum()),
+                   "max_accel_ratio": float(ratio[kind == k].max()) if (kind == k).any() else 0.0}
+            for k, name in enumerate(KINDS)}
+    return {"regions": len(regions), "passes": sum(len(r) for r in regions), "duration_s": tr.duration_s,
+            "spray_time_s": tr.spray_time_s, "transit_time_s": tr.transit_time_s,
+            "max_velocity_ratio": tr.max_velocity_ratio, "max_acceleration_ratio": tr.max_acceleration_ratio,
+            "share_over_accel_limit": float((ratio > 1.0).mean()), "untracked_regions": tr.untracked_regions,
+            "by_kind": over, "wall_time_s": wall}
 
 
 if __name__ == "__main__":

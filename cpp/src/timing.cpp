@@ -84,6 +84,34 @@ Eigen::Vector3d end_direction(const Pass& p) {
   return normalized_or(p.waypoints[n - 1].position_m - p.waypoints[n - 2].position_m, Eigen::Vector3d::UnitX());
 }
 
+// Speed on a turn arc of radius r between the pass speeds v_in and v_out: the turn speed (or the
+// pass speeds when it is 0), capped so that the centripetal acceleration v^2 / r stays at accel;
+// 0 = no own turn speed (the arc changes from one pass speed to the next).
+double turn_arc_speed(double radius_m, double v_in, double v_out, double turn_speed_mps, double accel_mps2) {
+  const double cap = std::sqrt(accel_mps2 * radius_m);
+  if (turn_speed_mps > 0.0) return std::min(turn_speed_mps, cap);
+  return std::max(v_in, v_out) > cap ? cap : 0.0;
+}
+
+// Cubic Bezier from a (leaving along unit ta) to b (arriving along unit tb), control points a third
+// of the chord out, as a dense polyline; the axis blends linearly. Joins two pieces whose
+// directions differ without a corner.
+std::vector<NozzlePose> tangent_curve(const NozzlePose& a, const Eigen::Vector3d& ta, const NozzlePose& b,
+                                      const Eigen::Vector3d& tb) {
+  const double c = (b.position_m - a.position_m).norm() / 3.0;
+  const Eigen::Vector3d p0 = a.position_m, p1 = p0 + c * ta, p3 = b.position_m, p2 = p3 - c * tb;
+  constexpr int kSteps = 32;
+  std::vector<NozzlePose> poses;
+  for (int k = 0; k <= kSteps; ++k) {
+    const double t = static_cast<double>(k) / kSteps, r = 1.0 - t;
+    NozzlePose q;
+    q.position_m = r * r * r * p0 + 3.0 * r * r * t * p1 + 3.0 * r * t * t * p2 + t * t * t * p3;
+    q.axis = normalized_or(r * a.axis + t * b.axis, b.axis);
+    poses.push_back(q);
+  }
+  return poses;
+}
+
 // Piece data needed by the speed profile: kind, length and the planned speeds.
 struct PieceSpec {
   SegmentKind kind;
@@ -148,12 +176,10 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
   // Speed on turn arc j: the turn speed (or the pass speeds when it is 0), capped so that the
   // centripetal acceleration v^2 / r stays at speed_change_accel_mps2; 0 = no own turn speed (the
   // arc changes from one pass speed to the next).
+  const double turn_accel = params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2;
   auto turn_v = [&](std::size_t j) {
     const auto& t = specs[j];
-    const double r = t.length_m / kPi;
-    const double cap = std::sqrt(params.speed_change_accel_mps2 * r);
-    if (params.turn_speed_mps > 0.0) return std::min(params.turn_speed_mps, cap);
-    return std::max(t.v_in, t.v_out) > cap ? cap : 0.0;
+    return turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps, turn_accel);
   };
   SpeedProfile prof;
   for (std::size_t i = 0; i < specs.size(); ++i) {
@@ -406,22 +432,26 @@ double CartesianPath::curvature_at(double s) const {
 }
 
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
-                                   double speed_a, double speed_b, bool spraying, double run_m) {
-  if (!(run_m >= 0.0)) throw std::invalid_argument("turn_around: run length " + num(run_m) + " m must be >= 0");
+                                   double speed_a, double speed_b, bool spraying, double run_m, double run_in_m,
+                                   const Eigen::Vector3d& dir_b) {
+  if (run_in_m < 0.0) run_in_m = run_m;
+  if (!(run_m >= 0.0) || !(run_in_m >= 0.0))
+    throw std::invalid_argument("turn_around: run lengths " + num(run_m) + " m / " + num(run_in_m) + " m must be >= 0");
   const Eigen::Vector3d d = normalized_or(dir_a, Eigen::Vector3d::UnitX());
   const double e = (start_b.position_m - end_a.position_m).dot(d);
-  // Align the two ends along d: the shorter side is extended by a straight line; both then run on
-  // by run_m (room for a speed change before and after the arc).
+  // Align the two ends along d: the arc starts where both have run on by at least their run length
+  // (room for a speed change before and after the arc); the shorter side is extended to it.
+  const double x_arc = std::max(run_m, e + run_in_m);  // arc ends, along d from end_a
   NozzlePose pa = end_a, pb = start_b;
-  pa.position_m += (std::max(e, 0.0) + run_m) * d;
-  pb.position_m += (std::max(-e, 0.0) + run_m) * d;
+  pa.position_m += x_arc * d;
+  pb.position_m += (x_arc - e) * d;
   const Eigen::Vector3d w = pb.position_m - pa.position_m;  // orthogonal to d by construction
   const double diameter = w.norm();
   if (diameter < 1e-6)
     throw std::invalid_argument("turn-around: the end of one pass and the start of the next coincide across the pass "
                                 "direction (spacing " + num(diameter) + " m)");
   std::vector<PathPiece> out;
-  if (std::max(e, 0.0) + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
+  if (x_arc > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
   PathPiece arc;
   arc.kind = SegmentKind::Turn;
   arc.spraying = spraying;
@@ -435,12 +465,24 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
   arc.axis0 = end_a.axis;
   arc.axis1 = start_b.axis;
   out.push_back(arc);
-  if (std::max(-e, 0.0) + run_m > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
+  const double run_in = (pb.position_m - start_b.position_m).norm();
+  if (run_in <= 1e-9) return out;
+  // Run-in: the arc leaves along -d, the next pass starts along dir_b. Wall-following passes are
+  // not exactly antiparallel, and a straight run-in would kink where it meets the pass (up to
+  // 40 deg on real plans, a step in the joint velocities). A cubic Bezier tangent to both turns
+  // the difference over the whole run instead.
+  const Eigen::Vector3d db = dir_b.squaredNorm() > 0.0 ? normalized_or(dir_b, -d) : Eigen::Vector3d(-d);
+  if ((db + d).norm() < 1e-4) {
+    out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
+    return out;
+  }
+  out.push_back(polyline_piece(SegmentKind::Link, tangent_curve(pb, -d, start_b, db), speed_b, spraying, -1));
   return out;
 }
 
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
-                          int first_pass_index, double turn_run_m, double stop_accel_mps2, double k1, double k2) {
+                          int first_pass_index, double turn_run_m, double stop_accel_mps2, double k1, double k2,
+                          double turn_speed_mps, double turn_accel_mps2) {
   if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
   for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
   if (!(lead_in_m > 0.0) || !(lead_out_m > 0.0))
@@ -474,14 +516,26 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
       // off over segments that would only overfill): carry on along the line, spray off, no stop.
       const bool continuation = da.dot(db) > 0.99 && gap.dot(da) >= 0.0 && (gap - gap.dot(da) * da).norm() < 1e-3;
       if (continuation) {
-        PathPiece link = polyline_piece(SegmentKind::Link, {p.waypoints.back(), q.waypoints.front()}, v_last(p),
-                                        false, -1);
+        // Tangent to both passes: their end directions may differ by a few degrees.
+        PathPiece link = polyline_piece(SegmentKind::Link, tangent_curve(p.waypoints.back(), da, q.waypoints.front(), db),
+                                        v_last(p), false, -1);
         link.speed_out_mps = v_first(q);
         link.motion = 4;
         if (link.length_m() > 0.0) path.append(std::move(link));
       } else if (serpentine) {
+        // Runs long enough for the change between the pass speed and the arc speed at
+        // turn_accel_mps2 (cycloid peak |v1^2 - v0^2| / length): fast passes need metres, not 0.1 m.
+        double run_out = turn_run_m, run_in = turn_run_m;
+        if (turn_run_m > 0.0 && turn_accel_mps2 > 0.0) {
+          const double vt = turn_arc_speed(0.5 * (gap - gap.dot(da) * da).norm(), v_last(p), v_first(q),
+                                           turn_speed_mps, turn_accel_mps2);
+          if (vt > 0.0) {
+            run_out = std::max(run_out, std::abs(v_last(p) * v_last(p) - vt * vt) / turn_accel_mps2);
+            run_in = std::max(run_in, std::abs(v_first(q) * v_first(q) - vt * vt) / turn_accel_mps2);
+          }
+        }
         for (auto& t : turn_around(p.waypoints.back(), da, q.waypoints.front(), v_last(p), v_first(q), spray_on_turns,
-                                   turn_run_m))
+                                   run_out, run_in, db))
           path.append(std::move(t));
       } else {
         // Stop and go: the direction changes only where the nozzle stands still.
@@ -585,10 +639,13 @@ std::vector<double> time_grid(double duration_s, double rate_hz) {
 }
 }  // namespace
 
-CartesianSamples sample_path(const CartesianPath& path, const SpeedProfile& profile, double rate_hz) {
-  check_lengths(path, profile);
+namespace {
+// Samples of the profile's time window [t0_s, t1_s] (uniform steps <= 1 / rate, both ends).
+CartesianSamples sample_window(const CartesianPath& path, const SpeedProfile& profile, double rate_hz, double t0_s,
+                               double t1_s) {
   CartesianSamples out;
-  for (double t : time_grid(profile.duration_s(), rate_hz)) {
+  for (double dt : time_grid(std::max(0.0, t1_s - t0_s), rate_hz)) {
+    const double t = t0_s + dt;
     const auto st = profile.at(t);
     double local = 0.0;
     const auto i = path.locate(st.s_m, local);
@@ -604,6 +661,12 @@ CartesianSamples sample_path(const CartesianPath& path, const SpeedProfile& prof
     out.kind.push_back(static_cast<char>(piece.kind));
   }
   return out;
+}
+}  // namespace
+
+CartesianSamples sample_path(const CartesianPath& path, const SpeedProfile& profile, double rate_hz) {
+  check_lengths(path, profile);
+  return sample_window(path, profile, rate_hz, 0.0, profile.duration_s());
 }
 
 std::vector<double> spray_dwells(const std::vector<double>& t, const std::vector<char>& spraying) {
@@ -771,7 +834,7 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
   // (H = sum 1 / (4 x (1 - x)), x = normalised joint position) onto the null space of the task, a
   // descent direction of H, times limit_gain * ds, scaled down as a whole (direction kept) so no
   // joint drifts faster than kMaxDrift of its range per metre of path.
-  constexpr double kMaxDrift = 0.05;
+  constexpr double kMaxDrift = 0.05, kNearDrift = 0.5, kNearBand = 0.1;
   auto null_step = [&](const NozzlePose& at, double ds) {
     task_error(robot, q, at, e, &A);
     Eigen::VectorXd g(n);
@@ -781,7 +844,14 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
     }
     const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-12 * Eigen::Matrix<double, 5, 5>::Identity();
     Eigen::VectorXd dq = limit_gain * ds * (g - A.transpose() * M.ldlt().solve(A * g));
-    const double worst = dq.cwiseQuotient(range).cwiseAbs().maxCoeff() / (kMaxDrift * ds);
+    // Near a limit the task itself may push the joint outwards faster than kMaxDrift can pull it
+    // back (e.g. the arm telescope at the edge of the reach): the allowed drift grows smoothly up
+    // to kNearDrift as the closest joint comes within kNearBand of its range.
+    double margin = 1.0;
+    for (int i = 0; i < n; ++i) margin = std::min({margin, (q(i) - lo(i)) / range(i), (hi(i) - q(i)) / range(i)});
+    const double near = std::clamp(1.0 - margin / kNearBand, 0.0, 1.0);
+    const double cap = kMaxDrift + (kNearDrift - kMaxDrift) * near * near;
+    const double worst = dq.cwiseQuotient(range).cwiseAbs().maxCoeff() / (cap * ds);
     if (worst > 1.0) dq /= worst;
     q += dq;
     return dq.cwiseQuotient(range).cwiseAbs().maxCoeff();
@@ -853,6 +923,16 @@ NozzlePose pose_of(const Eigen::Isometry3d& T) {
 namespace {
 void finish_trajectory(const Robot& robot, TimedTrajectory& tr);
 
+// Arc-length spans [start, end] of the rest-to-rest pieces of a region path (stop-and-go
+// middles, motion 2): the arm moves there in joint space.
+std::vector<std::pair<double, double>> joint_move_spans(const CartesianPath& path) {
+  std::vector<std::pair<double, double>> out;
+  for (std::size_t i = 0; i < path.pieces().size(); ++i)
+    if (path.pieces()[i].motion == 2)
+      out.emplace_back(path.piece_start_m(i), path.piece_start_m(i) + path.pieces()[i].length_m());
+  return out;
+}
+
 // Exact time spent on spraying pieces (from the profile, not from the samples).
 double spraying_time(const CartesianPath& path, const SpeedProfile& prof) {
   double t = 0.0;
@@ -864,18 +944,24 @@ double spraying_time(const CartesianPath& path, const SpeedProfile& prof) {
 }
 }  // namespace
 
-TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
-                          const TimingConfig& timing, const RobotConfig& robot_config, const TimingParams* params_in) {
-  const int dof = robot.dof();
-  if (q_start.size() != dof)
-    throw std::invalid_argument("time_plan: q_start has " + std::to_string(q_start.size()) + " entries, the robot has " +
-                                std::to_string(dof) + " joints");
-  const TimingParams params = params_in ? *params_in : TimingParams::from_config(timing);
+namespace {
+
+// One region timed from rest at q_prev: the transit to it, then its Cartesian stretches joined by
+// joint-space rest-to-rest moves. Times start at 0 at q_prev (which is not included). accel_scale
+// (<= 1) scales the accelerations that size the non-spraying parts (leads, stop-and-go runs, the
+// runs and arcs of the turns); the passes keep their planned speeds.
+struct RegionTiming {
+  TimedTrajectory part;
+  bool tracked = true;
+};
+RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, int r, int pass_offset,
+                         const Eigen::VectorXd& q_prev_in, const TimingConfig& timing, const RobotConfig& robot_config,
+                         const TimingParams& params, double accel_scale) {
   const double rate = timing.trajectory_rate_hz;
   const double max_lead = std::max({timing.max_lead_length_m, params.start_length_m, params.end_length_m});
-  TimedTrajectory tr;
-  double t0 = 0.0;
-  Eigen::VectorXd q_prev = q_start;
+  const double stop_accel = accel_scale * timing.nozzle_max_accel_mps2;
+  RegionTiming out;
+  TimedTrajectory& tr = out.part;
   auto push = [&](double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass, int region, char kind) {
     tr.t_s.push_back(t);
     tr.q.push_back(q);
@@ -885,53 +971,77 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     tr.region_index.push_back(region);
     tr.kind.push_back(kind);
   };
-  push(0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
-  int pass_offset = 0;
-  for (std::size_t r = 0; r < regions.size(); ++r) {
-    // Leads at least as long as the nozzle acceleration limit needs at this region's end speeds
-    // (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast passes get
-    // longer run-ups than the config's default. The swarm's parameters already satisfy this.
-    TimingParams rp = params;
-    if (!regions[r].empty() && regions[r].front().waypoints.size() >= 2) {
-      const Pass& f = regions[r].front();
-      const Pass& l = regions[r].back();
-      const double a = timing.nozzle_max_accel_mps2;
-      const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
-      rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * a));
-      rp.end_length_m = std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * a));
-    }
-    const CartesianPath path =
-        region_path(regions[r], rp.start_length_m, rp.end_length_m, timing.spray_on_turns, pass_offset,
-                    timing.turn_run_m, timing.nozzle_max_accel_mps2, rp.k1, rp.k2);
-    const SpeedProfile prof = region_profile(path, rp);
-    const CartesianSamples cs = sample_path(path, prof, rate);
-    // The joint path starts where the swarm's RegionJointModel starts it (at the longest lead-in)
-    // so that both see the same q(s): the unused part of that lead-in is prepended, then dropped.
-    // If that longer lead-in leaves the reach, the bound is halved as in tune_timing.
+  // Leads at least as long as the nozzle acceleration limit needs at this region's end speeds
+  // (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast passes get
+  // longer run-ups than the config's default. The swarm's parameters already satisfy this.
+  TimingParams rp = params;
+  rp.turn_accel_mps2 = accel_scale * (params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2);
+  if (!passes.empty() && passes.front().waypoints.size() >= 2) {
+    const Pass& f = passes.front();
+    const Pass& l = passes.back();
+    const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
+    rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * stop_accel));
+    rp.end_length_m = std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * stop_accel));
+  }
+  auto make_path = [&](double lead_in, double lead_out, int first) {
+    return region_path(passes, lead_in, lead_out, timing.spray_on_turns, first, timing.turn_run_m, stop_accel, rp.k1,
+                       rp.k2, rp.turn_speed_mps, rp.turn_accel_mps2);
+  };
+  const CartesianPath path = make_path(rp.start_length_m, rp.end_length_m, pass_offset);
+  const SpeedProfile prof = region_profile(path, rp);
+  // The region is tracked in stretches between its rest-to-rest moves (stop-and-go middles):
+  // the nozzle stands still at both ends and sprays nothing there, so a joint quintic at the
+  // limits replaces the straight Cartesian move, whose joint accelerations near the slew axis
+  // can be many times the limits.
+  std::vector<std::pair<double, double>> windows;  // profile time spans tracked in Cartesian space
+  double t_open = 0.0;
+  for (const auto& [sa, sb] : joint_move_spans(path)) {
+    windows.emplace_back(t_open, prof.time_at_distance(sa));
+    t_open = prof.time_at_distance(sb);
+  }
+  windows.emplace_back(t_open, prof.duration_s());
+  Eigen::VectorXd q_prev = q_prev_in;
+  double t0 = 0.0;
+  for (std::size_t c = 0; c < windows.size(); ++c) {
+    const auto [wa, wb] = windows[c];
+    const CartesianSamples cs = sample_window(path, prof, rate, wa, wb);
     std::vector<Eigen::VectorXd> jq;
-    std::size_t prefix = 0;
     bool tracked = false;
-    for (double lead = std::max(max_lead, rp.start_length_m);; lead = std::max(0.5 * lead, rp.start_length_m)) {
-      std::vector<NozzlePose> poses;
-      const double unused = std::max(0.0, lead - rp.start_length_m);
-      if (unused > 0.0) {
-        const CartesianPath long_path = region_path(regions[r], lead, lead, timing.spray_on_turns, 0, timing.turn_run_m,
-                                                    timing.nozzle_max_accel_mps2, rp.k1, rp.k2);
-        const int m = static_cast<int>(std::ceil(unused / 0.005));
-        for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
+    if (c == 0) {
+      // The joint path starts where the swarm's RegionJointModel starts it (at the longest
+      // lead-in) so that both see the same q(s): the unused part of that lead-in is prepended,
+      // then dropped. If that longer lead-in leaves the reach, the bound is halved as in
+      // tune_timing.
+      std::size_t prefix = 0;
+      for (double lead = std::max(max_lead, rp.start_length_m);; lead = std::max(0.5 * lead, rp.start_length_m)) {
+        std::vector<NozzlePose> poses;
+        const double unused = std::max(0.0, lead - rp.start_length_m);
+        if (unused > 0.0) {
+          const CartesianPath long_path = make_path(lead, lead, 0);
+          const int m = static_cast<int>(std::ceil(unused / 0.005));
+          for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
+        }
+        prefix = poses.size();
+        poses.insert(poses.end(), cs.nozzle.begin(), cs.nozzle.end());
+        try {
+          jq = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
+          break;
+        } catch (const std::exception& e) {
+          if (unused <= 0.0) throw std::runtime_error("time_plan: region " + std::to_string(r) + ": " + e.what());
+        }
       }
-      prefix = poses.size();
-      poses.insert(poses.end(), cs.nozzle.begin(), cs.nozzle.end());
+      jq.erase(jq.begin(), jq.begin() + static_cast<std::ptrdiff_t>(prefix));
+    } else {
       try {
-        jq = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
-        break;
+        jq = timing_joint_path(robot, cs.nozzle, q_prev, robot_config, &tracked);
       } catch (const std::exception& e) {
-        if (unused <= 0.0) throw std::runtime_error("time_plan: region " + std::to_string(r) + ": " + e.what());
+        throw std::runtime_error("time_plan: region " + std::to_string(r) + ", stretch " + std::to_string(c) +
+                                 " (after a stop-and-go move): " + e.what());
       }
     }
-    jq.erase(jq.begin(), jq.begin() + static_cast<std::ptrdiff_t>(prefix));
-    // Transit from the previous rest configuration to the region's first one.
-    if (!tracked) ++tr.untracked_regions;
+    out.tracked = out.tracked && tracked;
+    // Joint quintic from the previous rest configuration: the transit between regions (c == 0)
+    // or the stop-and-go move inside the region.
     const Eigen::VectorXd q_first = jq.front();
     const double T = quintic_min_duration(q_prev, q_first, robot.velocity_limits(), robot.acceleration_limits());
     if (T > 0.0) {
@@ -939,16 +1049,96 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
         if (t == 0.0) continue;
         Eigen::VectorXd q, qd, qdd;
         quintic_joint(q_prev, q_first, T, t, q, qd, qdd);
-        push(t0 + t, q, pose_of(robot.fk(q)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
+        push(t0 + t, q, pose_of(robot.fk(q)), 0, -1, c == 0 ? -1 : r, static_cast<char>(SegmentKind::Transit));
       }
       t0 += T;
       tr.transit_time_s += T;
     }
     for (std::size_t k = 1; k < cs.t_s.size(); ++k)
-      push(t0 + cs.t_s[k], jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], static_cast<int>(r), cs.kind[k]);
-    t0 += prof.duration_s();
-    tr.spray_time_s += spraying_time(path, prof);
+      push(t0 + cs.t_s[k] - wa, jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], r, cs.kind[k]);
+    t0 += wb - wa;
     q_prev = jq.back();
+  }
+  tr.duration_s = t0;
+  tr.spray_time_s = spraying_time(path, prof);
+  return out;
+}
+
+// Worst |qdd| / limit on the non-spraying Cartesian samples (turns, links, leads) of a region timed
+// from rest at q_prev; passes keep their speeds and joint moves are within the limits by design.
+double off_pass_accel_ratio(const Robot& robot, const TimedTrajectory& part, const Eigen::VectorXd& q_prev) {
+  std::vector<double> t{0.0};
+  std::vector<Eigen::VectorXd> q{q_prev}, qd, qdd;
+  t.insert(t.end(), part.t_s.begin(), part.t_s.end());
+  q.insert(q.end(), part.q.begin(), part.q.end());
+  finite_differences(t, q, qd, qdd);
+  double worst = 0.0;
+  for (std::size_t i = 0; i < part.size(); ++i) {
+    const auto kind = static_cast<SegmentKind>(part.kind[i]);
+    if (kind == SegmentKind::Pass || kind == SegmentKind::Transit || part.spraying[i]) continue;
+    worst = std::max(worst, qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
+  }
+  return worst;
+}
+
+}  // namespace
+
+TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
+                          const TimingConfig& timing, const RobotConfig& robot_config, const TimingParams* params_in) {
+  const int dof = robot.dof();
+  if (q_start.size() != dof)
+    throw std::invalid_argument("time_plan: q_start has " + std::to_string(q_start.size()) + " entries, the robot has " +
+                                std::to_string(dof) + " joints");
+  const TimingParams params = params_in ? *params_in : TimingParams::from_config(timing);
+  TimedTrajectory tr;
+  tr.t_s.push_back(0.0);
+  tr.q.push_back(q_start);
+  tr.nozzle.push_back(pose_of(robot.fk(q_start)));
+  tr.spraying.push_back(0);
+  tr.pass_index.push_back(-1);
+  tr.region_index.push_back(-1);
+  tr.kind.push_back(static_cast<char>(SegmentKind::Transit));
+  double t0 = 0.0;
+  Eigen::VectorXd q_prev = q_start;
+  int pass_offset = 0;
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    // Where the arm's geometry makes the turns, runs or leads break a joint acceleration limit (e.g.
+    // near the slew axis, where a nozzle acceleration is a large slew acceleration), the region is
+    // re-timed with gentler accelerations for them: the joint acceleration there scales about
+    // linearly with them. At most kAttempts timings; the one with the smallest excess is kept.
+    constexpr int kAttempts = 5;
+    double scale = 1.0, best_scale = 1.0, best_ratio = std::numeric_limits<double>::infinity();
+    RegionTiming best;
+    for (int attempt = 0; attempt < kAttempts; ++attempt) {
+      RegionTiming rt;
+      try {
+        rt = time_region(robot, regions[r], static_cast<int>(r), pass_offset, q_prev, timing, robot_config, params,
+                         scale);
+      } catch (const std::exception&) {
+        if (attempt == 0) throw;
+        scale = std::sqrt(scale * best_scale);  // the longer runs leave the reach: try halfway
+        continue;
+      }
+      const double ratio = off_pass_accel_ratio(robot, rt.part, q_prev);
+      if (ratio < best_ratio) best_ratio = ratio, best_scale = scale, best = std::move(rt);
+      if (ratio <= 1.0) break;
+      scale = best_scale * 0.9 / best_ratio;
+    }
+    const TimedTrajectory& part = best.part;
+    for (std::size_t k = 0; k < part.size(); ++k) {
+      tr.t_s.push_back(t0 + part.t_s[k]);
+      tr.q.push_back(part.q[k]);
+      tr.nozzle.push_back(part.nozzle[k]);
+      tr.spraying.push_back(part.spraying[k]);
+      tr.pass_index.push_back(part.pass_index[k]);
+      tr.region_index.push_back(part.region_index[k]);
+      tr.kind.push_back(part.kind[k]);
+    }
+    t0 += part.duration_s;
+    tr.transit_time_s += part.transit_time_s;
+    tr.spray_time_s += part.spray_time_s;
+    if (!best.tracked) ++tr.untracked_regions;
+    if (!part.q.empty()) q_prev = part.q.back();
     pass_offset += static_cast<int>(regions[r].size());
   }
   tr.duration_s = t0;

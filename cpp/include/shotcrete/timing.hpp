@@ -135,10 +135,13 @@ class CartesianPath {
 /// the pass ends are first aligned along da by a straight extension (the "line" of line + arc),
 /// then joined by a half circle whose diameter is their distance across (the pass spacing).
 /// Returns 1 to 3 pieces (extension of a, arc, extension before b), kinds Link / Turn.
-/// run_m > 0 adds a straight run of that length on both sides of the arc (the speed change to and
-/// from the turn speed happens there, so the arc is entered at the turn speed).
+/// run_m > 0 adds a straight run of that length before the arc, run_in_m (< 0: run_m) one after it
+/// (the speed change to and from the turn speed happens there, so the arc is entered at the turn
+/// speed). dir_b (zero: -dir_a) is the next pass's start direction: when it is not exactly -dir_a the
+/// run-in is a cubic Bezier tangent to the arc and to the pass, so the path has no corner.
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
-                                   double speed_a_mps, double speed_b_mps, bool spraying, double run_m = 0.0);
+                                   double speed_a_mps, double speed_b_mps, bool spraying, double run_m = 0.0,
+                                   double run_in_m = -1.0, const Eigen::Vector3d& dir_b = Eigen::Vector3d::Zero());
 
 /// Region path: lead-in, passes joined by turn-arounds (serpentine as given), lead-out. Two
 /// consecutive passes that are not serpentine neighbours (not running opposite ways side by side,
@@ -152,9 +155,12 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 /// a pass with fewer than 2 waypoints or a non-positive speed.
 /// stop_accel_mps2 > 0: the run-out / run-in of a stop-and-go link are lengthened so that the
 /// cycloidal stop (k2) and start (k1) stay within that acceleration at the pass end speeds.
+/// turn_accel_mps2 > 0 (with turn_run_m > 0): the runs before and after a turn arc are lengthened so
+/// that the change between the pass speed and the arc speed (region_profile's, from turn_speed_mps
+/// and the centripetal cap at turn_accel_mps2) peaks at turn_accel_mps2.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
                           int first_pass_index = 0, double turn_run_m = 0.0, double stop_accel_mps2 = 0.0,
-                          double k1 = 0.5, double k2 = 0.5);
+                          double k1 = 0.5, double k2 = 0.5, double turn_speed_mps = 0.0, double turn_accel_mps2 = 0.0);
 
 /// Tunable timing parameters (the swarm's particle).
 struct TimingParams {
@@ -165,6 +171,8 @@ struct TimingParams {
   double turn_speed_mps = 0.0;    // speed in the middle of a turn-around; 0 = pass speeds
   double speed_change_accel_mps2 = 0.5;  // peak of speed changes inside a pass and of the
                                          // centripetal acceleration on turn arcs (not tuned)
+  double turn_accel_mps2 = 0.0;  // turn arcs and their runs when > 0 (time_plan lowers it where the
+                                 // arm's joint accelerations need it); 0 = speed_change_accel_mps2
   static TimingParams from_config(const TimingConfig& config);
 };
 
@@ -234,7 +242,8 @@ void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double 
 /// Joint path through closely spaced poses: from q0, the start configuration is first settled in
 /// the null space away from the joint limits (at rest), then minimal-norm Gauss-Newton steps reach
 /// every pose (position and spray axis to ~1e-10) plus a null-space drift away from the limits
-/// proportional to the path step (limit_gain * dH/dx, at most 0.05 normalised joint range per metre),
+/// proportional to the path step (limit_gain * dH/dx, at most 0.05 normalised joint range per metre,
+/// rising smoothly to 0.5 as a joint comes within 10 % of its range of a limit),
 /// so q is a smooth function of the path and finite differences are meaningful. Reports the worst
 /// errors.
 std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
@@ -247,11 +256,11 @@ struct TimedTrajectory {
   std::vector<NozzlePose> nozzle;
   std::vector<char> spraying;
   std::vector<int> pass_index;   // -1 off a pass (turns, leads, transits)
-  std::vector<int> region_index; // -1 on transits between regions
+  std::vector<int> region_index; // -1 on transits between regions (stop-and-go moves inside one: its index)
   std::vector<char> kind;        // SegmentKind
   double duration_s = 0.0;
   double spray_time_s = 0.0;     // time with spraying on (exact, from the profiles)
-  double transit_time_s = 0.0;
+  double transit_time_s = 0.0;   // joint-space moves: between regions and stop-and-go inside them
   // Limit check of the finite-difference velocities / accelerations (worst |value| / limit).
   double max_velocity_ratio = 0.0;
   double max_acceleration_ratio = 0.0;
@@ -271,6 +280,11 @@ struct TimedTrajectory {
 /// Timed trajectory of regions sprayed in order (each a serpentine of passes), starting at rest at
 /// q_start: transit (joint quintic, minimum duration) -> region (IK per sample, warm-started)
 /// -> transit -> ... Velocities / accelerations by finite differences of the sampled joint path.
+/// Inside a region the stop-and-go moves (between passes that are no serpentine neighbours) are
+/// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Where the
+/// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
+/// 4 more times) with their accelerations scaled down by the excess; the passes keep their planned
+/// speeds, so what remains over a limit lies on the passes themselves (reported, not hidden).
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
                           const TimingParams* params = nullptr);
