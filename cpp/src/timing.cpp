@@ -100,7 +100,9 @@ std::vector<NozzlePose> tangent_curve(const NozzlePose& a, const Eigen::Vector3d
                                       const Eigen::Vector3d& tb) {
   const double c = (b.position_m - a.position_m).norm() / 3.0;
   const Eigen::Vector3d p0 = a.position_m, p1 = p0 + c * ta, p3 = b.position_m, p2 = p3 - c * tb;
-  constexpr int kSteps = 32;
+  // Vertices every ~5 mm (less than a 50 Hz sample step at the top speed), so the polyline's small
+  // corners do not show up in the finite-difference accelerations.
+  const int kSteps = std::max(8, static_cast<int>(std::ceil(3.0 * c / 0.005)));
   std::vector<NozzlePose> poses;
   for (int k = 0; k <= kSteps; ++k) {
     const double t = static_cast<double>(k) / kSteps, r = 1.0 - t;
@@ -1009,7 +1011,8 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
     bool tracked = false;
     if (c == 0) {
       // The joint path starts where the swarm's RegionJointModel starts it (at the longest
-      // lead-in) so that both see the same q(s): the unused part of that lead-in is prepended,
+      // lead-in) so that both see the same q(s) up to the first turn (the model keeps fixed turn
+      // runs and Cartesian stop-and-go moves): the unused part of that lead-in is prepended,
       // then dropped. If that longer lead-in leaves the reach, the bound is halved as in
       // tune_timing.
       std::size_t prefix = 0;
@@ -1075,7 +1078,7 @@ double off_pass_accel_ratio(const Robot& robot, const TimedTrajectory& part, con
   double worst = 0.0;
   for (std::size_t i = 0; i < part.size(); ++i) {
     const auto kind = static_cast<SegmentKind>(part.kind[i]);
-    if (kind == SegmentKind::Pass || kind == SegmentKind::Transit || part.spraying[i]) continue;
+    if (kind == SegmentKind::Pass || kind == SegmentKind::Transit) continue;
     worst = std::max(worst, qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
   }
   return worst;
@@ -1116,13 +1119,14 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
                          scale);
       } catch (const std::exception&) {
         if (attempt == 0) throw;
-        scale = std::sqrt(scale * best_scale);  // the longer runs leave the reach: try halfway
+        scale = std::sqrt(scale * best_scale);  // the longer runs leave the reach: try halfway back
         continue;
       }
-      const double ratio = off_pass_accel_ratio(robot, rt.part, q_prev);
-      if (ratio < best_ratio) best_ratio = ratio, best_scale = scale, best = std::move(rt);
-      if (ratio <= 1.0) break;
-      scale = best_scale * 0.9 / best_ratio;
+      double ratio = off_pass_accel_ratio(robot, rt.part, q_prev);
+      if (!std::isfinite(ratio)) ratio = std::numeric_limits<double>::max();
+      if (attempt == 0 || ratio < best_ratio) best_ratio = ratio, best_scale = scale, best = std::move(rt);
+      if (ratio <= 1.0 || ratio == std::numeric_limits<double>::max()) break;
+      scale *= 0.9 / ratio;
     }
     const TimedTrajectory& part = best.part;
     for (std::size_t k = 0; k < part.size(); ++k) {

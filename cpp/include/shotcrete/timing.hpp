@@ -243,7 +243,7 @@ void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double 
 /// the null space away from the joint limits (at rest), then minimal-norm Gauss-Newton steps reach
 /// every pose (position and spray axis to ~1e-10) plus a null-space drift away from the limits
 /// proportional to the path step (limit_gain * dH/dx, at most 0.05 normalised joint range per metre,
-/// rising smoothly to 0.5 as a joint comes within 10 % of its range of a limit),
+/// rising quadratically to 0.5 at a limit once a joint is within 10 % of its range of it),
 /// so q is a smooth function of the path and finite differences are meaningful. Reports the worst
 /// errors.
 std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
@@ -284,7 +284,8 @@ struct TimedTrajectory {
 /// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Where the
 /// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
 /// 4 more times) with their accelerations scaled down by the excess; the passes keep their planned
-/// speeds, so what remains over a limit lies on the passes themselves (reported, not hidden).
+/// speeds. Whatever stays over a limit (on the passes, or where longer runs would leave the reach)
+/// is reported in max_acceleration_ratio, not hidden.
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
                           const TimingParams* params = nullptr);
