@@ -952,6 +952,17 @@ namespace {
 // joint-space rest-to-rest moves. Times start at 0 at q_prev (which is not included). accel_scale
 // (<= 1) scales the accelerations that size the non-spraying parts (leads, stop-and-go runs, the
 // runs and arcs of the turns); the passes keep their planned speeds.
+void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass,
+                 int region, char kind) {
+  tr.t_s.push_back(t);
+  tr.q.push_back(q);
+  tr.nozzle.push_back(pose);
+  tr.spraying.push_back(spray);
+  tr.pass_index.push_back(pass);
+  tr.region_index.push_back(region);
+  tr.kind.push_back(kind);
+}
+
 struct RegionTiming {
   TimedTrajectory part;
   bool tracked = true;
@@ -964,15 +975,6 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
   const double stop_accel = accel_scale * timing.nozzle_max_accel_mps2;
   RegionTiming out;
   TimedTrajectory& tr = out.part;
-  auto push = [&](double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass, int region, char kind) {
-    tr.t_s.push_back(t);
-    tr.q.push_back(q);
-    tr.nozzle.push_back(pose);
-    tr.spraying.push_back(spray);
-    tr.pass_index.push_back(pass);
-    tr.region_index.push_back(region);
-    tr.kind.push_back(kind);
-  };
   // Leads at least as long as the nozzle acceleration limit needs at this region's end speeds
   // (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast passes get
   // longer run-ups than the config's default. The swarm's parameters already satisfy this.
@@ -1052,13 +1054,13 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
         if (t == 0.0) continue;
         Eigen::VectorXd q, qd, qdd;
         quintic_joint(q_prev, q_first, T, t, q, qd, qdd);
-        push(t0 + t, q, pose_of(robot.fk(q)), 0, -1, c == 0 ? -1 : r, static_cast<char>(SegmentKind::Transit));
+        push_sample(tr, t0 + t, q, pose_of(robot.fk(q)), 0, -1, c == 0 ? -1 : r, static_cast<char>(SegmentKind::Transit));
       }
       t0 += T;
       tr.transit_time_s += T;
     }
     for (std::size_t k = 1; k < cs.t_s.size(); ++k)
-      push(t0 + cs.t_s[k] - wa, jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], r, cs.kind[k]);
+      push_sample(tr, t0 + cs.t_s[k] - wa, jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], r, cs.kind[k]);
     t0 += wb - wa;
     q_prev = jq.back();
   }
@@ -1094,13 +1096,7 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
                                 std::to_string(dof) + " joints");
   const TimingParams params = params_in ? *params_in : TimingParams::from_config(timing);
   TimedTrajectory tr;
-  tr.t_s.push_back(0.0);
-  tr.q.push_back(q_start);
-  tr.nozzle.push_back(pose_of(robot.fk(q_start)));
-  tr.spraying.push_back(0);
-  tr.pass_index.push_back(-1);
-  tr.region_index.push_back(-1);
-  tr.kind.push_back(static_cast<char>(SegmentKind::Transit));
+  push_sample(tr, 0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
   double t0 = 0.0;
   Eigen::VectorXd q_prev = q_start;
   int pass_offset = 0;
@@ -1129,15 +1125,9 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
       scale *= 0.9 / ratio;
     }
     const TimedTrajectory& part = best.part;
-    for (std::size_t k = 0; k < part.size(); ++k) {
-      tr.t_s.push_back(t0 + part.t_s[k]);
-      tr.q.push_back(part.q[k]);
-      tr.nozzle.push_back(part.nozzle[k]);
-      tr.spraying.push_back(part.spraying[k]);
-      tr.pass_index.push_back(part.pass_index[k]);
-      tr.region_index.push_back(part.region_index[k]);
-      tr.kind.push_back(part.kind[k]);
-    }
+    for (std::size_t k = 0; k < part.size(); ++k)
+      push_sample(tr, t0 + part.t_s[k], part.q[k], part.nozzle[k], part.spraying[k], part.pass_index[k],
+                  part.region_index[k], part.kind[k]);
     t0 += part.duration_s;
     tr.transit_time_s += part.transit_time_s;
     tr.spray_time_s += part.spray_time_s;
