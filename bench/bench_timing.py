@@ -151,24 +151,44 @@ KINDS = ("pass", "turn", "lead", "link", "transit")
 
 
 def demo_plan_timing(cfg, robot, mode):
-    """The default synthetic bay planned in ``mode`` and timed with the config's parameters."""
+    """The default synthetic bay planned for the arm in ``mode`` (plan_for_arm: joint-limited pass
+    speeds, timing with the config's parameters, re-plans) next to the plan made without the arm
+    and timed the same way."""
     cfg.planner.mode = mode
     surface = _core.build_surface(synthetic_cloud(cfg), cfg)
-    plan = _core.plan_bay(surface, cfg)
-    regions = [list(r.passes) for rnd in plan.rounds for r in rnd.regions]
+    valid = np.asarray(surface.grid.valid).reshape(-1)
+
+    def figures(plan, tr, wall):
+        ratio_a = (np.abs(tr.qdd) / np.asarray(robot.acceleration_limits)).max(axis=1)
+        ratio_v = (np.abs(tr.qd) / np.asarray(robot.velocity_limits)).max(axis=1)
+        kind = np.asarray(tr.kind)
+        over = {name: {"samples": int((kind == k).sum()),
+                       "over_accel_limit": int(((kind == k) & (ratio_a > 1.0)).sum()),
+                       "over_velocity_limit": int(((kind == k) & (ratio_v > 1.0)).sum()),
+                       "max_accel_ratio": float(ratio_a[kind == k].max()) if (kind == k).any() else 0.0,
+                       "max_velocity_ratio": float(ratio_v[kind == k].max()) if (kind == k).any() else 0.0}
+                for k, name in enumerate(KINDS)}
+        regions = [list(r.passes) for rnd in plan.rounds for r in rnd.regions]
+        td = np.asarray(plan.td_after_m)[valid] * 1000.0
+        return {"regions": len(regions), "passes": sum(len(r) for r in regions), "duration_s": tr.duration_s,
+                "plan_spray_time_s": plan.spray_time_s, "residual_rms_mm": float(np.sqrt(np.mean(td ** 2))),
+                "speed_capped": int(plan.speed_capped),
+                "spray_time_s": tr.spray_time_s, "transit_time_s": tr.transit_time_s,
+                "max_velocity_ratio": tr.max_velocity_ratio, "max_acceleration_ratio": tr.max_acceleration_ratio,
+                "share_over_accel_limit": float((ratio_a > 1.0).mean()), "untracked_regions": tr.untracked_regions,
+                "by_kind": over, "wall_time_s": wall}
+
     t0 = time.perf_counter()
-    tr = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
-    wall = time.perf_counter() - t0
-    ratio = (np.abs(tr.qdd) / np.asarray(robot.acceleration_limits)).max(axis=1)
-    kind = np.asarray(tr.kind)
-    over = {name: {"samples": int((kind == k).sum()), "over_accel_limit": int(((kind == k) & (ratio > 1.0)).sum()),
-                   "max_accel_ratio": float(ratio[kind == k].max()) if (kind == k).any() else 0.0}
-            for k, name in enumerate(KINDS)}
-    return {"regions": len(regions), "passes": sum(len(r) for r in regions), "duration_s": tr.duration_s,
-            "spray_time_s": tr.spray_time_s, "transit_time_s": tr.transit_time_s,
-            "max_velocity_ratio": tr.max_velocity_ratio, "max_acceleration_ratio": tr.max_acceleration_ratio,
-            "share_over_accel_limit": float((ratio > 1.0).mean()), "untracked_regions": tr.untracked_regions,
-            "by_kind": over, "wall_time_s": wall}
+    free = _core.plan_bay(surface, cfg)
+    regions = [list(r.passes) for rnd in free.rounds for r in rnd.regions]
+    tr_free = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
+    without = figures(free, tr_free, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    arm = _core.plan_for_arm(surface, cfg, robot)
+    out = figures(arm.plan, arm.trajectory, time.perf_counter() - t0)
+    out.update({"replans": arm.replans, "learned_speed_bounds": len(arm.learned.speed_mps),
+                "planned_without_the_arm": without})
+    return out
 
 
 if __name__ == "__main__":

@@ -461,8 +461,10 @@ Sparse sparsify(const Eigen::VectorXd& v) {
 }
 
 // BOBYQA speeds of the passes of one region: minimise sum |Td - T_c(v)| over the region's cells.
+// v_max: per pass upper bound (the machine's speed cap, at most max_speed_mps, above min_speed_mps).
 std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const std::vector<int>& slots,
-                                    double target_m, const PlannerConfig& cfg, std::string& note) {
+                                    double target_m, const PlannerConfig& cfg, const std::vector<double>& v_max,
+                                    std::string& note) {
   const int n = static_cast<int>(unit_per_pass.size());
   const int m = static_cast<int>(slots.size());
   // A (m x n): thickness on region cell i from pass j at 1 m/s; T = A * (1 / v).
@@ -479,12 +481,15 @@ std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per
   for (int i = 0; i < m; ++i) sums[i] = A.row(i).sum();
   std::nth_element(sums.begin(), sums.begin() + m / 2, sums.end());
   double v0 = sums[m / 2] > 0 ? sums[m / 2] / target_m : cfg.min_speed_mps;
-  v0 = std::clamp(v0, cfg.min_speed_mps, cfg.max_speed_mps);
-  std::vector<double> v(n, v0);
+  std::vector<double> v(n), step(n);
+  for (int j = 0; j < n; ++j) {
+    v[j] = std::clamp(v0, cfg.min_speed_mps, v_max[j]);
+    step[j] = std::min(0.25 * v[j], 0.45 * (v_max[j] - cfg.min_speed_mps));
+  }
   if (n >= 2) {
     nlopt::opt opt(nlopt::LN_BOBYQA, n);
     opt.set_lower_bounds(std::vector<double>(n, cfg.min_speed_mps));
-    opt.set_upper_bounds(std::vector<double>(n, cfg.max_speed_mps));
+    opt.set_upper_bounds(v_max);
     opt.set_min_objective(
         [](const std::vector<double>& x, std::vector<double>&, void* data) {
           return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
@@ -493,7 +498,7 @@ std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per
     opt.set_xtol_rel(1e-4);
     opt.set_maxeval(400 * n);
     // BOBYQA needs its first step within half the bound gap.
-    opt.set_initial_step(std::vector<double>(n, std::min(0.25 * v0, 0.45 * (cfg.max_speed_mps - cfg.min_speed_mps))));
+    opt.set_initial_step(step);
     double best = 0;
     try {
       opt.optimize(v, best);
@@ -504,7 +509,7 @@ std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per
     }
   } else {
     // One pass: the 1-D problem is solved exactly by a golden-section search on 1/v.
-    double lo = 1.0 / cfg.max_speed_mps, hi = 1.0 / cfg.min_speed_mps;
+    double lo = 1.0 / v_max[0], hi = 1.0 / cfg.min_speed_mps;
     const double g = (std::sqrt(5.0) - 1) / 2;
     auto f = [&](double w) { return objective({1.0 / w}); };
     double x1 = hi - g * (hi - lo), x2 = lo + g * (hi - lo);
@@ -526,7 +531,7 @@ std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per
     }
     v[0] = 1.0 / (0.5 * (lo + hi));
   }
-  for (double& x : v) x = std::clamp(x, cfg.min_speed_mps, cfg.max_speed_mps);
+  for (int j = 0; j < n; ++j) v[j] = std::clamp(v[j], cfg.min_speed_mps, v_max[j]);
   // Can the slowest passes reach the target at all?
   Eigen::VectorXd slowest = A * Eigen::VectorXd::Constant(n, 1.0 / cfg.min_speed_mps);
   if (m > 0 && slowest.maxCoeff() < target_m) {
@@ -541,9 +546,10 @@ std::vector<double> optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per
 // Box-constrained least squares for the dwell per unit length of every segment (optimal mode):
 // min 1/2 |U w - t|^2 + lambda L.w,  w in {0} u [w_min, w_max]; coordinate descent.
 // w_floor[j] > 0 forces segment j to spray with at least that dwell (speed caps from the limiter).
+// w_min[j]: dwell at the segment's fastest allowed speed (max speed, or the machine's cap there).
 std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vector<double>& seg_len,
-                                   const Eigen::VectorXd& target, double lambda, double w_min, double w_max,
-                                   const std::vector<double>& w_floor) {
+                                   const Eigen::VectorXd& target, double lambda, const std::vector<double>& w_min,
+                                   double w_max, const std::vector<double>& w_floor) {
   const std::size_t n = U.size();
   std::vector<double> w(n, 0.0), h(n, 0.0);
   Eigen::VectorXd res = -target;  // U w - t
@@ -574,7 +580,7 @@ std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vect
   // spraying there or spray at max speed, whichever leaves the smaller objective; then polish.
   for (int pass = 0; pass < 3; ++pass) {
     for (std::size_t j = 0; j < n; ++j) {
-      if (w[j] <= 0 || w[j] >= w_min || w_floor[j] > 0) continue;
+      if (w[j] <= 0 || w[j] >= w_min[j] || w_floor[j] > 0) continue;
       auto objective_delta = [&](double value) {
         const double d = value - w[j];
         double delta = lambda * seg_len[j] * d;
@@ -584,11 +590,11 @@ std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vect
         }
         return delta;
       };
-      set(j, objective_delta(0.0) <= objective_delta(w_min) ? 0.0 : w_min);
+      set(j, objective_delta(0.0) <= objective_delta(w_min[j]) ? 0.0 : w_min[j]);
     }
     for (std::size_t j = 0; j < n; ++j) {
       if (w[j] <= 0 || h[j] <= 0) continue;  // skipped segments stay skipped
-      set(j, std::clamp(w[j] - grad(j) / h[j], std::max(w_min, w_floor[j]), w_max));
+      set(j, std::clamp(w[j] - grad(j) / h[j], std::max(w_min[j], w_floor[j]), w_max));
     }
   }
   return w;
@@ -597,9 +603,22 @@ std::vector<double> optimise_dwell(const std::vector<Sparse>& U, const std::vect
 // The arm cannot change the nozzle speed at will: a cycloidal change from v0 to v1 over a length
 // D peaks at |v1^2 - v0^2| / D. Along every pass line, cap the speeds (forward, then backward) so
 // that this stays within accel_mps2; D is the shorter neighbouring segment (the timing changes
-// speed across segment boundaries) or the spray-off gap between two sprayed segments.
+// speed across segment boundaries) or the spray-off gap between two sprayed segments. The nozzle
+// crosses a gap at speeds between those of the segments on either side, so first both are capped
+// by the slowest speed the machine allows in the gap (v_cap per segment, +inf: no cap).
 template <class Seg>
-std::vector<double> limit_speed_changes(const std::vector<Seg>& segs, std::vector<double> w, double accel_mps2) {
+std::vector<double> limit_speed_changes(const std::vector<Seg>& segs, std::vector<double> w, double accel_mps2,
+                                        const std::vector<double>& v_cap) {
+  auto same_line = [&](std::size_t a, std::size_t b) { return segs[a].side == segs[b].side && segs[a].pass == segs[b].pass; };
+  for (std::size_t j = 0; j < segs.size(); ++j) {
+    if (w[j] <= 0 || j + 1 >= segs.size() || w[j + 1] > 0 || !same_line(j, j + 1)) continue;
+    std::size_t k = j + 1;
+    double gap_cap = std::numeric_limits<double>::infinity();
+    for (; k < segs.size() && same_line(j, k) && w[k] <= 0; ++k) gap_cap = std::min(gap_cap, v_cap[k]);
+    if (k >= segs.size() || !same_line(j, k)) continue;  // the line ends: no gap to cross
+    for (std::size_t e : {j, k})
+      if (1.0 / w[e] > gap_cap) w[e] = 1.0 / gap_cap;
+  }
   auto sweep = [&](bool forward) {
     const std::size_t n = segs.size();
     int prev = -1;
@@ -667,7 +686,7 @@ struct Segment {
 
 }  // namespace
 
-Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress) {
+Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress, const SpeedCapFn& speed_cap) {
   validate(config);
   const auto t_start = Clock::now();
   auto report = [&](const std::string& stage, double f) {
@@ -699,6 +718,32 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   std::optional<Eigen::Vector3d> nozzle_at;
   const bool optimal = pc.mode == "optimal";
   plan.timings_s["setup"] = seconds_since(t_start);
+  // Per waypoint: the fastest speed the machine allows there, within [min, max] speed (a cap below
+  // the slowest speed is reported once per pass and sprayed at the slowest speed).
+  double cap_seconds = 0.0;
+  auto waypoint_caps = [&](const Pass& pass, const std::string& where) {
+    std::vector<double> cap(pass.waypoints.size(), pc.max_speed_mps);
+    if (!speed_cap) return cap;
+    const auto t0 = Clock::now();
+    const std::vector<double> c = speed_cap(pass.waypoints);
+    cap_seconds += seconds_since(t0);
+    if (c.size() != cap.size())
+      throw std::runtime_error("plan_bay: the speed cap returned " + std::to_string(c.size()) + " values for " +
+                               std::to_string(cap.size()) + " waypoints");
+    double lowest = pc.max_speed_mps;
+    for (std::size_t k = 0; k < cap.size(); ++k) {
+      if (std::isnan(c[k])) throw std::runtime_error("plan_bay: the speed cap is NaN at waypoint " + std::to_string(k) + " of " + where);
+      lowest = std::min(lowest, c[k]);
+      cap[k] = std::clamp(c[k], pc.min_speed_mps, pc.max_speed_mps);
+    }
+    if (lowest < pc.min_speed_mps) {
+      std::ostringstream msg;
+      msg << where << ": the machine allows only " << lowest << " m/s on part of the pass, below planner.min_speed_mps "
+          << pc.min_speed_mps << " m/s; sprayed at the slowest speed there";
+      plan.warnings.push_back(msg.str());
+    }
+    return cap;
+  };
 
   // Graded mode: cells whose level a round could not lower are set aside (reported), so the
   // rest of the bay still gets finished.
@@ -749,9 +794,18 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
         }
         std::vector<int> slots;
         for (int c : rp.region.cells) slots.push_back(cells.slot[c]);
+        const std::string where = "round " + std::to_string(round_no + 1) + ", region " + std::to_string(ri);
+        std::vector<double> v_max;
+        for (std::size_t j = 0; j < rp.passes.size(); ++j) {
+          const auto cap = waypoint_caps(rp.passes[j], where + ", pass " + std::to_string(j));
+          v_max.push_back(*std::min_element(cap.begin(), cap.end()));
+          // BOBYQA needs lower < upper; a pass capped at the slowest speed keeps a hair of room.
+          v_max.back() = std::max(v_max.back(), pc.min_speed_mps * (1.0 + 1e-6));
+          if (v_max.back() < pc.max_speed_mps) ++plan.speed_capped;
+        }
         std::vector<double> v;
         try {
-          v = optimise_speeds(unit, slots, rp.target_thickness_m, pc, rp.note);
+          v = optimise_speeds(unit, slots, rp.target_thickness_m, pc, v_max, rp.note);
         } catch (const std::runtime_error& e) {
           throw std::runtime_error("round " + std::to_string(round_no + 1) + ", region " + std::to_string(ri) + ": " +
                                    e.what());
@@ -802,10 +856,13 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
           sides.push_back(std::move(rp));
         }
       }
+      std::vector<double> seg_cap;  // fastest speed the machine allows on each segment [m/s]
       for (std::size_t s = 0; s < sides.size(); ++s)
         for (std::size_t p = 0; p < sides[s].passes.size(); ++p) {
           const Pass& pass = sides[s].passes[p];
           const std::size_t nw = pass.waypoints.size();
+          const auto cap = waypoint_caps(pass, "round " + std::to_string(round_no + 1) + ", side " + std::to_string(s) +
+                                                   ", line " + std::to_string(pass.line));
           const std::size_t per = std::max<std::size_t>(1, std::llround(pc.segment_length_m / pc.sample_step_m));
           for (std::size_t a = 0; a + 1 < nw; a += per) {
             Segment seg;
@@ -822,17 +879,19 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
             U.push_back(sparsify(unit_deposit(model, cells, poses, piece.dwell_s(), rebound) * 1000.0));
             seg_len.push_back(seg.length_m);
             segs.push_back(seg);
+            seg_cap.push_back(*std::min_element(cap.begin() + seg.first, cap.begin() + seg.last + 1));
+            if (seg_cap.back() < pc.max_speed_mps) ++plan.speed_capped;
           }
         }
       report("round " + std::to_string(round_no + 1), 0.3);
       // Least squares, then the arm's speed-change limit; the capped segments become floors of
       // the next solve so the others can compensate; the limiter has the last word.
-      std::vector<double> floor(segs.size(), 0.0);
+      std::vector<double> floor(segs.size(), 0.0), w_min(segs.size());
+      for (std::size_t j = 0; j < segs.size(); ++j) w_min[j] = 1.0 / seg_cap[j];
       std::vector<double> w;
       for (int it = 0; it < 3; ++it) {
-        w = optimise_dwell(U, seg_len, target, pc.time_weight_mm2_per_s, 1.0 / pc.max_speed_mps,
-                           1.0 / pc.min_speed_mps, floor);
-        const auto limited = limit_speed_changes(segs, w, config.timing.speed_change_accel_mps2);
+        w = optimise_dwell(U, seg_len, target, pc.time_weight_mm2_per_s, w_min, 1.0 / pc.min_speed_mps, floor);
+        const auto limited = limit_speed_changes(segs, w, config.timing.speed_change_accel_mps2, seg_cap);
         for (std::size_t j = 0; j < w.size(); ++j)
           if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
         w = limited;
@@ -942,6 +1001,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     if (state.grid.valid[c] && state.levels[c] > 0) plan.unreachable_cells.push_back(c);
   plan.td_after_m = state.grid.td_m;
   plan.sprayed_cloud = state.cloud;
+  if (speed_cap) plan.timings_s["speed_caps"] = cap_seconds;
   plan.timings_s["total"] = seconds_since(t_start);
   plan.required_volume_m3 = missing_volume_m3(surface.grid);
   plan.deposition_rate_m3ps = model.volume_rate_m3ps() * (1.0 - rebound);

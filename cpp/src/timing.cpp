@@ -186,10 +186,15 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
   SpeedProfile prof;
   for (std::size_t i = 0; i < specs.size(); ++i) {
     const auto& s = specs[i];
-    if (i == 0 || s.motion == 3) {
+    if (i == 0) {
       prof.append(cycloid_start(s.length_m, s.v_in, params.k1));
-    } else if (i + 1 == specs.size() || s.motion == 1) {
+    } else if (i + 1 == specs.size()) {
       prof.append(cycloid_end(s.length_m, s.v_in, params.k2));
+    } else if (s.motion == 3 || s.motion == 1) {
+      // Stop-and-go runs: plain cycloidal start / stop (no cruise). The spray is off and the arm
+      // only leaves the pass line there, so a cruise (the paper's k1 / k2, which shape the lead-in
+      // and lead-out) would take it up to 3x further out at the pass speed.
+      prof.append(s.motion == 3 ? cycloid_start(s.length_m, s.v_in, 1.0) : cycloid_end(s.length_m, s.v_in, 0.0));
     } else if (s.motion == 4) {
       // Spray-off gap on the same line: change smoothly from one pass speed to the next.
       prof.append(SpeedPiece{s.v_in, s.v_out, s.length_m / (0.5 * (s.v_in + s.v_out)), SpeedShape::Cycloid});
@@ -483,8 +488,8 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 }
 
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
-                          int first_pass_index, double turn_run_m, double stop_accel_mps2, double k1, double k2,
-                          double turn_speed_mps, double turn_accel_mps2) {
+                          int first_pass_index, double turn_run_m, double stop_accel_mps2, double turn_speed_mps,
+                          double turn_accel_mps2) {
   if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
   for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
   if (!(lead_in_m > 0.0) || !(lead_out_m > 0.0))
@@ -542,12 +547,12 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
       } else {
         // Stop and go: the direction changes only where the nozzle stands still.
         const double run = turn_run_m > 0.0 ? turn_run_m : 0.1;
-        // Long enough to stop from / start to the pass speeds within the acceleration limit
-        // (cycloid end peak v^2 (1 + k2) / ((1 - k2) s), start peak v^2 (2 - k1) / (k1 s)).
+        // Long enough to stop from / start to the pass speeds within the acceleration limit (plain
+        // cycloidal stop / start, peak v^2 / s).
         double run_out = run, run_in = run;
         if (stop_accel_mps2 > 0.0) {
-          run_out = std::max(run, v_last(p) * v_last(p) * (1.0 + k2) / ((1.0 - k2) * stop_accel_mps2));
-          run_in = std::max(run, v_first(q) * v_first(q) * (2.0 - k1) / (k1 * stop_accel_mps2));
+          run_out = std::max(run, v_last(p) * v_last(p) / stop_accel_mps2);
+          run_in = std::max(run, v_first(q) * v_first(q) / stop_accel_mps2);
         }
         NozzlePose a = p.waypoints.back(), b = q.waypoints.front();
         a.position_m += run_out * da;
@@ -896,6 +901,74 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
 
 namespace {
 
+// dq/ds and d2q/ds2 of a joint path sampled at arc lengths s (three-point differences on an uneven
+// grid, exact for quadratics; the end values copy their neighbours'). At a repeated pose (step
+// under 1e-9 m) dq is the one-sided difference and ddq the previous value.
+void path_derivatives(const std::vector<double>& s, const std::vector<Eigen::VectorXd>& q,
+                      std::vector<Eigen::VectorXd>& dq, std::vector<Eigen::VectorXd>& ddq) {
+  const std::size_t m = q.size();
+  const Eigen::Index n = m ? q.front().size() : 0;
+  dq.assign(m, Eigen::VectorXd::Zero(n));
+  ddq.assign(m, Eigen::VectorXd::Zero(n));
+  if (m < 2) return;
+  for (std::size_t k = 1; k + 1 < m; ++k) {
+    const double h1 = s[k] - s[k - 1], h2 = s[k + 1] - s[k];
+    if (h1 < 1e-9 || h2 < 1e-9) {
+      const std::size_t a = h1 < 1e-9 ? k : k - 1, b = h1 < 1e-9 ? k + 1 : k;
+      if (s[b] - s[a] > 1e-9) dq[k] = (q[b] - q[a]) / (s[b] - s[a]);
+      ddq[k] = ddq[k - 1];
+      continue;
+    }
+    dq[k] = (-h2 / (h1 * (h1 + h2))) * q[k - 1] + ((h2 - h1) / (h1 * h2)) * q[k] + (h1 / (h2 * (h1 + h2))) * q[k + 1];
+    ddq[k] = 2.0 * (h2 * q[k - 1] - (h1 + h2) * q[k] + h1 * q[k + 1]) / (h1 * h2 * (h1 + h2));
+  }
+  if (s[1] - s[0] > 1e-9) dq[0] = (q[1] - q[0]) / (s[1] - s[0]);
+  if (s[m - 1] - s[m - 2] > 1e-9) dq[m - 1] = (q[m - 1] - q[m - 2]) / (s[m - 1] - s[m - 2]);
+  if (m > 2) {
+    ddq[0] = ddq[1];
+    ddq[m - 1] = ddq[m - 2];
+  }
+}
+
+}  // namespace
+
+std::vector<double> joint_speed_limits(const Robot& robot, const std::vector<NozzlePose>& poses,
+                                       const Eigen::VectorXd& seed, double tangential_accel_mps2, double limit_share) {
+  if (!(limit_share > 0.0 && limit_share <= 1.0))
+    throw std::invalid_argument("joint_speed_limits: limit_share " + num(limit_share) + " must be in (0, 1]");
+  if (!(tangential_accel_mps2 >= 0.0))
+    throw std::invalid_argument("joint_speed_limits: tangential_accel_mps2 " + num(tangential_accel_mps2) +
+                                " must be >= 0");
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<double> cap(poses.size(), inf);
+  if (poses.size() < 2) return cap;
+  const auto q = track_joint_path(robot, poses, seed);
+  std::vector<double> s(poses.size(), 0.0);
+  for (std::size_t k = 1; k < poses.size(); ++k)
+    s[k] = s[k - 1] + (poses[k].position_m - poses[k - 1].position_m).norm();
+  std::vector<Eigen::VectorXd> dq, ddq;
+  path_derivatives(s, q, dq, ddq);
+  const Eigen::VectorXd vmax = limit_share * robot.velocity_limits(), amax = limit_share * robot.acceleration_limits();
+  for (std::size_t k = 0; k < poses.size(); ++k)
+    for (int i = 0; i < robot.dof(); ++i) {
+      const double d1 = std::abs(dq[k][i]), d2 = std::abs(ddq[k][i]);
+      if (d1 > 0.0) cap[k] = std::min(cap[k], vmax[i] / d1);
+      const double budget = amax[i] - d1 * tangential_accel_mps2;
+      if (budget <= 0.0) cap[k] = 0.0;
+      else if (d2 > 0.0) cap[k] = std::min(cap[k], std::sqrt(budget / d2));
+    }
+  return cap;
+}
+
+SpeedCapFn arm_speed_caps(const Robot& robot, const Config& config) {
+  const double accel = config.timing.speed_change_accel_mps2, share = 1.0 - config.timing.joint_limit_margin;
+  return [&robot, accel, share](const std::vector<NozzlePose>& poses) {
+    return joint_speed_limits(robot, poses, robot.neutral(), accel, share);
+  };
+}
+
+namespace {
+
 // Joint path for timing: solve_path (limits, restarts, no flips) gives the branch and the start
 // configuration; the config's tolerances (1 mm) are coarse next to the motion between two samples,
 // and a warm-started solver that stops inside them returns a staircase whose finite differences are
@@ -988,8 +1061,8 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
     rp.end_length_m = std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * stop_accel));
   }
   auto make_path = [&](double lead_in, double lead_out, int first) {
-    return region_path(passes, lead_in, lead_out, timing.spray_on_turns, first, timing.turn_run_m, stop_accel, rp.k1,
-                       rp.k2, rp.turn_speed_mps, rp.turn_accel_mps2);
+    return region_path(passes, lead_in, lead_out, timing.spray_on_turns, first, timing.turn_run_m, stop_accel,
+                       rp.turn_speed_mps, rp.turn_accel_mps2);
   };
   const CartesianPath path = make_path(rp.start_length_m, rp.end_length_m, pass_offset);
   const SpeedProfile prof = region_profile(path, rp);
@@ -1197,18 +1270,7 @@ RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& 
     poses.push_back(path_.pose_at(s_.back()));
   }
   q_ = timing_joint_path(robot, poses, seed, robot_config, &tracked_);
-  const std::size_t m = q_.size();
-  const double h = L / n;
-  dq_.assign(m, Eigen::VectorXd::Zero(robot.dof()));
-  ddq_.assign(m, Eigen::VectorXd::Zero(robot.dof()));
-  for (std::size_t k = 1; k + 1 < m; ++k) {
-    dq_[k] = (q_[k + 1] - q_[k - 1]) / (2.0 * h);
-    ddq_[k] = (q_[k + 1] - 2.0 * q_[k] + q_[k - 1]) / (h * h);
-  }
-  dq_[0] = (q_[1] - q_[0]) / h;
-  dq_[m - 1] = (q_[m - 1] - q_[m - 2]) / h;
-  ddq_[0] = ddq_[1];
-  ddq_[m - 1] = ddq_[m - 2];
+  path_derivatives(s_, q_, dq_, ddq_);
 }
 
 void RegionJointModel::interpolate(double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const {

@@ -54,21 +54,18 @@ def plan_to_dict(plan, surface) -> dict:
             "stop_reason": plan.stop_reason}
 
 
-def time_trajectory(plan, config, check_every: int = 10):
-    """IK + timing of every pass in spraying order: the timed joint trajectory of the 8-DOF arm and
-    the IK figures for report.json. An unreachable waypoint is reported (by region and waypoint, as
-    the core names it), not dropped: the trajectory is then None and ``ik["error"]`` says why."""
-    from .cli_robot import load_robot
-
+def ik_report(arm_plan, robot, check_every: int = 10) -> dict:
+    """The IK figures for report.json from a planned and timed bay (``_core.plan_for_arm``). An
+    unreachable waypoint is reported (by region and waypoint, as the core names it), not dropped:
+    the trajectory is then None and ``ik["error"]`` says why."""
+    plan, traj = arm_plan.plan, arm_plan.trajectory
     regions = [list(reg.passes) for rnd in plan.rounds for reg in rnd.regions]
-    ik = {"poses": int(sum(len(p.waypoints) for reg in regions for p in reg)), "regions": len(regions)}
+    ik = {"poses": int(sum(len(p.waypoints) for reg in regions for p in reg)), "regions": len(regions),
+          "replans": int(arm_plan.replans), "learned_speed_bounds": len(arm_plan.learned.speed_mps)}
     if not regions:
-        return None, {**ik, "solved": True}
-    robot = load_robot(config)
-    try:
-        traj = _core.time_plan(robot, regions, robot.neutral(), config.timing, config.robot)
-    except (RuntimeError, ValueError) as exc:
-        return None, {**ik, "solved": False, "error": str(exc)}
+        return {**ik, "solved": True}
+    if traj is None:
+        return {**ik, "solved": False, "error": arm_plan.timing_error}
     # Independent check of the tracking: FK of the joint samples against the nozzle poses.
     q, pos, axes = traj.q, traj.positions, traj.axes
     worst_m = worst_rad = 0.0
@@ -76,9 +73,9 @@ def time_trajectory(plan, config, check_every: int = 10):
         T = robot.fk(q[i])
         worst_m = max(worst_m, float(np.linalg.norm(T[:3, 3] - pos[i])))
         worst_rad = max(worst_rad, float(np.arccos(np.clip(T[:3, 2] @ axes[i], -1.0, 1.0))))
-    return traj, {**ik, "solved": True, "samples_checked": len(range(0, len(traj), max(1, check_every))),
-                  "worst_position_error_m": worst_m, "worst_angle_error_rad": worst_rad,
-                  "untracked_regions": int(traj.untracked_regions)}
+    return {**ik, "solved": True, "samples_checked": len(range(0, len(traj), max(1, check_every))),
+            "worst_position_error_m": worst_m, "worst_angle_error_rad": worst_rad,
+            "untracked_regions": int(traj.untracked_regions)}
 
 
 def _pass_tracks(plan_round, surface):
@@ -121,9 +118,15 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
         "td_before_mm": residual_stats_mm(td_before, valid),
     }
 
+    # Planned for the arm: every pass within the speeds its joints can follow, then timed; where
+    # the timed passes still break a joint limit the bay is planned again at lower speeds there.
+    from .cli_robot import load_robot
+
+    robot = load_robot(config)
     t_plan = time.perf_counter()
-    plan = _core.plan_bay(surface, config, progress)
-    timings["plan_and_simulate"] = time.perf_counter() - t_plan
+    arm_plan = _core.plan_for_arm(surface, config, robot, progress)
+    plan, trajectory = arm_plan.plan, arm_plan.trajectory
+    timings["plan_simulate_and_time"] = time.perf_counter() - t_plan
     for k, v in plan.timings_s.items():
         timings[f"planner_{k}"] = float(v)
     after = np.asarray(plan.td_after_m)
@@ -146,16 +149,14 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
         "spray_time_ratio": plan.spray_time_s / plan.physical_limit_s if plan.physical_limit_s > 0 else None,
         "sprayed_volume_m3": plan.spray_time_s * plan.deposition_rate_m3ps,
         "link_length_m": sum(rnd.link_length_m for rnd in plan.rounds),
+        "speed_capped": int(plan.speed_capped),
         "rounds_detail": [{"round": i + 1, "kind": r.kind, "level": r.level, "regions": len(r.regions),
                            "passes": sum(len(g.passes) for g in r.regions), "spray_time_s": r.spray_time_s,
                            "order_method": r.order_method, "link_length_m": r.link_length_m,
                            "levels_before": levels_dict(r.levels_before), "levels_after": levels_dict(r.levels_after)}
                           for i, r in enumerate(plan.rounds)],
     })
-    progress("trajectory", 0.0)
-    t_traj = time.perf_counter()
-    trajectory, result["ik"] = time_trajectory(plan, config)
-    timings["ik_and_timing"] = time.perf_counter() - t_traj
+    result["ik"] = ik_report(arm_plan, robot)
     if trajectory is not None:
         result["total_time_s"] = trajectory.duration_s
         result["trajectory"] = {
@@ -168,7 +169,6 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
         }
     else:
         result["total_time_s"] = None
-    progress("trajectory", 1.0)
 
     progress("report", 0.0)
     t_report = time.perf_counter()

@@ -1,5 +1,7 @@
 #include "bindings.hpp"
 #include "shotcrete/planner.hpp"
+#include "shotcrete/robot.hpp"
+#include "shotcrete/timing.hpp"
 
 using namespace shotcrete;
 
@@ -50,10 +52,19 @@ void bind_planner(py::module_& m) {
       .def_readonly("stop_reason", &Plan::stop_reason)
       .def_readonly("unreachable_cells", &Plan::unreachable_cells)
       .def_readonly("warnings", &Plan::warnings)
+      .def_readonly("speed_capped", &Plan::speed_capped,
+                    "passes (graded) / segments (optimal) whose speed bound the arm's joint limits lowered")
       .def_readonly("timings_s", &Plan::timings_s);
-  m.def("plan_bay", &plan_bay, py::arg("surface"), py::arg("config"), py::arg("progress") = nullptr,
-        "Plan and simulate a bay: rounds until flush (graded or optimal mode, config.planner.mode).\n"
-        "progress(stage: str, fraction: float) is called between stages.");
+  m.def(
+      "plan_bay",
+      [](const Surface& surface, const Config& config, const ProgressFn& progress, const Robot* robot) {
+        return plan_bay(surface, config, progress, robot ? arm_speed_caps(*robot, config) : SpeedCapFn{});
+      },
+      py::arg("surface"), py::arg("config"), py::arg("progress") = nullptr, py::arg("robot") = nullptr,
+      "Plan and simulate a bay: rounds until flush (graded or optimal mode, config.planner.mode).\n"
+      "progress(stage: str, fraction: float) is called between stages. With a robot, every pass or\n"
+      "segment is bounded by the speed the arm can follow there within its joint velocity and\n"
+      "acceleration limits (timing.joint_limit_margin kept free), so the simulated deposit is sprayable.");
   m.def("plan_passes", &plan_passes, py::arg("grid"), py::arg("cells"), py::arg("spacing_m"), py::arg("config"),
         "Pass lines over grid cells: slicing planes, crossing points, standoff offset, spline.");
   m.def("clamped_cubic_spline", &clamped_cubic_spline, py::arg("points"), py::arg("step_m"));

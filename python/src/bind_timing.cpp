@@ -2,6 +2,7 @@
 
 #include "bindings.hpp"
 #include "shotcrete/robot.hpp"
+#include "shotcrete/arm_plan.hpp"
 #include "shotcrete/timing.hpp"
 
 using namespace shotcrete;
@@ -318,15 +319,27 @@ void bind_timing(py::module_& m) {
       py::arg("robot"), py::arg("path"), py::arg("profile"), py::arg("seed"), py::arg("rate_hz"), py::arg("robot_config"),
       "One timed Cartesian path in joint space, rest to rest, with the limit check (no transits).");
 
+  // (N, 6) rows of position and axis -> poses.
+  auto poses_of = [](const Eigen::MatrixXd& poses6) {
+    if (poses6.cols() != 6) throw py::value_error("poses must be (N, 6): position and axis");
+    std::vector<NozzlePose> poses(static_cast<std::size_t>(poses6.rows()));
+    for (Eigen::Index i = 0; i < poses6.rows(); ++i) {
+      poses[static_cast<std::size_t>(i)].position_m = poses6.row(i).head<3>().transpose();
+      poses[static_cast<std::size_t>(i)].axis = poses6.row(i).tail<3>().transpose();
+    }
+    return poses;
+  };
+  m.def(
+      "joint_speed_limits",
+      [poses_of](const Robot& robot, const Eigen::MatrixXd& poses6, const Eigen::VectorXd& seed, double accel,
+                 double share) { return joint_speed_limits(robot, poses_of(poses6), seed, accel, share); },
+      py::arg("robot"), py::arg("poses"), py::arg("seed"), py::arg("tangential_accel_mps2"), py::arg("limit_share") = 1.0,
+      "Per pose of (N, 6) poses: the highest constant nozzle speed [m/s] the arm follows within limit_share of its\n"
+      "joint velocity and acceleration limits, leaving room for speed changes of tangential_accel_mps2 (inf: no bound).");
   m.def(
       "track_joint_path",
-      [](const Robot& robot, const Eigen::MatrixXd& poses6, const Eigen::VectorXd& q0, double gain) {
-        if (poses6.cols() != 6) throw py::value_error("poses must be (N, 6): position and axis");
-        std::vector<NozzlePose> poses(static_cast<std::size_t>(poses6.rows()));
-        for (Eigen::Index i = 0; i < poses6.rows(); ++i) {
-          poses[static_cast<std::size_t>(i)].position_m = poses6.row(i).head<3>().transpose();
-          poses[static_cast<std::size_t>(i)].axis = poses6.row(i).tail<3>().transpose();
-        }
+      [poses_of](const Robot& robot, const Eigen::MatrixXd& poses6, const Eigen::VectorXd& q0, double gain) {
+        const auto poses = poses_of(poses6);
         double em = 0.0, ea = 0.0;
         const auto q = track_joint_path(robot, poses, q0, gain, &em, &ea);
         return py::make_tuple(rows(q), em, ea);
@@ -371,4 +384,38 @@ void bind_timing(py::module_& m) {
       py::arg("robot"), py::arg("regions"), py::arg("q_start"), py::arg("timing_config"), py::arg("robot_config"),
       "AIWCPSO over (k1, k2, start/end length, turn speed): minimum execution time within joint and nozzle limits "
       "(robot None: nozzle limits only).");
+
+  py::class_<SpeedCapMap>(m, "SpeedCapMap", "Speed bounds near points, learned from timed trajectories.")
+      .def(py::init<>())
+      .def_readwrite("radius_m", &SpeedCapMap::radius_m)
+      .def_property_readonly("points_m",
+                             [](const SpeedCapMap& c) {
+                               Eigen::MatrixXd P(static_cast<Eigen::Index>(c.points_m.size()), 3);
+                               for (std::size_t i = 0; i < c.points_m.size(); ++i) P.row(static_cast<Eigen::Index>(i)) = c.points_m[i].transpose();
+                               return P;
+                             },
+                             "(N, 3) [m]")
+      .def_readonly("speed_mps", &SpeedCapMap::speed_mps)
+      .def("at", &SpeedCapMap::at, py::arg("point_m"), "lowest bound within radius_m [m/s] (inf: none)")
+      .def("learn", &SpeedCapMap::learn, py::arg("trajectory"), py::arg("velocity_limits"),
+           py::arg("acceleration_limits"), py::arg("limit_share"),
+           "adds bounds where the trajectory breaks a joint limit on a pass (velocity also on leads / links)");
+  py::class_<ArmPlan>(m, "ArmPlan", "A bay planned, simulated and timed for an arm.")
+      .def_readonly("plan", &ArmPlan::plan)
+      .def_property_readonly("trajectory",
+                             [](const ArmPlan& a) -> py::object {
+                               return a.trajectory ? py::cast(*a.trajectory) : py::none();
+                             },
+                             "TimedTrajectory, or None when the timing failed (timing_error)")
+      .def_readonly("timing_error", &ArmPlan::timing_error)
+      .def_readonly("replans", &ArmPlan::replans)
+      .def_readonly("learned", &ArmPlan::learned);
+  m.def(
+      "plan_for_arm",
+      [](const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
+        return plan_for_arm(surface, config, robot, progress);
+      },
+      py::arg("surface"), py::arg("config"), py::arg("robot"), py::arg("progress") = nullptr,
+      "plan_bay with the speeds the arm can follow along every pass, time_plan, and up to\n"
+      "timing.max_replans re-plans at lower speeds where the timed passes still break a joint limit.");
 }

@@ -27,6 +27,7 @@
 #include <thread>
 
 #include "ros_conversions.hpp"
+#include "shotcrete/arm_plan.hpp"
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition.hpp"
 #include "shotcrete/grid.hpp"
@@ -163,34 +164,29 @@ class ShotcreteNode {
     }
     const auto t0 = Clock::now();
     auto plan = std::make_shared<Plan>();
+    std::shared_ptr<shotcrete::TimedTrajectory> trajectory;
+    std::string timing_note;
+    int replans = 0;
     try {
+      // Planned for the arm (speeds its joints can follow), timed, re-planned where needed.
       double last_report = -1.0;
-      *plan = shotcrete::plan_bay(*surface, config_, [&](const std::string& stage, double fraction) {
+      shotcrete::ArmPlan arm = shotcrete::plan_for_arm(*surface, config_, *robot_, [&](const std::string& stage, double fraction) {
         const double t = seconds_since(t0);
         if (t - last_report >= 2.0) {
           ROS_INFO("planning: %s %.0f %%", stage.c_str(), 100.0 * fraction);
           last_report = t;
         }
       });
+      *plan = std::move(arm.plan);
+      replans = arm.replans;
+      // The plan stays usable (markers, summary) without a trajectory; only ~execute needs it.
+      if (arm.trajectory) trajectory = std::make_shared<shotcrete::TimedTrajectory>(std::move(*arm.trajectory));
+      else timing_note = ", no trajectory: " + arm.timing_error;
     } catch (const std::exception& e) {
       summary = std::string("planning failed: ") + e.what();
       return false;
     }
     const double plan_s = seconds_since(t0);
-    const auto t1 = Clock::now();
-    auto trajectory = std::make_shared<shotcrete::TimedTrajectory>();
-    std::string timing_note;
-    try {
-      std::vector<std::vector<shotcrete::Pass>> regions;
-      for (const auto& round : plan->rounds)
-        for (const auto& region : round.regions) regions.push_back(region.passes);  // in spraying order
-      *trajectory = shotcrete::time_plan(*robot_, regions, robot_->neutral(), config_.timing, config_.robot);
-    } catch (const std::exception& e) {
-      // The plan stays usable (markers, summary); only ~execute needs the trajectory.
-      trajectory.reset();
-      timing_note = std::string(", no trajectory: ") + e.what();
-    }
-    const double timing_s = seconds_since(t1);
 
     int passes = 0, regions = 0;
     for (const auto& round : plan->rounds) {
@@ -205,8 +201,9 @@ class ShotcreteNode {
     s << " unreachable_cells=" << plan->unreachable_cells.size();
     if (trajectory)
       s << " trajectory_s=" << trajectory->duration_s << " samples=" << trajectory->size()
-        << " max_velocity_ratio=" << trajectory->max_velocity_ratio;
-    s << " plan_s=" << plan_s << " timing_s=" << timing_s << timing_note;
+        << " max_velocity_ratio=" << trajectory->max_velocity_ratio
+        << " max_acceleration_ratio=" << trajectory->max_acceleration_ratio;
+    s << " replans=" << replans << " plan_and_timing_s=" << plan_s << timing_note;
     summary = s.str();
     {
       std::lock_guard<std::mutex> lock(state_mutex_);

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 
 #include "shotcrete/planner.hpp"
 #include "shotcrete/preprocess.hpp"
@@ -39,6 +40,7 @@ Surface analytic_bay(double (*td)(double d, double theta), double t0 = 0.9, doub
 }
 
 double uniform_100mm(double, double) { return 0.100; }
+double uniform_70mm(double, double) { return 0.070; }
 double flush(double, double) { return 0.0; }
 
 // One dig pit like those of the synthetic bay (radius 0.5 m, 150 mm deep) in a flush wall.
@@ -203,4 +205,87 @@ TEST(Planner, SlowestSpeedTooFastIsReported) {
   EXPECT_NE(plan.warnings[0].find("slowest speed"), std::string::npos) << plan.warnings[0];
   EXPECT_NE(plan.stop_reason, "flush");
   EXPECT_FALSE(plan.unreachable_cells.empty());
+}
+
+TEST(Planner, SpeedCapBoundsEveryWaypointAndGap) {
+  // A machine that may only crawl on the upper half of the slice (z above its middle): no waypoint
+  // there may be planned faster, in either mode, and a spray-off gap through it slows the passes
+  // on both sides of it (the nozzle crosses the gap at their speeds).
+  const Surface s = analytic_bay(uniform_70mm);
+  const double z_mid = 5.6 * std::sin(0.5 * (0.9 + 1.6)) - 1.0;
+  auto cap_at = [&](const Eigen::Vector3d& p) { return p.z() > z_mid ? 0.06 : std::numeric_limits<double>::infinity(); };
+  const SpeedCapFn cap = [&](const std::vector<NozzlePose>& wp) {
+    std::vector<double> c;
+    for (const auto& w : wp) c.push_back(cap_at(w.position_m));
+    return c;
+  };
+  for (const std::string mode : {"graded", "optimal"}) {
+    Config cfg;
+    cfg.planner.mode = mode;
+    cfg.planner.max_rounds = 3;
+    const Plan free = plan_bay(s, cfg);
+    double over = 0.0;  // the test means something: unbounded, the upper half goes faster
+    for (const auto& r : free.rounds)
+      for (const auto& rp : r.regions)
+        for (const auto& p : rp.passes)
+          for (std::size_t k = 0; k < p.waypoints.size(); ++k)
+            if (p.waypoints[k].position_m.z() > z_mid) over = std::max(over, p.speed_at(k));
+    ASSERT_GT(over, 0.075) << mode;
+    EXPECT_EQ(free.speed_capped, 0);
+    const Plan plan = plan_bay(s, cfg, {}, cap);
+    EXPECT_GT(plan.speed_capped, 0) << mode;
+    int gaps = 0;
+    for (const auto& r : plan.rounds)
+      for (const auto& rp : r.regions)
+        for (std::size_t i = 0; i < rp.passes.size(); ++i) {
+          const Pass& p = rp.passes[i];
+          for (std::size_t k = 0; k < p.waypoints.size(); ++k)
+            ASSERT_LE(p.speed_at(k), cap_at(p.waypoints[k].position_m) + 1e-9) << mode << " pass " << i << " waypoint " << k;
+          if (i + 1 < rp.passes.size() && rp.passes[i + 1].line == p.line) {
+            const Pass& q = rp.passes[i + 1];
+            const Eigen::Vector3d a = p.waypoints.back().position_m, b = q.waypoints.front().position_m;
+            double gap_cap = std::numeric_limits<double>::infinity();
+            for (int k = 1; k < 20; ++k) gap_cap = std::min(gap_cap, cap_at(a + (b - a) * k / 20.0));
+            EXPECT_LE(p.speed_at(p.waypoints.size() - 1), gap_cap + 1e-9);
+            EXPECT_LE(q.speed_at(0), gap_cap + 1e-9);
+            ++gaps;
+          }
+        }
+    if (mode == "optimal") RecordProperty("gaps_checked", gaps);
+  }
+}
+
+TEST(Planner, BadSpeedCapIsAnError) {
+  const Surface s = analytic_bay(uniform_100mm);
+  Config cfg;
+  cfg.planner.max_rounds = 1;
+  const SpeedCapFn nan_cap = [](const std::vector<NozzlePose>& wp) {
+    return std::vector<double>(wp.size(), std::numeric_limits<double>::quiet_NaN());
+  };
+  const SpeedCapFn short_cap = [](const std::vector<NozzlePose>& wp) { return std::vector<double>(wp.size() / 2, 1.0); };
+  for (const std::string mode : {"graded", "optimal"}) {
+    cfg.planner.mode = mode;
+    try {
+      plan_bay(s, cfg, {}, nan_cap);
+      ADD_FAILURE() << "NaN cap accepted";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("NaN"), std::string::npos) << e.what();
+    }
+    try {
+      plan_bay(s, cfg, {}, short_cap);
+      ADD_FAILURE() << "short cap accepted";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("values for"), std::string::npos) << e.what();
+    }
+    // Slower than the slowest speed: sprayed at the slowest speed, and said so.
+    const Plan plan = plan_bay(s, cfg, {}, [](const std::vector<NozzlePose>& wp) { return std::vector<double>(wp.size(), 0.01); });
+    ASSERT_FALSE(plan.warnings.empty()) << mode;
+    bool said = false;
+    for (const auto& w : plan.warnings) said = said || w.find("below planner.min_speed_mps") != std::string::npos;
+    EXPECT_TRUE(said) << mode;
+    for (const auto& r : plan.rounds)
+      for (const auto& rp : r.regions)
+        for (const auto& p : rp.passes)
+          for (std::size_t k = 0; k < p.waypoints.size(); ++k) ASSERT_LE(p.speed_at(k), cfg.planner.min_speed_mps * (1 + 1e-5));
+  }
 }

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <functional>
 
+#include "shotcrete/arm_plan.hpp"
 #include "shotcrete/robot.hpp"
 #include "shotcrete/timing.hpp"
 
@@ -265,7 +266,7 @@ TEST(Region, TurnRunsSizedForTheSpeedChange) {
   // and the runs must bring 0.8 m/s down to it at 0.5 m/s^2: (0.64 - 0.05) / 0.5 = 1.18 m.
   const auto passes = axial_region(2, 1.2, 0.2, 0.0, 1.2, {0.8}, 4.6, 4.6 + 1e-9);
   const double a = 0.5;
-  const CartesianPath path = region_path(passes, 0.1, 0.1, false, 0, 0.1, 0.0, 0.5, 0.5, 0.0, a);
+  const CartesianPath path = region_path(passes, 0.1, 0.1, false, 0, 0.1, 0.0, 0.0, a);
   TimingParams prm = TimingParams::from_config(TimingConfig{});
   prm.speed_change_accel_mps2 = a;
   const SpeedProfile prof = region_profile(path, prm);
@@ -654,7 +655,7 @@ TEST(RobotTiming, TunedRegionsRespectJointLimits) {
   const TimingParams nominal = TimingParams::from_config(tc);
   const double nominal_s =
       region_profile(region_path(regions[0], nominal.start_length_m, nominal.end_length_m, false, 0, tc.turn_run_m,
-                                 tc.nozzle_max_accel_mps2, nominal.k1, nominal.k2, nominal.turn_speed_mps,
+                                 tc.nozzle_max_accel_mps2, nominal.turn_speed_mps,
                                  nominal.speed_change_accel_mps2),
                      nominal)
           .duration_s();
@@ -743,7 +744,8 @@ TEST(RegionPath, SprayOffGapOnTheSameLineIsCrossedWithoutStopping) {
 
 TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   // Two passes along +x on neighbouring lines (not a serpentine): stop-and-go between them. At
-  // 0.8 m/s and 0.5 m/s^2 the cycloidal stop (k2 = 0.5) needs 0.8^2 * 1.5 / (0.5 * 0.5) = 3.84 m.
+  // 0.8 m/s and 0.5 m/s^2 the plain cycloidal stop needs 0.8^2 / 0.5 = 1.28 m (a k2 = 0.5 cruise
+  // would need 3.84 m).
   auto line = [](double z) {
     Pass p;
     for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
@@ -753,14 +755,14 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   };
   const std::vector<Pass> passes = {line(4.6), line(4.8)};
   const CartesianPath fixed = region_path(passes, 0.1, 0.1, false, 0, 0.1);
-  const CartesianPath grown = region_path(passes, 0.1, 0.1, false, 0, 0.1, 0.5, 0.5, 0.5);
+  const CartesianPath grown = region_path(passes, 0.1, 0.1, false, 0, 0.1, 0.5);
   double out_fixed = 0, out_grown = 0;
   for (const auto& p : fixed.pieces())
     if (p.motion == 1) out_fixed = p.length_m();
   for (const auto& p : grown.pieces())
     if (p.motion == 1) out_grown = p.length_m();
   EXPECT_NEAR(out_fixed, 0.1, 1e-9);
-  EXPECT_NEAR(out_grown, 0.8 * 0.8 * 1.5 / (0.5 * 0.5), 1e-9);
+  EXPECT_NEAR(out_grown, 0.8 * 0.8 / 0.5, 1e-9);
   // The stop then peaks at the acceleration limit.
   TimingParams prm = TimingParams::from_config(TimingConfig{});
   prm.k1 = prm.k2 = 0.5;
@@ -771,4 +773,82 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   for (double t = t_from; t <= t_stop; t += 0.001) peak = std::max(peak, std::abs(prof.at(t).a_mps2));
   EXPECT_GT(peak, 0.45);
   EXPECT_LT(peak, 0.5 + 1e-3);
+}
+
+TEST(Joint, SpeedLimitsPutTheBindingJointAtItsLimit) {
+  // The nozzle pose of the ready posture swung 0.6 rad about the slew axis. Reference: the tracked
+  // joint path timed at each waypoint's cap, with velocities and accelerations differenced in time
+  // (t = s / v): the worst joint is then exactly at its limit there, and the slew does most of the
+  // turning (at most 1 / rho rad per metre; the redundant joints take a little of it).
+  const Robot robot = Robot::load(RobotConfig{});
+  const Eigen::VectorXd q0 = robot.neutral();
+  const Eigen::Isometry3d T0 = robot.fk(q0);
+  const Eigen::Vector3d c = RobotConfig{}.base_position_m;  // the slew axis is vertical through it
+  const double rho = Eigen::Vector2d(T0.translation().x() - c.x(), T0.translation().y() - c.y()).norm();
+  ASSERT_GT(rho, 1.0);
+  std::vector<NozzlePose> poses;
+  for (int k = -150; k <= 150; ++k) {
+    const Eigen::AngleAxisd R(0.002 * k, Eigen::Vector3d::UnitZ());
+    NozzlePose p;
+    p.position_m = c + R * (T0.translation() - c);
+    p.axis = R * T0.linear().col(2);
+    poses.push_back(p);
+  }
+  const Eigen::VectorXd vl = robot.velocity_limits(), al = robot.acceleration_limits();
+  const auto cap = joint_speed_limits(robot, poses, q0, 0.0, 1.0);
+  ASSERT_EQ(cap.size(), poses.size());
+  const auto q = track_joint_path(robot, poses, q0);
+  for (std::size_t k = 1; k + 1 < poses.size(); ++k) {
+    const double v = cap[k];
+    ASSERT_GT(v, 0.9 * vl[0] * rho) << k;
+    ASSERT_LT(v, 1.2 * vl[0] * rho) << k;
+    const double t0 = -(poses[k].position_m - poses[k - 1].position_m).norm() / v,
+                 t2 = (poses[k + 1].position_m - poses[k].position_m).norm() / v;
+    const Eigen::VectorXd qd = (q[k + 1] - q[k - 1]) / (t2 - t0);
+    const Eigen::VectorXd qdd = ((q[k + 1] - q[k]) / t2 - (q[k] - q[k - 1]) / -t0) / (0.5 * (t2 - t0));
+    const double ratio = std::max(qd.cwiseAbs().cwiseQuotient(vl).maxCoeff(), qdd.cwiseAbs().cwiseQuotient(al).maxCoeff());
+    ASSERT_NEAR(ratio, 1.0, 1e-6) << k;
+  }
+  // A limit share scales the velocity bound (the speed changes below cost the slew about half its
+  // acceleration); a tangential acceleration beyond what the slew can give allows no speed.
+  const auto shared = joint_speed_limits(robot, poses, q0, 0.5 * al[0] * rho, 0.8);
+  for (std::size_t k = 0; k < cap.size(); ++k) ASSERT_LE(shared[k], 0.8 * cap[k] * (1 + 1e-9)) << k;
+  const auto none = joint_speed_limits(robot, poses, q0, 1.3 * al[0] * rho, 1.0);
+  for (std::size_t k = 0; k < none.size(); ++k) ASSERT_EQ(none[k], 0.0) << k;
+  EXPECT_THROW(joint_speed_limits(robot, poses, q0, 0.0, 0.0), std::invalid_argument);
+  EXPECT_THROW(joint_speed_limits(robot, poses, q0, -1.0, 1.0), std::invalid_argument);
+}
+
+TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
+  // A straight pass at 0.5 m/s whose middle sample breaks joint 0's velocity limit 2x and joint 1's
+  // acceleration limit 3x; a link sample over an acceleration limit only (not the planner's).
+  const Eigen::VectorXd vel = Eigen::VectorXd::Constant(2, 1.0), acc = Eigen::VectorXd::Constant(2, 1.0);
+  TimedTrajectory tr;
+  for (int i = 0; i < 9; ++i) {
+    tr.t_s.push_back(0.1 * i);
+    NozzlePose p;
+    p.position_m = Eigen::Vector3d(0.05 * i, 0, 0);
+    tr.nozzle.push_back(p);
+    tr.q.push_back(Eigen::VectorXd::Zero(2));
+    tr.qd.push_back(Eigen::VectorXd::Constant(2, 0.5));
+    tr.qdd.push_back(Eigen::VectorXd::Zero(2));
+    tr.spraying.push_back(i < 6);
+    tr.pass_index.push_back(i < 6 ? 0 : -1);
+    tr.region_index.push_back(0);
+    tr.kind.push_back(static_cast<char>(i < 6 ? SegmentKind::Pass : SegmentKind::Link));
+  }
+  tr.qd[3] = Eigen::Vector2d(2.0, 0.5);
+  tr.qdd[3] = Eigen::Vector2d(0.0, 3.0);
+  tr.qdd[7] = Eigen::Vector2d(5.0, 0.0);
+  SpeedCapMap map;
+  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 1);
+  ASSERT_EQ(map.speed_mps.size(), 1u);
+  // min(0.9 / 2, sqrt(0.9 / 3)) * 0.5 m/s
+  EXPECT_NEAR(map.speed_mps[0], 0.5 * std::min(0.45, std::sqrt(0.3)), 1e-12);
+  EXPECT_NEAR(map.at(Eigen::Vector3d(0.15 + 0.09, 0, 0)), map.speed_mps[0], 1e-12);
+  EXPECT_TRUE(std::isinf(map.at(Eigen::Vector3d(0.15 + 0.11, 0, 0))));
+  // A link sample over a velocity limit counts too: it cruises at the speed of a pass next to it.
+  tr.qd[7] = Eigen::Vector2d(0.0, 1.5);
+  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);  // sample 3 again, and sample 7
+  EXPECT_NEAR(map.speed_mps.back(), 0.5 * 0.9 / 1.5, 1e-12);
 }

@@ -126,7 +126,7 @@ def test_cli_synth_then_plan(tmp_path, run_cli):
     report = json.loads((out / "report.json").read_text())
     assert report["cells"] > 8000
     assert min(int(k) for k in report["levels_before"]) >= 2
-    assert {"surface_preprocess", "surface_normals", "surface_grid", "plan_and_simulate"} <= set(report["timings_s"])
+    assert {"surface_preprocess", "surface_normals", "surface_grid", "plan_simulate_and_time"} <= set(report["timings_s"])
     assert report["levels_after"] and report["rounds"] >= 1 and report["passes"] > 0
     assert (out / "plan.json").is_file() and (out / "sprayed.ply").is_file()
     assert (out / "report.html").is_file() and (out / "figures" / "td_before.png").is_file()

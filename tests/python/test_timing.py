@@ -124,3 +124,31 @@ def test_time_plan_on_robot():
     # Without a robot only the nozzle limits apply.
     cart = _core.tune_timing(None, regions, np.zeros(0), cfg.timing, cfg.robot)
     assert cart.duration_s <= tun.duration_s + 1e-9
+
+
+def test_plan_for_arm_sprays_within_the_joint_limits(small_config, small_cloud):
+    """The bay planned for the arm: its timed passes keep every joint within its velocity and
+    acceleration limits (finite differences of the trajectory itself), and the plan's deposit is
+    simulated at the speeds the trajectory sprays (spray time within 3 %: the trajectory changes
+    speed smoothly across segment boundaries, the planner's dwell steps)."""
+    from shotcrete.cli_robot import load_robot
+
+    cfg = small_config
+    robot = load_robot(cfg)
+    surface = _core.build_surface(small_cloud, cfg)
+    stages = []
+    arm = _core.plan_for_arm(surface, cfg, robot, lambda stage, f: stages.append(stage))
+    assert arm.timing_error == ""
+    tr = arm.trajectory
+    assert tr is not None and len(tr) > 100
+    assert any(s.endswith("trajectory") for s in stages)
+    spraying = np.asarray(tr.spraying).astype(bool)
+    assert spraying.any()
+    ratio = np.maximum(np.abs(tr.qd) / np.asarray(robot.velocity_limits),
+                       np.abs(tr.qdd) / np.asarray(robot.acceleration_limits)).max(axis=1)
+    assert arm.replans < cfg.timing.max_replans or ratio[spraying].max() <= 1.0 + 1e-9
+    assert ratio[spraying].max() <= 1.0 + 1e-9, (arm.replans, ratio[spraying].max())
+    assert tr.spray_time_s == pytest.approx(arm.plan.spray_time_s, rel=0.03)
+    # The arm's caps bound some segments of this bay; without a robot nothing is capped.
+    assert arm.plan.speed_capped > 0
+    assert _core.plan_bay(surface, cfg).speed_capped == 0

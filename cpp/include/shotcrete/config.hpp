@@ -135,6 +135,7 @@ struct TimingConfig {
   double nozzle_max_speed_mps = 1.0; // nozzle speed limit (also the swarm bound of the turn speed)
   double nozzle_max_accel_mps2 = 2.0;  // nozzle acceleration limit, tangential + centripetal
   double joint_limit_margin = 0.05;  // share of the joint velocity/acceleration limits the swarm keeps free
+  int max_replans = 3;  // re-plans at lower speeds where timed passes break a joint limit
 };
 
 struct Config {

@@ -124,7 +124,8 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("spray_on_turns", &TimingConfig::spray_on_turns, 0, 0, "spray on the turn-arounds");
   f("nozzle_max_speed_mps", &TimingConfig::nozzle_max_speed_mps, 0.01, 10.0, "nozzle speed limit [m/s]");
   f("nozzle_max_accel_mps2", &TimingConfig::nozzle_max_accel_mps2, 0.01, 100.0, "nozzle acceleration limit [m/s^2]");
-  f("joint_limit_margin", &TimingConfig::joint_limit_margin, 0.0, 0.5, "share of joint vel/acc limits kept free by the swarm");
+  f("joint_limit_margin", &TimingConfig::joint_limit_margin, 0.0, 0.5, "share of joint vel/acc limits kept free by the swarm and the speed caps");
+  f("max_replans", &TimingConfig::max_replans, 0, 20, "re-plans at lower speeds where timed passes break a joint limit");
 }
 
 // g(name, member pointer to the section) for every section of Config.

@@ -69,6 +69,8 @@ struct Plan {
   std::string stop_reason;                  // "flush", "no progress: ...", "max rounds"
   std::vector<int> unreachable_cells;       // cells left above level 0 that no pass could fill
   std::vector<std::string> warnings;        // targets that could not be met, and why
+  int speed_capped = 0;                     // passes (graded) / segments (optimal), all rounds, whose
+                                            // speed bound the speed cap lowered below max speed
   std::map<std::string, double> timings_s;  // per stage
 };
 
@@ -86,7 +88,15 @@ std::vector<Eigen::Vector3d> clamped_cubic_spline(const std::vector<Eigen::Vecto
 
 using ProgressFn = std::function<void(const std::string& stage, double fraction)>;
 
+/// Highest nozzle speed [m/s] at each of a pass's waypoints that the machine can follow (e.g. the
+/// arm's joint limits along the pass: arm_speed_caps in timing.hpp); +inf where nothing binds.
+using SpeedCapFn = std::function<std::vector<double>(const std::vector<NozzlePose>& waypoints)>;
+
 /// Plans and simulates a bay until every cell is at level 0 or below, or no round makes progress.
-Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress = {});
+/// speed_cap (optional) lowers the speed bound of every pass (graded mode: its slowest waypoint) or
+/// segment (optimal mode; a spray-off gap also bounds the segments on either side, since the nozzle
+/// crosses it at their speeds), so the simulated deposit is the one the arm can actually spray.
+Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress = {},
+              const SpeedCapFn& speed_cap = {});
 
 }  // namespace shotcrete

@@ -153,14 +153,15 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 /// changes centred on the run boundaries (peak speed_change_accel_mps2).
 /// first_pass_index numbers the passes globally. Throws std::invalid_argument for an empty region,
 /// a pass with fewer than 2 waypoints or a non-positive speed.
-/// stop_accel_mps2 > 0: the run-out / run-in of a stop-and-go link are lengthened so that the
-/// cycloidal stop (k2) and start (k1) stay within that acceleration at the pass end speeds.
+/// stop_accel_mps2 > 0: the run-out / run-in of a stop-and-go link are lengthened so that their
+/// plain cycloidal stop and start (region_profile: no cruise, peak v^2 / length) stay within that
+/// acceleration at the pass end speeds.
 /// turn_accel_mps2 > 0 (with turn_run_m > 0): the runs before and after a turn arc are lengthened so
 /// that the change between the pass speed and the arc speed (region_profile's, from turn_speed_mps
 /// and the centripetal cap at turn_accel_mps2) peaks at turn_accel_mps2.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
                           int first_pass_index = 0, double turn_run_m = 0.0, double stop_accel_mps2 = 0.0,
-                          double k1 = 0.5, double k2 = 0.5, double turn_speed_mps = 0.0, double turn_accel_mps2 = 0.0);
+                          double turn_speed_mps = 0.0, double turn_accel_mps2 = 0.0);
 
 /// Tunable timing parameters (the swarm's particle).
 struct TimingParams {
@@ -179,7 +180,8 @@ struct TimingParams {
 /// Speed profile of a region path built by region_path (same lead lengths): cycloid start, pass
 /// speeds on passes and links, cycloidal speed changes on turns (pass speed -> turn speed -> next
 /// pass speed, or pass speed -> next pass speed when turn_speed_mps == 0; with turn runs the
-/// changes happen on the runs and the arc runs at the turn speed), cycloid end.
+/// changes happen on the runs and the arc runs at the turn speed), cycloid end (k1, k2 on the lead-in
+/// and lead-out; stop-and-go runs stop and start without a cruise).
 SpeedProfile region_profile(const CartesianPath& path, const TimingParams& params);
 
 /// Quintic baseline: every pass extended by its acceleration / deceleration run, straight
@@ -249,6 +251,20 @@ void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double 
 std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                               const Eigen::VectorXd& q0, double limit_gain = 0.02,
                                               double* max_error_m = nullptr, double* max_error_rad = nullptr);
+
+/// Highest constant nozzle speed at each pose at which the arm follows `poses` within limit_share
+/// of its joint velocity and acceleration limits while leaving room for speed changes of up to
+/// tangential_accel_mps2: with q' = dq/ds and q'' = d2q/ds2 of the tracked joint path
+/// (track_joint_path from seed), qd = q' v and qdd = q'' v^2 + q' a, so per joint
+/// v <= share vmax / |q'| and v^2 <= (share amax - |q'| a) / |q''|. +inf where nothing binds, 0 where
+/// the speed changes alone would break an acceleration limit.
+std::vector<double> joint_speed_limits(const Robot& robot, const std::vector<NozzlePose>& poses,
+                                       const Eigen::VectorXd& seed, double tangential_accel_mps2,
+                                       double limit_share = 1.0);
+
+/// plan_bay's speed cap for this arm: joint_speed_limits from the neutral posture with
+/// timing.speed_change_accel_mps2 and share 1 - timing.joint_limit_margin. The robot must outlive it.
+SpeedCapFn arm_speed_caps(const Robot& robot, const Config& config);
 
 struct TimedTrajectory {
   std::vector<double> t_s;

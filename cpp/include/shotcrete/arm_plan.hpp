@@ -1,0 +1,49 @@
+#pragma once
+// A bay planned for a given arm (design section 7): plan_bay with the speeds the arm can follow
+// along each pass, time_plan, and re-plans where the timed passes still break a joint limit.
+#include <Eigen/Core>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "shotcrete/planner.hpp"
+#include "shotcrete/timing.hpp"
+
+namespace shotcrete {
+
+class Robot;
+
+/// Speed bounds learned from timed trajectories: near each point (within radius_m) the nozzle
+/// must not go faster than its speed.
+struct SpeedCapMap {
+  std::vector<Eigen::Vector3d> points_m;
+  std::vector<double> speed_mps;
+  double radius_m = 0.1;
+  /// Lowest speed bound within radius_m of p [m/s]; +inf when there is none.
+  double at(const Eigen::Vector3d& p) const;
+  /// Adds a bound for every spraying sample of `tr` over a joint velocity or acceleration limit,
+  /// and for every lead / link sample over a velocity limit (they cruise at the speeds of the
+  /// passes next to them): the sample's speed scaled so the joints come out at limit_share of
+  /// their limits (velocity ~ v, acceleration ~ v^2). Returns the number of bounds added.
+  int learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_limit, const Eigen::VectorXd& acc_limit,
+            double limit_share);
+};
+
+struct ArmPlan {
+  Plan plan;
+  std::optional<TimedTrajectory> trajectory;  // empty when the timing failed: timing_error says why
+  std::string timing_error;
+  int replans = 0;       // plan_bay runs after the first
+  SpeedCapMap learned;   // bounds added by the re-plans
+};
+
+/// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the
+/// neutral posture), then time_plan; while spraying samples of the trajectory still break a joint
+/// limit (the arm reaches a pass in another posture than the caps assumed), their neighbourhood
+/// gets the speed that would have kept them within the limits and the bay is planned and timed again,
+/// at most timing.max_replans times. The deposit is always simulated at the speeds the trajectory
+/// sprays. An IK or timing failure leaves the trajectory empty with the reason in timing_error.
+ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
+                     const ProgressFn& progress = {});
+
+}  // namespace shotcrete
