@@ -784,16 +784,31 @@ namespace {
 
 // Velocities and accelerations by 3-point finite differences on a non-uniform grid; the ends are at
 // rest (every timed trajectory starts and stops standing still).
+// First and second derivatives of q sampled at t (time, or arc length): three-point differences on
+// an uneven grid, exact for quadratics; qdd at the ends copies its neighbour's. qd at the ends is 0
+// (a trajectory from rest to rest) or, with one_sided_ends, the one-sided difference (a path). At a
+// repeated point (step under 1e-9) qd is the one-sided difference and qdd the previous value.
 void finite_differences(const std::vector<double>& t, const std::vector<Eigen::VectorXd>& q,
-                        std::vector<Eigen::VectorXd>& qd, std::vector<Eigen::VectorXd>& qdd) {
+                        std::vector<Eigen::VectorXd>& qd, std::vector<Eigen::VectorXd>& qdd,
+                        bool one_sided_ends = false) {
   const std::size_t n = q.size();
   const Eigen::Index dof = n ? q[0].size() : 0;
   qd.assign(n, Eigen::VectorXd::Zero(dof));
   qdd.assign(n, Eigen::VectorXd::Zero(dof));
   for (std::size_t i = 1; i + 1 < n; ++i) {
     const double h1 = t[i] - t[i - 1], h2 = t[i + 1] - t[i];
+    if (h1 < 1e-9 || h2 < 1e-9) {
+      const std::size_t a = h1 < 1e-9 ? i : i - 1, b = h1 < 1e-9 ? i + 1 : i;
+      if (t[b] - t[a] > 1e-9) qd[i] = (q[b] - q[a]) / (t[b] - t[a]);
+      qdd[i] = qdd[i - 1];
+      continue;
+    }
     qd[i] = (-h2 / (h1 * (h1 + h2))) * q[i - 1] + ((h2 - h1) / (h1 * h2)) * q[i] + (h1 / (h2 * (h1 + h2))) * q[i + 1];
     qdd[i] = 2.0 * (q[i - 1] / (h1 * (h1 + h2)) - q[i] / (h1 * h2) + q[i + 1] / (h2 * (h1 + h2)));
+  }
+  if (one_sided_ends && n >= 2) {
+    if (t[1] - t[0] > 1e-9) qd[0] = (q[1] - q[0]) / (t[1] - t[0]);
+    if (t[n - 1] - t[n - 2] > 1e-9) qd[n - 1] = (q[n - 1] - q[n - 2]) / (t[n - 1] - t[n - 2]);
   }
   if (n >= 3) {
     qdd[0] = qdd[1];
@@ -899,39 +914,6 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
   return out;
 }
 
-namespace {
-
-// dq/ds and d2q/ds2 of a joint path sampled at arc lengths s (three-point differences on an uneven
-// grid, exact for quadratics; the end values copy their neighbours'). At a repeated pose (step
-// under 1e-9 m) dq is the one-sided difference and ddq the previous value.
-void path_derivatives(const std::vector<double>& s, const std::vector<Eigen::VectorXd>& q,
-                      std::vector<Eigen::VectorXd>& dq, std::vector<Eigen::VectorXd>& ddq) {
-  const std::size_t m = q.size();
-  const Eigen::Index n = m ? q.front().size() : 0;
-  dq.assign(m, Eigen::VectorXd::Zero(n));
-  ddq.assign(m, Eigen::VectorXd::Zero(n));
-  if (m < 2) return;
-  for (std::size_t k = 1; k + 1 < m; ++k) {
-    const double h1 = s[k] - s[k - 1], h2 = s[k + 1] - s[k];
-    if (h1 < 1e-9 || h2 < 1e-9) {
-      const std::size_t a = h1 < 1e-9 ? k : k - 1, b = h1 < 1e-9 ? k + 1 : k;
-      if (s[b] - s[a] > 1e-9) dq[k] = (q[b] - q[a]) / (s[b] - s[a]);
-      ddq[k] = ddq[k - 1];
-      continue;
-    }
-    dq[k] = (-h2 / (h1 * (h1 + h2))) * q[k - 1] + ((h2 - h1) / (h1 * h2)) * q[k] + (h1 / (h2 * (h1 + h2))) * q[k + 1];
-    ddq[k] = 2.0 * (h2 * q[k - 1] - (h1 + h2) * q[k] + h1 * q[k + 1]) / (h1 * h2 * (h1 + h2));
-  }
-  if (s[1] - s[0] > 1e-9) dq[0] = (q[1] - q[0]) / (s[1] - s[0]);
-  if (s[m - 1] - s[m - 2] > 1e-9) dq[m - 1] = (q[m - 1] - q[m - 2]) / (s[m - 1] - s[m - 2]);
-  if (m > 2) {
-    ddq[0] = ddq[1];
-    ddq[m - 1] = ddq[m - 2];
-  }
-}
-
-}  // namespace
-
 std::vector<double> joint_speed_limits(const Robot& robot, const std::vector<NozzlePose>& poses,
                                        const Eigen::VectorXd& seed, double tangential_accel_mps2, double limit_share) {
   if (!(limit_share > 0.0 && limit_share <= 1.0))
@@ -947,7 +929,7 @@ std::vector<double> joint_speed_limits(const Robot& robot, const std::vector<Noz
   for (std::size_t k = 1; k < poses.size(); ++k)
     s[k] = s[k - 1] + (poses[k].position_m - poses[k - 1].position_m).norm();
   std::vector<Eigen::VectorXd> dq, ddq;
-  path_derivatives(s, q, dq, ddq);
+  finite_differences(s, q, dq, ddq, true);
   const Eigen::VectorXd vmax = limit_share * robot.velocity_limits(), amax = limit_share * robot.acceleration_limits();
   for (std::size_t k = 0; k < poses.size(); ++k)
     for (int i = 0; i < robot.dof(); ++i) {
@@ -1270,7 +1252,7 @@ RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& 
     poses.push_back(path_.pose_at(s_.back()));
   }
   q_ = timing_joint_path(robot, poses, seed, robot_config, &tracked_);
-  path_derivatives(s_, q_, dq_, ddq_);
+  finite_differences(s_, q_, dq_, ddq_, true);
 }
 
 void RegionJointModel::interpolate(double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const {
