@@ -19,25 +19,56 @@ double SpeedCapMap::at(const Eigen::Vector3d& p) const {
   return best;
 }
 
+namespace {
+// Pass sample next to the lead or link sample i (the pass end a run-out leaves, or the pass start a
+// run-in reaches): along samples of i's kind backwards, else forwards; -1 when neither meets a pass.
+long adjacent_pass_sample(const TimedTrajectory& tr, std::size_t i) {
+  const char kind = tr.kind[i];
+  const auto pass = static_cast<char>(SegmentKind::Pass);
+  std::size_t j = i;
+  while (j > 0 && tr.kind[j] == kind) --j;
+  if (tr.kind[j] == pass) return static_cast<long>(j);
+  j = i;
+  while (j + 1 < tr.size() && tr.kind[j] == kind) ++j;
+  return tr.kind[j] == pass ? static_cast<long>(j) : -1;
+}
+}  // namespace
+
 int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_limit, const Eigen::VectorXd& acc_limit,
                        double limit_share) {
   int added = 0;
+  // Speed at sample i by central differences; 0 at the ends.
+  auto speed_at = [&](std::size_t i) {
+    if (i == 0 || i + 1 >= tr.size() || !(tr.t_s[i + 1] > tr.t_s[i - 1])) return 0.0;
+    return (tr.nozzle[i + 1].position_m - tr.nozzle[i - 1].position_m).norm() / (tr.t_s[i + 1] - tr.t_s[i - 1]);
+  };
+  auto add = [&](std::size_t i, double factor) {
+    const double v = speed_at(i);
+    if (!(v > 0.0) || !(factor < 1.0)) return;
+    points_m.push_back(tr.nozzle[i].position_m);
+    speed_mps.push_back(v * factor);
+    ++added;
+  };
   for (std::size_t i = 1; i + 1 < tr.size(); ++i) {
     const auto kind = static_cast<SegmentKind>(tr.kind[i]);
     const bool pass = kind == SegmentKind::Pass || tr.spraying[i];
     if (!pass && kind != SegmentKind::Link && kind != SegmentKind::Lead) continue;
     const double rv = tr.qd[i].cwiseAbs().cwiseQuotient(vel_limit).maxCoeff();
     const double ra = tr.qdd[i].cwiseAbs().cwiseQuotient(acc_limit).maxCoeff();
-    if (!(rv > 1.0 || (pass && ra > 1.0))) continue;
-    const double dt = tr.t_s[i + 1] - tr.t_s[i - 1];
-    if (!(dt > 0.0)) continue;
-    const double v = (tr.nozzle[i + 1].position_m - tr.nozzle[i - 1].position_m).norm() / dt;
-    double factor = limit_share / std::max(rv, 1e-12);
-    if (pass) factor = std::min(factor, std::sqrt(limit_share / std::max(ra, 1e-12)));
-    if (!(v > 0.0) || factor >= 1.0) continue;
-    points_m.push_back(tr.nozzle[i].position_m);
-    speed_mps.push_back(v * factor);
-    ++added;
+    const double fv = rv > 1.0 ? limit_share / rv : 1.0;
+    const double fa = ra > 1.0 ? std::sqrt(limit_share / ra) : 1.0;
+    if (pass) {
+      add(i, std::min(fv, fa));
+      continue;
+    }
+    add(i, fv);  // leads and links cruise at the speeds of the passes next to them
+    // A speed change off the pass (a stop, a start, the change to a turn speed) over a limit:
+    // where time_plan cannot lengthen it (the reach ends), the pass end it starts from must be
+    // slower; the change scales with v^2 at a given run length.
+    if (ra > 1.0) {
+      const long j = adjacent_pass_sample(tr, i);
+      if (j > 0) add(static_cast<std::size_t>(j), fa);
+    }
   }
   return added;
 }

@@ -120,12 +120,14 @@ struct PieceSpec {
   double length_m, v_in, v_out;
   std::vector<double> run_len_m, run_speed_mps;  // pass with a speed profile: constant-speed runs
   char motion;
+  double accel_mps2;  // turn arc: its own turn acceleration (0 = the params')
 };
 
 std::vector<PieceSpec> specs_of(const CartesianPath& path) {
   std::vector<PieceSpec> out;
   for (const auto& p : path.pieces())
-    out.push_back({p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps, p.motion});
+    out.push_back(
+        {p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps, p.motion, p.accel_mps2});
   return out;
 }
 
@@ -181,7 +183,8 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
   const double turn_accel = params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2;
   auto turn_v = [&](std::size_t j) {
     const auto& t = specs[j];
-    return turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps, turn_accel);
+    return turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps,
+                          t.accel_mps2 > 0.0 ? t.accel_mps2 : turn_accel);
   };
   SpeedProfile prof;
   for (std::size_t i = 0; i < specs.size(); ++i) {
@@ -489,9 +492,14 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
                           int first_pass_index, double turn_run_m, double stop_accel_mps2, double turn_speed_mps,
-                          double turn_accel_mps2) {
+                          double turn_accel_mps2, const std::vector<double>& gap_accel_scale) {
   if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
   for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
+  if (!gap_accel_scale.empty() && gap_accel_scale.size() + 1 != passes.size())
+    throw std::invalid_argument("region_path: " + std::to_string(gap_accel_scale.size()) +
+                                " gap acceleration scales for " + std::to_string(passes.size()) + " passes");
+  for (double g : gap_accel_scale)
+    if (!(g > 0.0 && g <= 1.0)) throw std::invalid_argument("region_path: gap acceleration scale " + num(g) + " must be in (0, 1]");
   if (!(lead_in_m > 0.0) || !(lead_out_m > 0.0))
     throw std::invalid_argument("region_path: lead-in " + num(lead_in_m) + " m and lead-out " + num(lead_out_m) +
                                 " m must be > 0 (start and stop happen off the passes)");
@@ -516,6 +524,8 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
     path.append(std::move(piece));
     if (i + 1 < passes.size()) {
       const Pass& q = passes[i + 1];
+      const double gap_scale = gap_accel_scale.empty() ? 1.0 : gap_accel_scale[i];
+      const double turn_accel = gap_scale * turn_accel_mps2, stop_accel = gap_scale * stop_accel_mps2;
       const Eigen::Vector3d da = end_direction(p), db = start_direction(q);
       const Eigen::Vector3d gap = q.waypoints.front().position_m - p.waypoints.back().position_m;
       const bool serpentine = da.dot(db) < -0.5 && (gap - gap.dot(da) * da).norm() > 1e-3;
@@ -533,26 +543,28 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
         // Runs long enough for the change between the pass speed and the arc speed at
         // turn_accel_mps2 (cycloid peak |v1^2 - v0^2| / length): fast passes need metres, not 0.1 m.
         double run_out = turn_run_m, run_in = turn_run_m;
-        if (turn_run_m > 0.0 && turn_accel_mps2 > 0.0) {
+        if (turn_run_m > 0.0 && turn_accel > 0.0) {
           const double vt = turn_arc_speed(0.5 * (gap - gap.dot(da) * da).norm(), v_last(p), v_first(q),
-                                           turn_speed_mps, turn_accel_mps2);
+                                           turn_speed_mps, turn_accel);
           if (vt > 0.0) {
-            run_out = std::max(run_out, std::abs(v_last(p) * v_last(p) - vt * vt) / turn_accel_mps2);
-            run_in = std::max(run_in, std::abs(v_first(q) * v_first(q) - vt * vt) / turn_accel_mps2);
+            run_out = std::max(run_out, std::abs(v_last(p) * v_last(p) - vt * vt) / turn_accel);
+            run_in = std::max(run_in, std::abs(v_first(q) * v_first(q) - vt * vt) / turn_accel);
           }
         }
         for (auto& t : turn_around(p.waypoints.back(), da, q.waypoints.front(), v_last(p), v_first(q), spray_on_turns,
-                                   run_out, run_in, db))
+                                   run_out, run_in, db)) {
+          if (t.kind == SegmentKind::Turn) t.accel_mps2 = turn_accel;  // the profile caps the arc speed alike
           path.append(std::move(t));
+        }
       } else {
         // Stop and go: the direction changes only where the nozzle stands still.
         const double run = turn_run_m > 0.0 ? turn_run_m : 0.1;
         // Long enough to stop from / start to the pass speeds within the acceleration limit (plain
         // cycloidal stop / start, peak v^2 / s).
         double run_out = run, run_in = run;
-        if (stop_accel_mps2 > 0.0) {
-          run_out = std::max(run, v_last(p) * v_last(p) / stop_accel_mps2);
-          run_in = std::max(run, v_first(q) * v_first(q) / stop_accel_mps2);
+        if (stop_accel > 0.0) {
+          run_out = std::max(run, v_last(p) * v_last(p) / stop_accel);
+          run_in = std::max(run, v_first(q) * v_first(q) / stop_accel);
         }
         NozzlePose a = p.waypoints.back(), b = q.waypoints.front();
         a.position_m += run_out * da;
@@ -1003,10 +1015,6 @@ double spraying_time(const CartesianPath& path, const SpeedProfile& prof) {
 
 namespace {
 
-// One region timed from rest at q_prev: the transit to it, then its Cartesian stretches joined by
-// joint-space rest-to-rest moves. Times start at 0 at q_prev (which is not included). accel_scale
-// (<= 1) scales the accelerations that size the non-spraying parts (leads, stop-and-go runs, the
-// runs and arcs of the turns); the passes keep their planned speeds.
 void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass,
                  int region, char kind) {
   tr.t_s.push_back(t);
@@ -1018,36 +1026,54 @@ void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const 
   tr.kind.push_back(kind);
 }
 
+// One region timed from rest at q_prev: the transit to it, then its Cartesian stretches joined by
+// joint-space rest-to-rest moves. Times start at 0 at q_prev (which is not included).
+// slot_scale (passes + 1 values in (0, 1]: the lead-in, the gap after each pass but the last, the
+// lead-out) scales the accelerations that size that slot's non-spraying motion (lead length,
+// stop-and-go runs, the runs and arc of a turn); the passes keep their planned speeds. slot gives
+// each sample's slot (-1 on joint moves).
 struct RegionTiming {
   TimedTrajectory part;
+  std::vector<int> slot;
   bool tracked = true;
 };
 RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, int r, int pass_offset,
                          const Eigen::VectorXd& q_prev_in, const TimingConfig& timing, const RobotConfig& robot_config,
-                         const TimingParams& params, double accel_scale) {
+                         const TimingParams& params, const std::vector<double>& slot_scale) {
   const double rate = timing.trajectory_rate_hz;
   const double max_lead = std::max({timing.max_lead_length_m, params.start_length_m, params.end_length_m});
-  const double stop_accel = accel_scale * timing.nozzle_max_accel_mps2;
+  const double stop_accel = timing.nozzle_max_accel_mps2;
   RegionTiming out;
   TimedTrajectory& tr = out.part;
+  const std::size_t n = passes.size();
+  if (slot_scale.size() != n + 1) throw std::logic_error("time_region: one acceleration scale per lead and gap");
+  const std::vector<double> gap_scale(slot_scale.begin() + 1, slot_scale.end() - 1);
   // Leads at least as long as the nozzle acceleration limit needs at this region's end speeds
   // (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast passes get
   // longer run-ups than the config's default. The swarm's parameters already satisfy this.
   TimingParams rp = params;
-  rp.turn_accel_mps2 = accel_scale * (params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2);
+  rp.turn_accel_mps2 = params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2;
   if (!passes.empty() && passes.front().waypoints.size() >= 2) {
     const Pass& f = passes.front();
     const Pass& l = passes.back();
     const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
-    rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * stop_accel));
-    rp.end_length_m = std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * stop_accel));
+    rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * slot_scale.front() * stop_accel));
+    rp.end_length_m =
+        std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * slot_scale.back() * stop_accel));
   }
   auto make_path = [&](double lead_in, double lead_out, int first) {
     return region_path(passes, lead_in, lead_out, timing.spray_on_turns, first, timing.turn_run_m, stop_accel,
-                       rp.turn_speed_mps, rp.turn_accel_mps2);
+                       rp.turn_speed_mps, rp.turn_accel_mps2, gap_scale);
   };
   const CartesianPath path = make_path(rp.start_length_m, rp.end_length_m, pass_offset);
   const SpeedProfile prof = region_profile(path, rp);
+  // Slot of each piece: the number of passes before it.
+  std::vector<int> piece_slot;
+  int passes_before = 0;
+  for (const auto& piece : path.pieces()) {
+    piece_slot.push_back(passes_before);
+    if (piece.kind == SegmentKind::Pass) ++passes_before;
+  }
   // The region is tracked in stretches between its rest-to-rest moves (stop-and-go middles):
   // the nozzle stands still at both ends and sprays nothing there, so a joint quintic at the
   // limits replaces the straight Cartesian move, whose joint accelerations near the slew axis
@@ -1110,12 +1136,16 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
         Eigen::VectorXd q, qd, qdd;
         quintic_joint(q_prev, q_first, T, t, q, qd, qdd);
         push_sample(tr, t0 + t, q, pose_of(robot.fk(q)), 0, -1, c == 0 ? -1 : r, static_cast<char>(SegmentKind::Transit));
+        out.slot.push_back(-1);
       }
       t0 += T;
       tr.transit_time_s += T;
     }
-    for (std::size_t k = 1; k < cs.t_s.size(); ++k)
+    for (std::size_t k = 1; k < cs.t_s.size(); ++k) {
       push_sample(tr, t0 + cs.t_s[k] - wa, jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], r, cs.kind[k]);
+      double local = 0.0;
+      out.slot.push_back(piece_slot[path.locate(cs.s_m[k], local)]);
+    }
     t0 += wb - wa;
     q_prev = jq.back();
   }
@@ -1124,19 +1154,25 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
   return out;
 }
 
-// Worst |qdd| / limit on the non-spraying Cartesian samples (turns, links, leads) of a region timed
-// from rest at q_prev; passes keep their speeds and joint moves are within the limits by design.
-double off_pass_accel_ratio(const Robot& robot, const TimedTrajectory& part, const Eigen::VectorXd& q_prev) {
+// Worst |qdd| / limit per slot on the non-spraying Cartesian samples (turns, links, leads) of a
+// region timed from rest at q_prev; passes keep their speeds and joint moves are within the limits
+// by design. A non-finite value counts as the worst possible.
+std::vector<double> off_pass_accel_ratios(const Robot& robot, const RegionTiming& rt, const Eigen::VectorXd& q_prev,
+                                          std::size_t slots) {
+  const TimedTrajectory& part = rt.part;
   std::vector<double> t{0.0};
   std::vector<Eigen::VectorXd> q{q_prev}, qd, qdd;
   t.insert(t.end(), part.t_s.begin(), part.t_s.end());
   q.insert(q.end(), part.q.begin(), part.q.end());
   finite_differences(t, q, qd, qdd);
-  double worst = 0.0;
+  std::vector<double> worst(slots, 0.0);
   for (std::size_t i = 0; i < part.size(); ++i) {
     const auto kind = static_cast<SegmentKind>(part.kind[i]);
-    if (kind == SegmentKind::Pass || kind == SegmentKind::Transit) continue;
-    worst = std::max(worst, qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
+    if (kind == SegmentKind::Pass || kind == SegmentKind::Transit || rt.slot[i] < 0) continue;
+    double ratio = qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff();
+    if (!std::isfinite(ratio)) ratio = std::numeric_limits<double>::max();
+    double& w = worst[static_cast<std::size_t>(rt.slot[i])];
+    w = std::max(w, ratio);
   }
   return worst;
 }
@@ -1158,10 +1194,16 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
   for (std::size_t r = 0; r < regions.size(); ++r) {
     // Where the arm's geometry makes the turns, runs or leads break a joint acceleration limit (e.g.
     // near the slew axis, where a nozzle acceleration is a large slew acceleration), the region is
-    // re-timed with gentler accelerations for them: the joint acceleration there scales about
-    // linearly with them. At most kAttempts timings; the one with the smallest excess is kept.
-    constexpr int kAttempts = 5;
-    double scale = 1.0, best_scale = 1.0, best_ratio = std::numeric_limits<double>::infinity();
+    // re-timed with gentler accelerations there: the joint acceleration scales about linearly with
+    // them. Each lead and gap has its own scale, so one awkward stop does not lengthen every run
+    // (long leads can leave the reach or swing the arm out). A slot that got worse when eased, or
+    // a timing that leaves the reach, goes halfway back to its best scale. At most kAttempts
+    // timings; the one with the smallest excess is kept.
+    constexpr int kAttempts = 6;
+    const std::size_t slots = regions[r].size() + 1;
+    std::vector<double> scale(slots, 1.0), best_scale(slots, 1.0),
+        best_slot_ratio(slots, std::numeric_limits<double>::infinity());
+    double best_ratio = std::numeric_limits<double>::infinity();
     RegionTiming best;
     for (int attempt = 0; attempt < kAttempts; ++attempt) {
       RegionTiming rt;
@@ -1170,14 +1212,19 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
                          scale);
       } catch (const std::exception&) {
         if (attempt == 0) throw;
-        scale = std::sqrt(scale * best_scale);  // the longer runs leave the reach: try halfway back
+        for (std::size_t k = 0; k < slots; ++k) scale[k] = std::sqrt(scale[k] * best_scale[k]);
         continue;
       }
-      double ratio = off_pass_accel_ratio(robot, rt.part, q_prev);
-      if (!std::isfinite(ratio)) ratio = std::numeric_limits<double>::max();
-      if (attempt == 0 || ratio < best_ratio) best_ratio = ratio, best_scale = scale, best = std::move(rt);
-      if (ratio <= 1.0 || ratio == std::numeric_limits<double>::max()) break;
-      scale *= 0.9 / ratio;
+      const std::vector<double> ratios = off_pass_accel_ratios(robot, rt, q_prev, slots);
+      const double ratio = *std::max_element(ratios.begin(), ratios.end());
+      if (attempt == 0 || ratio < best_ratio) best_ratio = ratio, best = std::move(rt);
+      if (ratio <= 1.0) break;
+      for (std::size_t k = 0; k < slots; ++k) {
+        const bool improved = ratios[k] < best_slot_ratio[k];
+        if (improved) best_slot_ratio[k] = ratios[k], best_scale[k] = scale[k];
+        if (ratios[k] <= 1.0 && improved) continue;
+        scale[k] = improved ? scale[k] * std::max(0.25, 0.9 / ratios[k]) : std::sqrt(scale[k] * best_scale[k]);
+      }
     }
     const TimedTrajectory& part = best.part;
     for (std::size_t k = 0; k < part.size(); ++k)

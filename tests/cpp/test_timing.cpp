@@ -286,10 +286,28 @@ TEST(Region, TurnRunsSizedForTheSpeedChange) {
     EXPECT_GT(peak, 0.9 * a);
   }
   EXPECT_EQ(runs, 2);
+  // A gap scale of 0.5 halves the turn's acceleration: longer runs, and the profile caps the arc
+  // speed at the eased centripetal acceleration (the arc carries its own).
+  const CartesianPath eased = region_path(passes, 0.1, 0.1, false, 0, 0.1, 0.0, 0.0, a, {0.5});
+  const SpeedProfile eased_prof = region_profile(eased, prm);
+  for (std::size_t i = 0; i < eased.pieces().size(); ++i) {
+    const auto& p = eased.pieces()[i];
+    const double r = 0.5 * (passes[1].waypoints.front().position_m - passes[0].waypoints.back().position_m).norm();
+    if (p.kind == SegmentKind::Link) {
+      EXPECT_NEAR(p.length_m(), (0.64 - 0.5 * a * r) / (0.5 * a), 1e-6);
+    }
+    if (p.kind != SegmentKind::Turn) continue;
+    EXPECT_NEAR(p.accel_mps2, 0.5 * a, 1e-12);
+    const double mid = eased_prof.time_at_distance(eased.piece_start_m(i) + 0.5 * p.length_m());
+    EXPECT_NEAR(eased_prof.at(mid).v_mps, std::sqrt(0.5 * a * r), 1e-6);
+  }
   // Without the acceleration the runs keep turn_run_m.
   const CartesianPath fixed = region_path(passes, 0.1, 0.1, false, 0, 0.1);
-  for (const auto& p : fixed.pieces())
-    if (p.kind == SegmentKind::Link) EXPECT_NEAR(p.length_m(), 0.1, 1e-9);
+  for (const auto& p : fixed.pieces()) {
+    if (p.kind == SegmentKind::Link) {
+      EXPECT_NEAR(p.length_m(), 0.1, 1e-9);
+    }
+  }
 }
 
 TEST(Region, SerpentineNeverStopsAndKeepsPassSpeeds) {
@@ -773,6 +791,25 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   for (double t = t_from; t <= t_stop; t += 0.001) peak = std::max(peak, std::abs(prof.at(t).a_mps2));
   EXPECT_GT(peak, 0.45);
   EXPECT_LT(peak, 0.5 + 1e-3);
+  // Per-gap scales ease only their own gap: a third line, the second gap at half the acceleration.
+  const std::vector<Pass> three = {line(4.6), line(4.8), line(5.0)};
+  const CartesianPath eased = region_path(three, 0.1, 0.1, false, 0, 0.1, 0.5, 0.0, 0.0, {1.0, 0.5});
+  std::vector<double> outs, ins;
+  for (const auto& p : eased.pieces()) {
+    if (p.motion == 1) outs.push_back(p.length_m());
+    if (p.motion == 3) ins.push_back(p.length_m());
+  }
+  ASSERT_EQ(outs.size(), 2u);
+  ASSERT_EQ(ins.size(), 2u);
+  EXPECT_NEAR(outs[0], 0.64 / 0.5, 1e-9);
+  EXPECT_NEAR(ins[0], 0.64 / 0.5, 1e-9);
+  EXPECT_NEAR(outs[1], 0.64 / 0.25, 1e-9);
+  EXPECT_NEAR(ins[1], 0.64 / 0.25, 1e-9);
+  // One scale per gap, each in (0, 1].
+  EXPECT_THROW(region_path(three, 0.1, 0.1, false, 0, 0.1, 0.5, 0.0, 0.0, {1.0}), std::invalid_argument);
+  EXPECT_THROW(region_path(three, 0.1, 0.1, false, 0, 0.1, 0.5, 0.0, 0.0, {1.0, 0.0}), std::invalid_argument);
+  EXPECT_THROW(region_path(three, 0.1, 0.1, false, 0, 0.1, 0.5, 0.0, 0.0, {1.5, 1.0}), std::invalid_argument);
+  EXPECT_THROW(region_path(three, 0.1, 0.1, false, 0, 0.1, 0.5, 0.0, 0.0, {NAN, 1.0}), std::invalid_argument);
 }
 
 TEST(Joint, SpeedLimitsPutTheBindingJointAtItsLimit) {
@@ -841,14 +878,34 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   tr.qdd[3] = Eigen::Vector2d(0.0, 3.0);
   tr.qdd[7] = Eigen::Vector2d(5.0, 0.0);
   SpeedCapMap map;
-  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 1);
-  ASSERT_EQ(map.speed_mps.size(), 1u);
+  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);
+  ASSERT_EQ(map.speed_mps.size(), 2u);
   // min(0.9 / 2, sqrt(0.9 / 3)) * 0.5 m/s
   EXPECT_NEAR(map.speed_mps[0], 0.5 * std::min(0.45, std::sqrt(0.3)), 1e-12);
-  EXPECT_NEAR(map.at(Eigen::Vector3d(0.15 + 0.09, 0, 0)), map.speed_mps[0], 1e-12);
-  EXPECT_TRUE(std::isinf(map.at(Eigen::Vector3d(0.15 + 0.11, 0, 0))));
-  // A link sample over a velocity limit counts too: it cruises at the speed of a pass next to it.
+  EXPECT_NEAR(map.at(Eigen::Vector3d(0.15 - 0.09, 0, 0)), map.speed_mps[0], 1e-12);
+  EXPECT_TRUE(std::isinf(map.at(Eigen::Vector3d(0.15 - 0.11, 0, 0))));
+  // The link sample over the acceleration limit (its run stops from the pass end): the bound goes
+  // to the last pass sample (5), sqrt(0.9 / 5) of its speed.
+  EXPECT_EQ(map.points_m[1], tr.nozzle[5].position_m);
+  EXPECT_NEAR(map.speed_mps[1], 0.5 * std::sqrt(0.9 / 5.0), 1e-12);
+  // A link sample over a velocity limit counts at its own position: it cruises at the speed of a
+  // pass next to it.
+  tr.qdd[7].setZero();
   tr.qd[7] = Eigen::Vector2d(0.0, 1.5);
   EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);  // sample 3 again, and sample 7
+  EXPECT_EQ(map.points_m.back(), tr.nozzle[7].position_m);
   EXPECT_NEAR(map.speed_mps.back(), 0.5 * 0.9 / 1.5, 1e-12);
+  // A run-in (the link comes after a joint move and before a pass): the next pass's first sample.
+  TimedTrajectory in = tr;
+  for (int i = 0; i < 9; ++i) {
+    in.kind[i] = static_cast<char>(i < 2 ? SegmentKind::Transit : i < 4 ? SegmentKind::Link : SegmentKind::Pass);
+    in.spraying[i] = i >= 4;
+    in.qd[i] = Eigen::Vector2d(0.0, 0.5);
+    in.qdd[i].setZero();
+  }
+  in.qdd[2] = Eigen::Vector2d(0.0, 4.0);
+  SpeedCapMap run_in;
+  EXPECT_EQ(run_in.learn(in, vel, acc, 0.9), 1);
+  EXPECT_EQ(run_in.points_m[0], in.nozzle[4].position_m);
+  EXPECT_NEAR(run_in.speed_mps[0], 0.5 * std::sqrt(0.9 / 4.0), 1e-12);
 }

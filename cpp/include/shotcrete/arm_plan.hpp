@@ -22,9 +22,11 @@ struct SpeedCapMap {
   /// Lowest speed bound within radius_m of p [m/s]; +inf when there is none.
   double at(const Eigen::Vector3d& p) const;
   /// Adds a bound for every spraying sample of `tr` over a joint velocity or acceleration limit,
-  /// and for every lead / link sample over a velocity limit (they cruise at the speeds of the
-  /// passes next to them): the sample's speed scaled so the joints come out at limit_share of
-  /// their limits (velocity ~ v, acceleration ~ v^2). Returns the number of bounds added.
+  /// for every lead / link sample over a velocity limit (they cruise at the speeds of the passes
+  /// next to them), and, for a lead / link sample over an acceleration limit, one at the pass
+  /// sample its run leaves or reaches: the sample's speed scaled so the joints come out at
+  /// limit_share of their limits (velocity ~ v, acceleration ~ v^2). Returns the number of bounds
+  /// added.
   int learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_limit, const Eigen::VectorXd& acc_limit,
             double limit_share);
 };

@@ -102,6 +102,8 @@ struct PathPiece {
   // arc: p(phi) = center + r (-cos(phi) u + sin(phi) d), phi in [0, pi]; the axis blends from
   // axis0 to axis1 with weight (1 - cos phi) / 2
   bool is_arc = false;
+  double accel_mps2 = 0.0;  // turn arc: the acceleration capping its speed (region_path's turn
+                            // acceleration for its gap); 0 = the profile's turn acceleration
   Eigen::Vector3d center{0, 0, 0}, u{1, 0, 0}, d{0, 1, 0};
   double radius_m = 0.0;
   Eigen::Vector3d axis0{0, 0, 1}, axis1{0, 0, 1};
@@ -159,9 +161,13 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 /// turn_accel_mps2 > 0 (with turn_run_m > 0): the runs before and after a turn arc are lengthened so
 /// that the change between the pass speed and the arc speed (region_profile's, from turn_speed_mps
 /// and the centripetal cap at turn_accel_mps2) peaks at turn_accel_mps2.
+/// gap_accel_scale (empty, or one value in (0, 1] per gap between consecutive passes) scales
+/// stop_accel_mps2 and turn_accel_mps2 for that gap alone: time_plan eases only the joins where the
+/// arm needs it.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
                           int first_pass_index = 0, double turn_run_m = 0.0, double stop_accel_mps2 = 0.0,
-                          double turn_speed_mps = 0.0, double turn_accel_mps2 = 0.0);
+                          double turn_speed_mps = 0.0, double turn_accel_mps2 = 0.0,
+                          const std::vector<double>& gap_accel_scale = {});
 
 /// Tunable timing parameters (the swarm's particle).
 struct TimingParams {
@@ -299,8 +305,8 @@ struct TimedTrajectory {
 /// Inside a region the stop-and-go moves (between passes that are no serpentine neighbours) are
 /// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Where the
 /// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
-/// 4 more times) with their accelerations scaled down by the excess; the passes keep their planned
-/// speeds. Whatever stays over a limit (on the passes, or where longer runs would leave the reach)
+/// 5 more times) with the accelerations of the offending lead or gap scaled down by its own excess
+/// (the others keep theirs); the passes keep their planned speeds. Whatever stays over a limit (on the passes, or where longer runs would leave the reach)
 /// is reported in max_acceleration_ratio, not hidden.
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
