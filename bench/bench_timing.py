@@ -10,7 +10,8 @@ joint space (finite-difference velocities / accelerations against the URDF limit
 
 Also a two-region plan with a joint-space transit (time_plan), and the whole default bay planned in
 both modes and timed with the config's parameters (``demo_plan``): duration, the worst joint
-velocity / acceleration ratios and the share of samples over the acceleration limit by segment kind.
+velocity / acceleration ratios and the share of samples over the acceleration limit by segment kind;
+then again with the per-region timing swarm (``with_timing_swarm``).
 Writes <out>/timing.json.
 
     python bench/bench_timing.py --out bench/results
@@ -94,7 +95,7 @@ def main() -> None:
                                   "search_s": time.perf_counter() - t0}
 
     def cycloid(params):
-        path = _core.region_path(region, params.start_length_m, params.end_length_m, tc.spray_on_turns, tc.turn_run_m)
+        path = _core.timing_region_path(region, params.start_length_m, params.end_length_m, tc)
         prof = _core.region_profile(path, params)
         tr = _core.time_path(robot, path, prof, seed, rate, rc)
         nozzle = _core.check_nozzle(path, prof, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2)
@@ -106,16 +107,17 @@ def main() -> None:
     same.k1, same.k2 = 1.0, 0.0
     same.start_length_m = region[0]["speed_mps"] ** 2 / a_base
     same.end_length_m = region[-1]["speed_mps"] ** 2 / a_base
+    same.turn_accel_mps2 = a_base  # the arcs' centripetal acceleration too
     result["cycloid_arcs_same_accel"] = cycloid(same)
     result["cycloid_arcs_config"] = cycloid(_core.TimingParams.from_config(tc))
 
     t0 = time.perf_counter()
     tun = _core.tune_timing(robot, [region], seed, tc, rc)
     tune_s = time.perf_counter() - t0
-    pso = cycloid(tun.params)
-    pso.update({"tune_s": tune_s, "swarm_duration_s": tun.duration_s, "evaluations": tun.pso.evaluations,
-                "best_history_s": [h if h < 1e5 else None for h in tun.pso.best_history],
-                "success_history": tun.pso.success_history,
+    pso = cycloid(tun.params[0])
+    pso.update({"tune_s": tune_s, "swarm_duration_s": tun.duration_s, "evaluations": tun.pso[0].evaluations,
+                "best_history_s": [h if h < 1e5 else None for h in tun.pso[0].best_history],
+                "success_history": tun.pso[0].success_history,
                 "particles": tc.pso_particles, "iterations": tc.pso_iterations})
     pso["swarm_feasible"] = bool(tun.duration_s < 1e5)
     result["cycloid_arcs_pso"] = pso
@@ -137,7 +139,7 @@ def main() -> None:
     tr2 = _core.time_plan(robot, [region, region2], seed, tc, rc, tun2.params)
     result["two_regions"] = {"duration_s": tr2.duration_s, "transit_time_s": tr2.transit_time_s,
                              "spray_time_s": tr2.spray_time_s, "samples": len(tr2), "joint": joint_summary(tr2),
-                             "params": tun2.params.to_dict(), "wall_time_s": time.perf_counter() - t0}
+                             "params": [p.to_dict() for p in tun2.params], "wall_time_s": time.perf_counter() - t0}
     result["demo_plan"] = {mode: demo_plan_timing(cfg, robot, mode) for mode in ("optimal", "graded")}
     result["machine"] = platform.platform()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -188,6 +190,17 @@ def demo_plan_timing(cfg, robot, mode):
     out = figures(arm.plan, arm.trajectory, time.perf_counter() - t0)
     out.update({"replans": arm.replans, "learned_speed_bounds": len(arm.learned.speed_mps),
                 "planned_without_the_arm": without})
+    # The same with the timing swarm (timing.tune_with_pso): per-region parameters, kept when faster.
+    cfg.timing.tune_with_pso = True
+    t0 = time.perf_counter()
+    tuned = _core.plan_for_arm(surface, cfg, robot)
+    cfg.timing.tune_with_pso = False
+    swarm = figures(tuned.plan, tuned.trajectory, time.perf_counter() - t0)
+    swarm.update({"config_timing_duration_s": tuned.config_duration_s, "used": tuned.tuned_timing_used,
+                  "regions_tuned": int(sum(tuned.tuning.feasible)), "regions": len(tuned.tuning.feasible),
+                  "saving_vs_config_timing": 1.0 - tuned.trajectory.duration_s / tuned.config_duration_s,
+                  "error": tuned.tuning_error or None})
+    out["with_timing_swarm"] = swarm
     return out
 
 

@@ -32,6 +32,19 @@ long adjacent_pass_sample(const TimedTrajectory& tr, std::size_t i) {
   while (j + 1 < tr.size() && tr.kind[j] == kind) ++j;
   return tr.kind[j] == pass ? static_cast<long>(j) : -1;
 }
+// Worst joint velocity or acceleration ratio of each region's samples (joint moves between
+// regions excluded: quintics within the limits by construction).
+std::vector<double> region_worst_ratio(const TimedTrajectory& tr, std::size_t regions, const Robot& robot) {
+  std::vector<double> worst(regions, 0.0);
+  for (std::size_t i = 0; i < tr.size(); ++i) {
+    if (tr.region_index[i] < 0 || static_cast<std::size_t>(tr.region_index[i]) >= regions) continue;
+    const double r = std::max(tr.qd[i].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff(),
+                              tr.qdd[i].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
+    double& w = worst[static_cast<std::size_t>(tr.region_index[i])];
+    w = std::max(w, std::isfinite(r) ? r : std::numeric_limits<double>::infinity());
+  }
+  return worst;
+}
 }  // namespace
 
 int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_limit, const Eigen::VectorXd& acc_limit,
@@ -92,12 +105,13 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     return c;
   };
   const double share = 1.0 - config.timing.joint_limit_margin;
+  std::vector<std::vector<Pass>> regions;
   for (int attempt = 0;; ++attempt) {
     const std::string prefix = attempt == 0 ? "" : "re-plan " + std::to_string(attempt) + ": ";
     out.plan = plan_bay(surface, config, progress ? ProgressFn([&](const std::string& s, double f) { progress(prefix + s, f); }) : ProgressFn{}, cap);
     out.replans = attempt;
     if (progress) progress(prefix + "trajectory", 0.0);
-    std::vector<std::vector<Pass>> regions;
+    regions.clear();
     for (const auto& round : out.plan.rounds)
       for (const auto& region : round.regions) regions.push_back(region.passes);  // in spraying order
     out.trajectory.reset();
@@ -112,6 +126,40 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     if (progress) progress(prefix + "trajectory", 1.0);
     if (attempt >= config.timing.max_replans) break;
     if (out.learned.learn(*out.trajectory, robot.velocity_limits(), robot.acceleration_limits(), share) == 0) break;
+  }
+  if (!out.trajectory) return out;
+  out.config_duration_s = out.trajectory->duration_s;
+  if (config.timing.tune_with_pso) {
+    if (progress) progress("timing swarm", 0.0);
+    try {
+      out.tuning = tune_timing(&robot, regions, robot.neutral(), config.timing, config.robot);
+      const TimedTrajectory& cur = *out.trajectory;
+      auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
+      std::vector<TimingParams> params = out.tuning->params;
+      TimedTrajectory tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
+      // The swarm judges the leads and turns on its model; elsewhere the arm reaches the passes in
+      // slightly other postures than the re-plans saw. Regions that came out worse keep the
+      // config's parameters, and that mix is timed once more.
+      const auto before = region_worst_ratio(cur, regions.size(), robot);
+      const auto after = region_worst_ratio(tuned, regions.size(), robot);
+      bool mixed = false;
+      for (std::size_t r = 0; r < regions.size(); ++r)
+        if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), mixed = true;
+      if (mixed) {
+        if (progress) progress("timing swarm", 0.9);
+        tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
+      }
+      if (tuned.duration_s < cur.duration_s && no_worse(tuned.max_velocity_ratio, cur.max_velocity_ratio) &&
+          no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
+        out.trajectory = std::move(tuned);
+        out.tuning->params = params;
+        out.tuned_timing_used = true;
+      }
+    } catch (const std::exception& e) {
+      // The config's timing stands; the reason is kept.
+      out.tuning_error = e.what();
+    }
+    if (progress) progress("timing swarm", 1.0);
   }
   return out;
 }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <iomanip>
 #include <limits>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -120,14 +121,14 @@ struct PieceSpec {
   double length_m, v_in, v_out;
   std::vector<double> run_len_m, run_speed_mps;  // pass with a speed profile: constant-speed runs
   char motion;
-  double accel_mps2;  // turn arc: its own turn acceleration (0 = the params')
+  double accel_scale;  // turn arc: share of the params' turn acceleration
 };
 
 std::vector<PieceSpec> specs_of(const CartesianPath& path) {
   std::vector<PieceSpec> out;
   for (const auto& p : path.pieces())
     out.push_back(
-        {p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps, p.motion, p.accel_mps2});
+        {p.kind, p.length_m(), p.speed_mps, p.speed_out_mps, p.run_len_m, p.run_speed_mps, p.motion, p.accel_scale});
   return out;
 }
 
@@ -183,8 +184,7 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
   const double turn_accel = params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2;
   auto turn_v = [&](std::size_t j) {
     const auto& t = specs[j];
-    return turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps,
-                          t.accel_mps2 > 0.0 ? t.accel_mps2 : turn_accel);
+    return turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps, t.accel_scale * turn_accel);
   };
   SpeedProfile prof;
   for (std::size_t i = 0; i < specs.size(); ++i) {
@@ -553,7 +553,7 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
         }
         for (auto& t : turn_around(p.waypoints.back(), da, q.waypoints.front(), v_last(p), v_first(q), spray_on_turns,
                                    run_out, run_in, db)) {
-          if (t.kind == SegmentKind::Turn) t.accel_mps2 = turn_accel;  // the profile caps the arc speed alike
+          if (t.kind == SegmentKind::Turn) t.accel_scale = gap_scale;  // the profile eases the arc speed alike
           path.append(std::move(t));
         }
       } else {
@@ -586,6 +586,14 @@ CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, dou
   lead1.position_m += lead_out_m * end_direction(last);
   path.append(polyline_piece(SegmentKind::Lead, {last.waypoints.back(), lead1}, v_last(last), false, -1));
   return path;
+}
+
+CartesianPath timing_region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m,
+                                 const TimingConfig& timing, int first_pass_index,
+                                 const std::vector<double>& gap_accel_scale) {
+  return region_path(passes, lead_in_m, lead_out_m, timing.spray_on_turns, first_pass_index, timing.turn_run_m,
+                     timing.nozzle_max_accel_mps2, timing.turn_speed_mps, timing.speed_change_accel_mps2,
+                     gap_accel_scale);
 }
 
 TimingParams TimingParams::from_config(const TimingConfig& c) {
@@ -1026,6 +1034,17 @@ void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const 
   tr.kind.push_back(kind);
 }
 
+// Longest lead the swarm considers for a region (and the lead time_plan tracks the region's first
+// stretch from, so both see the same joint path): the config's bound, or more where fast end passes
+// need it: room for k1, k2 down to 0.5 at the nozzle acceleration limit (start peak
+// v^2 (2 - k1) / (k1 s)).
+double swarm_max_lead(const std::vector<Pass>& passes, const TimingConfig& timing) {
+  double v_end = 0.0;
+  if (!passes.empty() && !passes.front().waypoints.empty() && !passes.back().waypoints.empty())
+    v_end = std::max(passes.front().speed_at(0), passes.back().speed_at(passes.back().waypoints.size() - 1));
+  return std::max(timing.max_lead_length_m, 3.0 * v_end * v_end / timing.nozzle_max_accel_mps2);
+}
+
 // One region timed from rest at q_prev: the transit to it, then its Cartesian stretches joined by
 // joint-space rest-to-rest moves. Times start at 0 at q_prev (which is not included).
 // slot_scale (passes + 1 values in (0, 1]: the lead-in, the gap after each pass but the last, the
@@ -1041,8 +1060,8 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
                          const Eigen::VectorXd& q_prev_in, const TimingConfig& timing, const RobotConfig& robot_config,
                          const TimingParams& params, const std::vector<double>& slot_scale) {
   const double rate = timing.trajectory_rate_hz;
-  const double max_lead = std::max({timing.max_lead_length_m, params.start_length_m, params.end_length_m});
-  const double stop_accel = timing.nozzle_max_accel_mps2;
+  const double max_lead = std::max({swarm_max_lead(passes, timing), params.start_length_m, params.end_length_m});
+  const double stop_accel = timing.nozzle_max_accel_mps2;  // sizes the leads, as in timing_region_path
   RegionTiming out;
   TimedTrajectory& tr = out.part;
   const std::size_t n = passes.size();
@@ -1052,7 +1071,6 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
   // (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast passes get
   // longer run-ups than the config's default. The swarm's parameters already satisfy this.
   TimingParams rp = params;
-  rp.turn_accel_mps2 = params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2;
   if (!passes.empty() && passes.front().waypoints.size() >= 2) {
     const Pass& f = passes.front();
     const Pass& l = passes.back();
@@ -1062,8 +1080,7 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
         std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * slot_scale.back() * stop_accel));
   }
   auto make_path = [&](double lead_in, double lead_out, int first) {
-    return region_path(passes, lead_in, lead_out, timing.spray_on_turns, first, timing.turn_run_m, stop_accel,
-                       rp.turn_speed_mps, rp.turn_accel_mps2, gap_scale);
+    return timing_region_path(passes, lead_in, lead_out, timing, first, gap_scale);
   };
   const CartesianPath path = make_path(rp.start_length_m, rp.end_length_m, pass_offset);
   const SpeedProfile prof = region_profile(path, rp);
@@ -1094,8 +1111,7 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
     bool tracked = false;
     if (c == 0) {
       // The joint path starts where the swarm's RegionJointModel starts it (at the longest
-      // lead-in) so that both see the same q(s) up to the first turn (the model keeps fixed turn
-      // runs and Cartesian stop-and-go moves): the unused part of that lead-in is prepended,
+      // lead-in) so that both see the same q(s): the unused part of that lead-in is prepended,
       // then dropped. If that longer lead-in leaves the reach, the bound is halved as in
       // tune_timing.
       std::size_t prefix = 0;
@@ -1180,12 +1196,18 @@ std::vector<double> off_pass_accel_ratios(const Robot& robot, const RegionTiming
 }  // namespace
 
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
-                          const TimingConfig& timing, const RobotConfig& robot_config, const TimingParams* params_in) {
+                          const TimingConfig& timing, const RobotConfig& robot_config,
+                          const std::vector<TimingParams>& params_in) {
   const int dof = robot.dof();
   if (q_start.size() != dof)
     throw std::invalid_argument("time_plan: q_start has " + std::to_string(q_start.size()) + " entries, the robot has " +
                                 std::to_string(dof) + " joints");
-  const TimingParams params = params_in ? *params_in : TimingParams::from_config(timing);
+  if (params_in.size() > 1 && params_in.size() != regions.size())
+    throw std::invalid_argument("time_plan: " + std::to_string(params_in.size()) + " timing parameter sets for " +
+                                std::to_string(regions.size()) + " regions (give none, one, or one per region)");
+  auto params_of_region = [&](std::size_t r) {
+    return params_in.empty() ? TimingParams::from_config(timing) : params_in[params_in.size() == 1 ? 0 : r];
+  };
   TimedTrajectory tr;
   push_sample(tr, 0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
   double t0 = 0.0;
@@ -1208,8 +1230,8 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     for (int attempt = 0; attempt < kAttempts; ++attempt) {
       RegionTiming rt;
       try {
-        rt = time_region(robot, regions[r], static_cast<int>(r), pass_offset, q_prev, timing, robot_config, params,
-                         scale);
+        rt = time_region(robot, regions[r], static_cast<int>(r), pass_offset, q_prev, timing, robot_config,
+                         params_of_region(r), scale);
       } catch (const std::exception&) {
         if (attempt == 0) throw;
         for (std::size_t k = 0; k < slots; ++k) scale[k] = std::sqrt(scale[k] * best_scale[k]);
@@ -1284,32 +1306,58 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
 // ------------------------------------------------------------------------------------------------
 
 RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m,
-                                   bool spray_on_turns, const Eigen::VectorXd& seed, const RobotConfig& robot_config,
-                                   double step_m, double turn_run_m)
-    : path_(region_path(passes, max_lead_m, max_lead_m, spray_on_turns, 0, turn_run_m)),
+                                   const TimingConfig& timing, const Eigen::VectorXd& seed,
+                                   const RobotConfig& robot_config, double step_m)
+    : path_(timing_region_path(passes, max_lead_m, max_lead_m, timing)),
       max_lead_m_(max_lead_m),
       vel_limit_(robot.velocity_limits()),
       acc_limit_(robot.acceleration_limits()) {
   if (!(step_m > 0.0)) throw std::invalid_argument("RegionJointModel: step_m must be > 0");
-  const double L = path_.length_m();
-  const int n = std::max(2, static_cast<int>(std::ceil(L / step_m)));
-  std::vector<NozzlePose> poses;
-  for (int k = 0; k <= n; ++k) {
-    s_.push_back(L * k / n);
-    poses.push_back(path_.pose_at(s_.back()));
+  // Stretches between the joint moves (time_region's windows, in arc length).
+  std::vector<std::pair<double, double>> spans;
+  double open = 0.0;
+  for (const auto& [sa, sb] : joint_move_spans(path_)) {
+    spans.emplace_back(open, sa);
+    open = sb;
   }
-  q_ = timing_joint_path(robot, poses, seed, robot_config, &tracked_);
-  finite_differences(s_, q_, dq_, ddq_, true);
+  spans.emplace_back(open, path_.length_m());
+  Eigen::VectorXd q_prev = seed;
+  for (std::size_t c = 0; c < spans.size(); ++c) {
+    const auto [s0, s1] = spans[c];
+    const int n = std::max(2, static_cast<int>(std::ceil((s1 - s0) / step_m)));
+    Stretch st;
+    std::vector<NozzlePose> poses;
+    for (int k = 0; k <= n; ++k) {
+      st.s.push_back(s0 + (s1 - s0) * k / n);
+      poses.push_back(path_.pose_at(st.s.back()));
+    }
+    bool tracked = false;
+    st.q = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
+    tracked_ = tracked_ && tracked;
+    finite_differences(st.s, st.q, st.dq, st.ddq, true);
+    if (c > 0) move_s_.push_back(quintic_min_duration(q_prev, st.q.front(), vel_limit_, acc_limit_));
+    q_prev = st.q.back();
+    stretches_.push_back(std::move(st));
+  }
 }
 
-void RegionJointModel::interpolate(double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const {
-  const double L = s_.back();
-  const double x = std::clamp(s / L, 0.0, 1.0) * (static_cast<double>(s_.size()) - 1.0);
-  const std::size_t k = std::min(static_cast<std::size_t>(x), s_.size() - 2);
+int RegionJointModel::stretch_at(double s) const {
+  for (std::size_t k = 0; k < stretches_.size(); ++k) {
+    if (s <= stretches_[k].s.back() || k + 1 == stretches_.size()) return static_cast<int>(k);
+    if (s < stretches_[k + 1].s.front()) return -1;
+  }
+  return static_cast<int>(stretches_.size()) - 1;
+}
+
+void RegionJointModel::interpolate(const Stretch& st, double s, Eigen::VectorXd& q, Eigen::VectorXd& dq,
+                                   Eigen::VectorXd& ddq) const {
+  const double s0 = st.s.front(), s1 = st.s.back();
+  const double x = std::clamp((s - s0) / (s1 - s0), 0.0, 1.0) * (static_cast<double>(st.s.size()) - 1.0);
+  const std::size_t k = std::min(static_cast<std::size_t>(x), st.s.size() - 2);
   const double f = x - static_cast<double>(k);
-  q = (1.0 - f) * q_[k] + f * q_[k + 1];
-  dq = (1.0 - f) * dq_[k] + f * dq_[k + 1];
-  ddq = (1.0 - f) * ddq_[k] + f * ddq_[k + 1];
+  q = (1.0 - f) * st.q[k] + f * st.q[k + 1];
+  dq = (1.0 - f) * st.dq[k] + f * st.dq[k + 1];
+  ddq = (1.0 - f) * st.ddq[k] + f * st.ddq[k + 1];
 }
 
 RegionJointModel::Evaluation RegionJointModel::evaluate(const TimingParams& params, const NozzleLimits& limits,
@@ -1322,26 +1370,57 @@ RegionJointModel::Evaluation RegionJointModel::evaluate(const TimingParams& para
   const SpeedProfile prof = profile_from_specs(specs, params);
   const double offset = max_lead_m_ - params.start_length_m;
   Evaluation ev;
+  // The joint moves replace the profile's straight rest-to-rest pieces.
   ev.duration_s = prof.duration_s();
+  for (std::size_t k = 0; k + 1 < stretches_.size(); ++k)
+    ev.duration_s += move_s_[k] - (prof.time_at_distance(stretches_[k + 1].s.front() - offset) -
+                                   prof.time_at_distance(stretches_[k].s.back() - offset));
+  // Pieces the parameters shape: the leads, and the turn arcs with their runs.
+  auto tuned_at = [&](double s) {
+    double local = 0.0;
+    const PathPiece& piece = path_.pieces()[path_.locate(s, local)];
+    return piece.kind == SegmentKind::Lead || piece.kind == SegmentKind::Turn ||
+           (piece.kind == SegmentKind::Link && piece.motion == 0);
+  };
+  auto update = [](NozzleCheck& c, double v, double a) {
+    c.max_speed_mps = std::max(c.max_speed_mps, v);
+    c.max_accel_mps2 = std::max(c.max_accel_mps2, a);
+  };
   Eigen::VectorXd q, dq, ddq;
   for (double t : time_grid(prof.duration_s(), rate_hz)) {
     const auto st = prof.at(t);
     const double s = offset + st.s_m;
-    interpolate(s, q, dq, ddq);
+    const int k = stretch_at(s);
+    if (k < 0) continue;  // joint move: within the limits by construction
+    interpolate(stretches_[static_cast<std::size_t>(k)], s, q, dq, ddq);
     const Eigen::VectorXd qd = dq * st.v_mps;
     const Eigen::VectorXd qdd = ddq * (st.v_mps * st.v_mps) + dq * st.a_mps2;
-    ev.velocity_ratio = std::max(ev.velocity_ratio, qd.cwiseAbs().cwiseQuotient(vel_limit_).maxCoeff());
-    ev.acceleration_ratio = std::max(ev.acceleration_ratio, qdd.cwiseAbs().cwiseQuotient(acc_limit_).maxCoeff());
-    const double an = st.v_mps * st.v_mps * path_.curvature_at(s);
-    ev.nozzle.max_speed_mps = std::max(ev.nozzle.max_speed_mps, st.v_mps);
-    ev.nozzle.max_accel_mps2 = std::max(ev.nozzle.max_accel_mps2, std::hypot(st.a_mps2, an));
+    const double rv = qd.cwiseAbs().cwiseQuotient(vel_limit_).maxCoeff();
+    const double ra = qdd.cwiseAbs().cwiseQuotient(acc_limit_).maxCoeff();
+    const double accel = std::hypot(st.a_mps2, st.v_mps * st.v_mps * path_.curvature_at(s));
+    ev.velocity_ratio = std::max(ev.velocity_ratio, rv);
+    ev.acceleration_ratio = std::max(ev.acceleration_ratio, ra);
+    update(ev.nozzle, st.v_mps, accel);
+    if (tuned_at(s)) {
+      ev.tuned_velocity_ratio = std::max(ev.tuned_velocity_ratio, rv);
+      ev.tuned_acceleration_ratio = std::max(ev.tuned_acceleration_ratio, ra);
+      update(ev.tuned_nozzle, st.v_mps, accel);
+    }
   }
-  for (const auto& p : prof.pieces()) ev.nozzle.max_accel_mps2 = std::max(ev.nozzle.max_accel_mps2, p.peak_accel_mps2());
-  ev.nozzle.speed_ratio = ev.nozzle.max_speed_mps / limits.max_speed_mps;
-  ev.nozzle.accel_ratio = ev.nozzle.max_accel_mps2 / limits.max_accel_mps2;
-  interpolate(offset, q, dq, ddq);
+  // Exact peaks of the profile's speed changes (the sampling may step over them).
+  double t0 = 0.0;
+  for (const auto& p : prof.pieces()) {
+    update(ev.nozzle, 0.0, p.peak_accel_mps2());
+    if (tuned_at(offset + prof.at(t0 + 0.5 * p.duration_s).s_m)) update(ev.tuned_nozzle, 0.0, p.peak_accel_mps2());
+    t0 += p.duration_s;
+  }
+  for (NozzleCheck* c : {&ev.nozzle, &ev.tuned_nozzle}) {
+    c->speed_ratio = c->max_speed_mps / limits.max_speed_mps;
+    c->accel_ratio = c->max_accel_mps2 / limits.max_accel_mps2;
+  }
+  interpolate(stretches_.front(), offset, q, dq, ddq);
   ev.q_first = q;
-  interpolate(offset + prof.length_m(), q, dq, ddq);
+  interpolate(stretches_.back(), offset + prof.length_m(), q, dq, ddq);
   ev.q_last = q;
   return ev;
 }
@@ -1445,6 +1524,7 @@ TimingParams params_of(const Eigen::VectorXd& x, const TimingConfig& c) {
   p.start_length_m = x[2];
   p.end_length_m = x[3];
   p.turn_speed_mps = x[4];
+  p.turn_accel_mps2 = x[5];
   return p;
 }
 
@@ -1453,95 +1533,87 @@ TimingParams params_of(const Eigen::VectorXd& x, const TimingConfig& c) {
 TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
                          const TimingConfig& timing, const RobotConfig& robot_config) {
   if (regions.empty()) throw std::invalid_argument("tune_timing: no regions");
+  if (robot && q_start.size() != robot->dof()) throw std::invalid_argument("tune_timing: q_start does not match the robot");
   const NozzleLimits limits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2};
-  double max_lead = timing.max_lead_length_m;
-  std::vector<RegionJointModel> models;
-  if (robot) {
-    if (q_start.size() != robot->dof()) throw std::invalid_argument("tune_timing: q_start does not match the robot");
-    // The longest lead-ins / lead-outs may leave the reach: halve the bound until every region's
-    // joint path exists (time_plan does the same).
-    for (;;) {
-      models.clear();
-      Eigen::VectorXd seed = q_start;
-      try {
-        for (std::size_t r = 0; r < regions.size(); ++r) {
-          try {
-            models.emplace_back(*robot, regions[r], max_lead, timing.spray_on_turns, seed, robot_config, 0.005,
-                                timing.turn_run_m);
-          } catch (const std::exception& e) {
+  // The swarm keeps a margin on the joint limits: its arc-length model and the final sampled
+  // trajectory differ slightly (start configuration, discretisation).
+  const double jm = 1.0 - timing.joint_limit_margin;
+  const TimingParams p0 = TimingParams::from_config(timing);
+  TimingTuning out;
+  out.initial_feasible = true;
+  double initial = 0.0;
+  Eigen::VectorXd q_prev = q_start;
+  // Regions one after the other: a region's timing changes the next one only through the
+  // configuration it ends in (the transit), so each gets its own particle.
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    if (regions[r].empty()) throw std::invalid_argument("tune_timing: region " + std::to_string(r) + " has no passes");
+    double max_lead = swarm_max_lead(regions[r], timing);
+    std::optional<RegionJointModel> model;
+    if (robot) {
+      // The longest lead-ins / lead-outs may leave the reach: halve the bound until the region's
+      // joint path exists (time_plan does the same).
+      for (;;) {
+        try {
+          model.emplace(*robot, regions[r], max_lead, timing, q_prev, robot_config);
+          break;
+        } catch (const std::exception& e) {
+          if (max_lead <= 0.05)
             throw std::runtime_error("tune_timing: region " + std::to_string(r) + " (with " + num(max_lead) +
                                      " m leads): " + e.what());
-          }
-          TimingParams mid = TimingParams::from_config(timing);
-          mid.start_length_m = mid.end_length_m = 0.5 * max_lead;
-          seed = models.back().evaluate(mid, limits).q_last;
+          max_lead = std::max(0.05, 0.5 * max_lead);
         }
-        break;
-      } catch (const std::runtime_error&) {
-        if (max_lead <= 0.05) throw;
-        max_lead = std::max(0.05, 0.5 * max_lead);
       }
     }
-  }
-  const double min_lead = std::min(0.02, max_lead);
-  // Execution time of every region plus the joint transits; infeasible -> penalty above any time.
-  auto total = [&](const TimingParams& p, bool& feasible) {
-    double time = 0.0, worst = 0.0;
-    Eigen::VectorXd q_prev = q_start;
-    for (std::size_t r = 0; r < regions.size(); ++r) {
-      if (robot) {
-        const auto ev = models[r].evaluate(p, limits);
-        time += ev.duration_s + quintic_min_duration(q_prev, ev.q_first, robot->velocity_limits(), robot->acceleration_limits());
-        q_prev = ev.q_last;
-        // The swarm keeps a margin on the joint limits: its arc-length model and the final sampled
-        // trajectory differ slightly (start configuration, discretisation).
-        const double jm = 1.0 - timing.joint_limit_margin;
-        worst = std::max({worst, ev.velocity_ratio / jm, ev.acceleration_ratio / jm, ev.nozzle.speed_ratio,
-                          ev.nozzle.accel_ratio});
+    const double min_lead = std::min(0.02, max_lead);
+    // Execution time of the region plus the transit to it; infeasible -> penalty above any time.
+    auto cost = [&](const TimingParams& p, Eigen::VectorXd* q_last) {
+      double time = 0.0, worst = 0.0;
+      if (model) {
+        const auto ev = model->evaluate(p, limits);
+        time = ev.duration_s + quintic_min_duration(q_prev, ev.q_first, robot->velocity_limits(),
+                                                    robot->acceleration_limits());
+        // Only what the parameters shape (see Evaluation): an excess elsewhere would make every
+        // particle infeasible alike; plan_for_arm and time_plan deal with it.
+        worst = std::max({ev.tuned_velocity_ratio / jm, ev.tuned_acceleration_ratio / jm,
+                          ev.tuned_nozzle.speed_ratio, ev.tuned_nozzle.accel_ratio});
+        if (q_last) *q_last = ev.q_last;
       } else {
-        const CartesianPath path =
-            region_path(regions[r], p.start_length_m, p.end_length_m, timing.spray_on_turns, 0, timing.turn_run_m);
+        const CartesianPath path = timing_region_path(regions[r], p.start_length_m, p.end_length_m, timing);
         const SpeedProfile prof = region_profile(path, p);
         const auto c = check_nozzle(path, prof, limits, 100.0);
-        time += prof.duration_s();
-        worst = std::max({worst, c.speed_ratio, c.accel_ratio});
+        time = prof.duration_s();
+        worst = std::max(c.speed_ratio, c.accel_ratio);
       }
-    }
-    feasible = worst <= 1.0;
-    return feasible ? time : 1e6 * worst;
-  };
-  TimingTuning out;
-  const TimingParams p0 = TimingParams::from_config(timing);
-  {
-    bool feas = false;
-    TimingParams p = p0;
-    p.start_length_m = std::clamp(p.start_length_m, min_lead, max_lead);
-    p.end_length_m = std::clamp(p.end_length_m, min_lead, max_lead);
-    const double v = total(p, feas);
-    out.initial_feasible = feas;
-    out.initial_duration_s = feas ? v : std::numeric_limits<double>::infinity();
-  }
-  double vmin_pass = std::numeric_limits<double>::infinity(), vsum = 0.0;
-  int npass = 0;
-  for (const auto& reg : regions)
-    for (const auto& p : reg) {
+      return worst <= 1.0 ? time : 1e6 * worst;
+    };
+    TimingParams p0_region = p0;
+    p0_region.start_length_m = std::clamp(p0.start_length_m, min_lead, max_lead);
+    p0_region.end_length_m = std::clamp(p0.end_length_m, min_lead, max_lead);
+    const double initial_region = cost(p0_region, nullptr);
+    out.initial_feasible = out.initial_feasible && initial_region < 1e6;
+    initial += initial_region;
+    double vmin_pass = std::numeric_limits<double>::infinity(), vsum = 0.0;
+    for (const auto& p : regions[r]) {
       vmin_pass = std::min(vmin_pass, p.speed_mps);
       vsum += p.speed_mps;
-      ++npass;
     }
-  Eigen::VectorXd lo(5), hi(5);
-  lo << 0.05, 0.0, min_lead, min_lead, std::min(0.02, vmin_pass);
-  hi << 1.0, 0.95, max_lead, max_lead, timing.nozzle_max_speed_mps;
-  Eigen::VectorXd x0(5);
-  x0 << p0.k1, p0.k2, p0.start_length_m, p0.end_length_m, p0.turn_speed_mps > 0.0 ? p0.turn_speed_mps : vsum / npass;
-  out.pso = pso_minimize(
-      [&](const Eigen::VectorXd& x) {
-        bool feas = false;
-        return total(params_of(x, timing), feas);
-      },
-      lo, hi, PsoOptions::from_config(timing), {x0});
-  out.params = params_of(out.pso.best_x, timing);
-  out.duration_s = out.pso.best_f;
+    const double turn_accel0 = p0.turn_accel_mps2 > 0.0 ? p0.turn_accel_mps2 : p0.speed_change_accel_mps2;
+    Eigen::VectorXd lo(6), hi(6), x0(6);
+    lo << 0.05, 0.0, min_lead, min_lead, std::min(0.02, vmin_pass), std::min(0.1, turn_accel0);
+    hi << 1.0, 0.95, max_lead, max_lead, timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2;
+    x0 << p0.k1, p0.k2, p0.start_length_m, p0.end_length_m,
+        p0.turn_speed_mps > 0.0 ? p0.turn_speed_mps : vsum / static_cast<double>(regions[r].size()), turn_accel0;
+    PsoOptions opt = PsoOptions::from_config(timing);
+    opt.seed += r;
+    out.pso.push_back(pso_minimize([&](const Eigen::VectorXd& x) { return cost(params_of(x, timing), nullptr); },
+                                   lo, hi, opt, {x0}));
+    // No feasible particle: the config's parameters, which time_plan eases where the arm needs it.
+    out.feasible.push_back(out.pso.back().best_f < 1e6);
+    out.params.push_back(out.feasible.back() ? params_of(out.pso.back().best_x, timing) : p0_region);
+    out.duration_s += out.feasible.back() ? out.pso.back().best_f : initial_region;
+    if (model) cost(out.params.back(), &q_prev);
+  }
+  out.initial_duration_s = out.initial_feasible ? initial : std::numeric_limits<double>::infinity();
   return out;
 }
 

@@ -70,6 +70,8 @@ def _run_job(cloud, config, out: Path, as_json: bool, inputs=()) -> dict:
     return result
 
 
+TUNE_HELP = ("tune the timing of every region by particle swarm (timing.tune_with_pso); kept when faster "
+             "within the same joint limits")
 SUMMARY = ["cells", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
            "total_time_s", "spray_time_ratio", "report_html"]
 
@@ -96,10 +98,12 @@ def synth(out: Path = typer.Option(..., "--out", help="cloud file to write (.pcd
 @app.command()
 def demo(out: Path = typer.Option(Path("out/demo"), "--out", help="output directory"),
          config: Optional[Path] = typer.Option(None, help="YAML config file"),
-         as_json: bool = typer.Option(False, "--json", help="print report.json to stdout")):
+         as_json: bool = typer.Option(False, "--json", help="print report.json to stdout"),
+         tune_timing: bool = typer.Option(False, "--tune-timing", help=TUNE_HELP)):
     """Plan and simulate the built-in synthetic bay; writes report.json/report.html to OUT."""
     with user_errors():
         cfg = _config(config)
+        cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
         cloud = _core.make_synthetic_bay(cfg.synth).sample(cfg.grid.cell_size_m)
         result = _run_job(cloud, cfg, out, as_json)
         _emit(result, as_json, SUMMARY)
@@ -112,10 +116,12 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
          out: Path = typer.Option(Path("out/plan"), "--out", help="output directory"),
          config: Optional[Path] = typer.Option(None, help="YAML config file"),
          units: str = typer.Option("m", help="units of the cloud coordinates: m, cm or mm"),
-         as_json: bool = typer.Option(False, "--json", help="print report.json to stdout")):
+         as_json: bool = typer.Option(False, "--json", help="print report.json to stdout"),
+         tune_timing: bool = typer.Option(False, "--tune-timing", help=TUNE_HELP)):
     """Plan a scanned bay; writes report.json/report.html, the plan and the sprayed cloud to OUT."""
     with user_errors():
         cfg = _config(config, units)
+        cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
         cloud = read_cloud(cloud_path)
         result = _run_job(cloud, cfg, out, as_json, inputs=[cloud_path])
         _emit(result, as_json, SUMMARY)

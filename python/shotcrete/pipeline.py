@@ -166,7 +166,16 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
             "max_velocity_ratio": trajectory.max_velocity_ratio,
             "max_acceleration_ratio": trajectory.max_acceleration_ratio,
             "max_position_violation": trajectory.max_position_violation,
+            "config_timing_duration_s": arm_plan.config_duration_s,
         }
+        if arm_plan.tuning is not None or arm_plan.tuning_error:
+            tun = arm_plan.tuning
+            result["trajectory"]["swarm"] = {
+                "used": bool(arm_plan.tuned_timing_used), "error": arm_plan.tuning_error or None,
+                "regions_tuned": int(sum(tun.feasible)) if tun else 0, "regions": len(tun.feasible) if tun else 0,
+                "evaluations": int(sum(p.evaluations for p in tun.pso)) if tun else 0,
+                "params": [p.to_dict() for p in tun.params] if tun else [],
+            }
     else:
         result["total_time_s"] = None
 

@@ -166,6 +166,9 @@ void bind_timing(py::module_& m) {
       .def_readwrite("start_length_m", &TimingParams::start_length_m)
       .def_readwrite("end_length_m", &TimingParams::end_length_m)
       .def_readwrite("turn_speed_mps", &TimingParams::turn_speed_mps)
+      .def_readwrite("turn_accel_mps2", &TimingParams::turn_accel_mps2,
+                     "centripetal acceleration capping the turn arc speed; 0 = speed_change_accel_mps2")
+      .def_readwrite("speed_change_accel_mps2", &TimingParams::speed_change_accel_mps2)
       .def("to_dict", [](const TimingParams& p) {
         py::dict d;
         d["k1"] = p.k1;
@@ -173,6 +176,7 @@ void bind_timing(py::module_& m) {
         d["start_length_m"] = p.start_length_m;
         d["end_length_m"] = p.end_length_m;
         d["turn_speed_mps"] = p.turn_speed_mps;
+        d["turn_accel_mps2"] = p.turn_accel_mps2;
         return d;
       });
 
@@ -223,6 +227,13 @@ void bind_timing(py::module_& m) {
       py::arg("passes"), py::arg("lead_in_m"), py::arg("lead_out_m"), py::arg("spray_on_turns") = false,
       py::arg("turn_run_m") = 0.0,
       "Serpentine path of one region; passes as dicts {positions, axes, speed_mps}, tuples or Pass objects.");
+  m.def(
+      "timing_region_path",
+      [](const py::handle& passes, double lead_in, double lead_out, const TimingConfig& tc) {
+        return timing_region_path(region_from_py(passes), lead_in, lead_out, tc);
+      },
+      py::arg("passes"), py::arg("lead_in_m"), py::arg("lead_out_m"), py::arg("timing_config"),
+      "The region path time_plan times: turn and stop-and-go runs sized by the timing config.");
   m.def("region_profile", &region_profile, py::arg("path"), py::arg("params"),
         "Cycloid start/end, pass speeds, cycloidal speed changes on the turns.");
   m.def(
@@ -300,14 +311,18 @@ void bind_timing(py::module_& m) {
   m.def(
       "time_plan",
       [](const Robot& robot, const py::handle& regions, const Eigen::VectorXd& q_start, const TimingConfig& tc,
-         const RobotConfig& rc, const TimingParams* params) {
+         const RobotConfig& rc, const py::object& params) {
         const auto regs = regions_from_py(regions);
+        std::vector<TimingParams> per_region;
+        if (py::isinstance<TimingParams>(params)) per_region.push_back(params.cast<TimingParams>());
+        else if (!params.is_none()) per_region = params.cast<std::vector<TimingParams>>();
         py::gil_scoped_release release;
-        return time_plan(robot, regs, q_start, tc, rc, params);
+        return time_plan(robot, regs, q_start, tc, rc, per_region);
       },
       py::arg("robot"), py::arg("regions"), py::arg("q_start"), py::arg("timing_config"), py::arg("robot_config"),
-      py::arg("params") = nullptr,
-      "Regions (lists of passes) in spraying order -> timed joint trajectory at the config's rate.");
+      py::arg("params") = py::none(),
+      "Regions (lists of passes) in spraying order -> timed joint trajectory at the config's rate. params: None\n"
+      "(the config's), one TimingParams for every region, or a list with one per region (tune_timing's).");
 
   m.def(
       "time_path",
@@ -368,7 +383,9 @@ void bind_timing(py::module_& m) {
         "Particle swarm with adaptive inertia weight and acceleration coefficients (AIWCPSO), seeded.");
 
   py::class_<TimingTuning>(m, "TimingTuning")
-      .def_readonly("params", &TimingTuning::params)
+      .def_readonly("params", &TimingTuning::params, "one TimingParams per region")
+      .def_property_readonly("feasible",
+                             [](const TimingTuning& t) { return std::vector<bool>(t.feasible.begin(), t.feasible.end()); })
       .def_readonly("duration_s", &TimingTuning::duration_s)
       .def_readonly("initial_duration_s", &TimingTuning::initial_duration_s)
       .def_readonly("initial_feasible", &TimingTuning::initial_feasible)
@@ -382,8 +399,8 @@ void bind_timing(py::module_& m) {
         return tune_timing(robot, regs, q_start, tc, rc);
       },
       py::arg("robot"), py::arg("regions"), py::arg("q_start"), py::arg("timing_config"), py::arg("robot_config"),
-      "AIWCPSO over (k1, k2, start/end length, turn speed): minimum execution time within joint and nozzle limits "
-      "(robot None: nozzle limits only).");
+      "AIWCPSO per region over (k1, k2, start/end length, turn speed, turn acceleration): minimum execution time "
+      "within joint and nozzle limits (robot None: nozzle limits only).");
 
   py::class_<SpeedCapMap>(m, "SpeedCapMap", "Speed bounds near points, learned from timed trajectories.")
       .def(py::init<>())
@@ -409,7 +426,14 @@ void bind_timing(py::module_& m) {
                              "TimedTrajectory, or None when the timing failed (timing_error)")
       .def_readonly("timing_error", &ArmPlan::timing_error)
       .def_readonly("replans", &ArmPlan::replans)
-      .def_readonly("learned", &ArmPlan::learned);
+      .def_readonly("learned", &ArmPlan::learned)
+      .def_property_readonly("tuning",
+                             [](const ArmPlan& a) -> py::object { return a.tuning ? py::cast(*a.tuning) : py::none(); },
+                             "TimingTuning when timing.tune_with_pso, else None")
+      .def_readonly("config_duration_s", &ArmPlan::config_duration_s,
+                    "trajectory duration with the config's timing parameters [s]")
+      .def_readonly("tuned_timing_used", &ArmPlan::tuned_timing_used)
+      .def_readonly("tuning_error", &ArmPlan::tuning_error);
   m.def(
       "plan_for_arm",
       [](const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {

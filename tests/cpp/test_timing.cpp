@@ -297,7 +297,7 @@ TEST(Region, TurnRunsSizedForTheSpeedChange) {
       EXPECT_NEAR(p.length_m(), (0.64 - 0.5 * a * r) / (0.5 * a), 1e-6);
     }
     if (p.kind != SegmentKind::Turn) continue;
-    EXPECT_NEAR(p.accel_mps2, 0.5 * a, 1e-12);
+    EXPECT_NEAR(p.accel_scale, 0.5, 1e-12);
     const double mid = eased_prof.time_at_distance(eased.piece_start_m(i) + 0.5 * p.length_m());
     EXPECT_NEAR(eased_prof.at(mid).v_mps, std::sqrt(0.5 * a * r), 1e-6);
   }
@@ -590,8 +590,10 @@ TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
     }
     ASSERT_LT(t.duration_s, 1e5) << "no feasible timing found at " << amax;
     // Re-check the tuned particle independently, on a finer sampling.
-    const CartesianPath path = region_path(passes, t.params.start_length_m, t.params.end_length_m, false, 0, tc.turn_run_m);
-    const SpeedProfile prof = region_profile(path, t.params);
+    ASSERT_EQ(t.params.size(), 1u);
+    const TimingParams& tuned = t.params[0];
+    const CartesianPath path = timing_region_path(passes, tuned.start_length_m, tuned.end_length_m, tc);
+    const SpeedProfile prof = region_profile(path, tuned);
     EXPECT_NEAR(prof.duration_s(), t.duration_s, 1e-9);
     EXPECT_LE(check_nozzle(path, prof, NozzleLimits{tc.nozzle_max_speed_mps, amax}, 2000.0).accel_ratio, 1.0 + 1e-3);
   }
@@ -606,7 +608,8 @@ TEST(RobotTiming, TunedRegionsRespectJointLimits) {
                                                axial_region(3, 1.0, 0.2, 0.1, 0.7, {0.3})};
   const TimingTuning tun = tune_timing(&robot, regions, robot.neutral(), tc, rc);
   ASSERT_LT(tun.duration_s, 1e5) << "no feasible timing";
-  const TimedTrajectory tr = time_plan(robot, regions, robot.neutral(), tc, rc, &tun.params);
+  ASSERT_EQ(tun.params.size(), regions.size());
+  const TimedTrajectory tr = time_plan(robot, regions, robot.neutral(), tc, rc, tun.params);
   EXPECT_EQ(tr.untracked_regions, 0);
   // Finite-difference velocities / accelerations of the sampled joint path within the limits
   // (the swarm judged them on its arc-length model; the tolerance covers the two discretisations).
@@ -617,9 +620,9 @@ TEST(RobotTiming, TunedRegionsRespectJointLimits) {
   // regions' end configurations) may differ slightly from the swarm's model.
   double regions_s = 0.0;
   for (std::size_t r = 0; r < regions.size(); ++r) {
-    const CartesianPath path =
-        region_path(regions[r], tun.params.start_length_m, tun.params.end_length_m, false, 0, tc.turn_run_m);
-    regions_s += region_profile(path, tun.params).duration_s();
+    const TimingParams& p = tun.params[r];
+    const CartesianPath path = timing_region_path(regions[r], p.start_length_m, p.end_length_m, tc);
+    regions_s += region_profile(path, p).duration_s();
   }
   EXPECT_NEAR(tr.duration_s - tr.transit_time_s, regions_s, 1e-9);
   EXPECT_NEAR(tr.duration_s, tun.duration_s, 0.01 * tun.duration_s);
@@ -672,10 +675,7 @@ TEST(RobotTiming, TunedRegionsRespectJointLimits) {
   EXPECT_LE(raw.max_acceleration_ratio, 1.0);
   const TimingParams nominal = TimingParams::from_config(tc);
   const double nominal_s =
-      region_profile(region_path(regions[0], nominal.start_length_m, nominal.end_length_m, false, 0, tc.turn_run_m,
-                                 tc.nozzle_max_accel_mps2, nominal.turn_speed_mps,
-                                 nominal.speed_change_accel_mps2),
-                     nominal)
+      region_profile(timing_region_path(regions[0], nominal.start_length_m, nominal.end_length_m, tc), nominal)
           .duration_s();
   EXPECT_GT(raw.duration_s - raw.transit_time_s, nominal_s + 0.05);
 }
@@ -908,4 +908,42 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   EXPECT_EQ(run_in.learn(in, vel, acc, 0.9), 1);
   EXPECT_EQ(run_in.points_m[0], in.nozzle[4].position_m);
   EXPECT_NEAR(run_in.speed_mps[0], 0.5 * std::sqrt(0.9 / 4.0), 1e-12);
+}
+
+TEST(RobotTiming, JointModelAgreesWithTimePlan) {
+  // The swarm's arc-length model against the sampled trajectory (a second method: IK per sample,
+  // finite differences in time) on a region with turns and a stop-and-go move: same duration (the
+  // joint move's quintic included) and about the same worst joint ratios.
+  auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.2, {0.2, 0.25, 0.15});
+  auto last = axial_region(4, 1.0, 0.2, 0.0, 1.2, {0.2})[3];
+  std::reverse(last.waypoints.begin(), last.waypoints.end());  // heads like pass 2: stop and go
+  passes.push_back(last);
+  const Robot robot = Robot::load(RobotConfig{});
+  const RobotConfig rc;
+  TimingConfig tc;
+  TimingParams p = TimingParams::from_config(tc);
+  p.k1 = 0.8;  // gentle enough that time_plan keeps the geometry (no easing)
+  p.k2 = 0.2;
+  p.start_length_m = p.end_length_m = 0.3;
+  const RegionJointModel model(robot, passes, tc.max_lead_length_m, tc, robot.neutral(), rc);
+  ASSERT_TRUE(model.tracked());
+  const auto ev = model.evaluate(p, NozzleLimits{tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2});
+  const TimedTrajectory tr = time_plan(robot, {passes}, robot.neutral(), tc, rc, {p});
+  ASSERT_LE(tr.max_acceleration_ratio, 1.0) << "time_plan eased the region: the geometries differ";
+  int moves = 0;
+  for (std::size_t i = 0; i < tr.size(); ++i) moves += tr.kind[i] == static_cast<char>(SegmentKind::Transit) && tr.region_index[i] == 0;
+  ASSERT_GT(moves, 0) << "no stop-and-go move";
+  const double transit = quintic_min_duration(robot.neutral(), ev.q_first, robot.velocity_limits(), robot.acceleration_limits());
+  EXPECT_NEAR(ev.duration_s + transit, tr.duration_s, 1e-3 * tr.duration_s);  // measured: 1e-5
+  // Worst ratios off the joint moves (the model skips them).
+  double vel = 0.0, acc = 0.0;
+  for (std::size_t i = 0; i < tr.size(); ++i) {
+    if (tr.kind[i] == static_cast<char>(SegmentKind::Transit)) continue;
+    vel = std::max(vel, tr.qd[i].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff());
+    acc = std::max(acc, tr.qdd[i].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
+  }
+  EXPECT_NEAR(ev.velocity_ratio, vel, 0.01 * vel);  // measured: 4e-5
+  EXPECT_NEAR(ev.acceleration_ratio, acc, 0.01 * acc);
+  // One parameter set per region or none; anything else names the mismatch.
+  EXPECT_THROW(time_plan(robot, {passes}, robot.neutral(), tc, rc, {p, p}), std::invalid_argument);
 }

@@ -152,3 +152,41 @@ def test_plan_for_arm_sprays_within_the_joint_limits(small_config, small_cloud):
     # The arm's caps bound some segments of this bay; without a robot nothing is capped.
     assert arm.plan.speed_capped > 0
     assert _core.plan_bay(surface, cfg).speed_capped == 0
+    assert arm.tuning is None and arm.config_duration_s == tr.duration_s
+
+
+def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
+    """timing.tune_with_pso: the swarm's per-region parameters replace the config's only when the
+    whole trajectory gets shorter and no joint ratio gets worse; the regions it could not make
+    feasible keep the config's parameters."""
+    from shotcrete.cli_robot import load_robot
+
+    cfg = small_config
+    cfg.timing.tune_with_pso = True
+    cfg.timing.pso_particles, cfg.timing.pso_iterations = 6, 4
+    robot = load_robot(cfg)
+    surface = _core.build_surface(small_cloud, cfg)
+    arm = _core.plan_for_arm(surface, cfg, robot)
+    assert arm.tuning_error == "" and arm.tuning is not None
+    regions = [list(r.passes) for rnd in arm.plan.rounds for r in rnd.regions]
+    tun = arm.tuning
+    assert len(tun.params) == len(tun.feasible) == len(tun.pso) == len(regions)
+    config = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
+    assert arm.config_duration_s == pytest.approx(config.duration_s, rel=1e-9)
+    tr = arm.trajectory
+    if arm.tuned_timing_used:
+        assert tr.duration_s < config.duration_s
+        assert tr.max_velocity_ratio <= max(config.max_velocity_ratio, 1.0) + 1e-9
+        assert tr.max_acceleration_ratio <= max(config.max_acceleration_ratio, 1.0) + 1e-9
+        # The kept trajectory is time_plan's with the reported parameters.
+        again = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot, tun.params)
+        assert again.duration_s == pytest.approx(tr.duration_s, rel=1e-12)
+    else:
+        assert tr.duration_s == pytest.approx(config.duration_s, rel=1e-12)
+    # Infeasible regions fall back to the config's parameters.
+    default = _core.TimingParams.from_config(cfg.timing).to_dict()
+    for ok, p in zip(tun.feasible, tun.params):
+        if not ok:
+            assert p.to_dict() == pytest.approx(default)
+    with pytest.raises(ValueError, match="timing parameter sets"):
+        _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot, [tun.params[0]] * (len(regions) + 1))

@@ -37,6 +37,12 @@ struct ArmPlan {
   std::string timing_error;
   int replans = 0;       // plan_bay runs after the first
   SpeedCapMap learned;   // bounds added by the re-plans
+  // timing.tune_with_pso: the swarm's per-region parameters, the duration with the config's
+  // parameters, and whether the tuned trajectory replaced it (faster, no worse on the limits).
+  std::optional<TimingTuning> tuning;
+  double config_duration_s = 0.0;
+  bool tuned_timing_used = false;
+  std::string tuning_error;  // why the swarm or its timing failed (the config's timing stands)
 };
 
 /// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the
@@ -45,6 +51,8 @@ struct ArmPlan {
 /// gets the speed that would have kept them within the limits and the bay is planned and timed again,
 /// at most timing.max_replans times. The deposit is always simulated at the speeds the trajectory
 /// sprays. An IK or timing failure leaves the trajectory empty with the reason in timing_error.
+/// With timing.tune_with_pso the final plan's regions are then tuned by tune_timing and timed
+/// again; that trajectory is kept when it is shorter and its worst joint ratios are no worse.
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
 

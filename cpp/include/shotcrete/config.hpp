@@ -136,6 +136,7 @@ struct TimingConfig {
   double nozzle_max_accel_mps2 = 2.0;  // nozzle acceleration limit, tangential + centripetal
   double joint_limit_margin = 0.05;  // share of the joint velocity/acceleration limits the swarm keeps free
   int max_replans = 3;  // re-plans at lower speeds where timed passes break a joint limit
+  bool tune_with_pso = false;  // plan_for_arm: tune the timing per region by swarm, keep it if faster
 };
 
 struct Config {

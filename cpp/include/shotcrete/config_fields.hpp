@@ -126,6 +126,7 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("nozzle_max_accel_mps2", &TimingConfig::nozzle_max_accel_mps2, 0.01, 100.0, "nozzle acceleration limit [m/s^2]");
   f("joint_limit_margin", &TimingConfig::joint_limit_margin, 0.0, 0.5, "share of joint vel/acc limits kept free by the swarm and the speed caps");
   f("max_replans", &TimingConfig::max_replans, 0, 20, "re-plans at lower speeds where timed passes break a joint limit");
+  f("tune_with_pso", &TimingConfig::tune_with_pso, 0, 0, "tune the timing per region by swarm (AIWCPSO); kept when faster within the same limits");
 }
 
 // g(name, member pointer to the section) for every section of Config.

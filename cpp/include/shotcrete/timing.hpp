@@ -102,8 +102,8 @@ struct PathPiece {
   // arc: p(phi) = center + r (-cos(phi) u + sin(phi) d), phi in [0, pi]; the axis blends from
   // axis0 to axis1 with weight (1 - cos phi) / 2
   bool is_arc = false;
-  double accel_mps2 = 0.0;  // turn arc: the acceleration capping its speed (region_path's turn
-                            // acceleration for its gap); 0 = the profile's turn acceleration
+  double accel_scale = 1.0;  // turn arc: share of the profile's turn acceleration that caps its
+                             // speed (region_path's gap scale: time_plan eases awkward joins)
   Eigen::Vector3d center{0, 0, 0}, u{1, 0, 0}, d{0, 1, 0};
   double radius_m = 0.0;
   Eigen::Vector3d axis0{0, 0, 1}, axis1{0, 0, 1};
@@ -162,12 +162,21 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
 /// that the change between the pass speed and the arc speed (region_profile's, from turn_speed_mps
 /// and the centripetal cap at turn_accel_mps2) peaks at turn_accel_mps2.
 /// gap_accel_scale (empty, or one value in (0, 1] per gap between consecutive passes) scales
-/// stop_accel_mps2 and turn_accel_mps2 for that gap alone: time_plan eases only the joins where the
-/// arm needs it.
+/// stop_accel_mps2 and turn_accel_mps2 for that gap alone, and the turn arc's accel_scale (the
+/// profile's arc speed): time_plan eases only the joins where the arm needs it.
 CartesianPath region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m, bool spray_on_turns,
                           int first_pass_index = 0, double turn_run_m = 0.0, double stop_accel_mps2 = 0.0,
                           double turn_speed_mps = 0.0, double turn_accel_mps2 = 0.0,
                           const std::vector<double>& gap_accel_scale = {});
+
+/// The region path time_plan times (and the swarm's RegionJointModel models): region_path with the
+/// config's turn runs, stop-and-go runs sized for timing.nozzle_max_accel_mps2 and turn runs sized
+/// for the config's turn speed at timing.speed_change_accel_mps2. The geometry depends on the
+/// config only, never on the tuned TimingParams (they shape the speed profile along it), so one
+/// joint path serves every particle of the swarm.
+CartesianPath timing_region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m,
+                                 const TimingConfig& timing, int first_pass_index = 0,
+                                 const std::vector<double>& gap_accel_scale = {});
 
 /// Tunable timing parameters (the swarm's particle).
 struct TimingParams {
@@ -178,8 +187,8 @@ struct TimingParams {
   double turn_speed_mps = 0.0;    // speed in the middle of a turn-around; 0 = pass speeds
   double speed_change_accel_mps2 = 0.5;  // peak of speed changes inside a pass and of the
                                          // centripetal acceleration on turn arcs (not tuned)
-  double turn_accel_mps2 = 0.0;  // turn arcs and their runs when > 0 (time_plan lowers it where the
-                                 // arm's joint accelerations need it); 0 = speed_change_accel_mps2
+  double turn_accel_mps2 = 0.0;  // centripetal acceleration capping the turn arc speed when > 0
+                                 // (tuned); 0 = speed_change_accel_mps2
   static TimingParams from_config(const TimingConfig& config);
 };
 
@@ -306,11 +315,12 @@ struct TimedTrajectory {
 /// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Where the
 /// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
 /// 5 more times) with the accelerations of the offending lead or gap scaled down by its own excess
-/// (the others keep theirs); the passes keep their planned speeds. Whatever stays over a limit (on the passes, or where longer runs would leave the reach)
+/// (the others keep theirs); the passes keep their planned speeds. params: empty = the config's
+/// for every region, one = for every region, or one per region (tune_timing's). Whatever stays over a limit (on the passes, or where longer runs would leave the reach)
 /// is reported in max_acceleration_ratio, not hidden.
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
-                          const TimingParams* params = nullptr);
+                          const std::vector<TimingParams>& params = {});
 
 /// One timed Cartesian path (e.g. a region, or the quintic baseline) in joint space from rest to
 /// rest: sampled at rate_hz, joints tracked from the solve_path start found from `seed`,
@@ -319,17 +329,24 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
                           const Eigen::VectorXd& seed, double rate_hz, const RobotConfig& robot_config);
 
 /// Joint-space feasibility of a region timing without re-solving IK for every candidate: the joint
-/// path q(s) is solved once on the region path with the longest lead lengths at a fine arc-length
-/// step, then q' = dq/ds and q'' = d2q/ds2 give qd = q' v and qdd = q'' v^2 + q' a.
+/// path q(s) is solved once on timing_region_path with the longest lead lengths at a fine
+/// arc-length step, then q' = dq/ds and q'' = d2q/ds2 give qd = q' v and qdd = q'' v^2 + q' a.
+/// As in time_plan, the stop-and-go moves are joint quintics between the rest configurations at
+/// their ends (their minimal duration counts, their samples are not checked) and each stretch after
+/// one is tracked anew from where the move ends.
 class RegionJointModel {
  public:
-  RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m, bool spray_on_turns,
-                   const Eigen::VectorXd& seed, const RobotConfig& robot_config, double step_m = 0.005,
-                   double turn_run_m = 0.0);
+  RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m, const TimingConfig& timing,
+                   const Eigen::VectorXd& seed, const RobotConfig& robot_config, double step_m = 0.005);
   struct Evaluation {
     double duration_s = 0.0;
     double velocity_ratio = 0.0, acceleration_ratio = 0.0;  // worst |qd| / limit, |qdd| / limit
     NozzleCheck nozzle;
+    // The same on the leads and the turns (arcs and their runs) alone: what the parameters shape.
+    // The passes keep their planned speeds, and the stop-and-go runs and spray-off gaps are sized
+    // by the config (time_plan eases them where the arm needs it), whatever the parameters.
+    double tuned_velocity_ratio = 0.0, tuned_acceleration_ratio = 0.0;
+    NozzleCheck tuned_nozzle;
     Eigen::VectorXd q_first, q_last;  // joints at the start / end of the timed path
   };
   Evaluation evaluate(const TimingParams& params, const NozzleLimits& limits, double rate_hz = 100.0) const;
@@ -337,13 +354,20 @@ class RegionJointModel {
   bool tracked() const { return tracked_; }  // false: solve_path's (coarser) joint path is used
 
  private:
+  // A stretch tracked in Cartesian space, on a uniform arc-length grid [s.front(), s.back()].
+  struct Stretch {
+    std::vector<double> s;
+    std::vector<Eigen::VectorXd> q, dq, ddq;
+  };
   CartesianPath path_;
   double max_lead_m_;
-  bool tracked_ = false;
-  std::vector<double> s_;
-  std::vector<Eigen::VectorXd> q_, dq_, ddq_;
+  bool tracked_ = true;
+  std::vector<Stretch> stretches_;  // stretch k + 1 follows the joint move k
+  std::vector<double> move_s_;      // minimal quintic duration of each joint move
   Eigen::VectorXd vel_limit_, acc_limit_;
-  void interpolate(double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const;
+  // Stretch containing s, -1 inside a joint move.
+  int stretch_at(double s) const;
+  void interpolate(const Stretch& st, double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const;
 };
 
 // ------------------------------------------------------------------------------------------------
@@ -371,17 +395,21 @@ PsoResult pso_minimize(const std::function<double(const Eigen::VectorXd&)>& f, c
                        const Eigen::VectorXd& upper, const PsoOptions& options,
                        const std::vector<Eigen::VectorXd>& initial = {});
 
-/// Tuning of TimingParams (k1, k2, start_length_m, end_length_m, turn_speed_mps) for a set of
-/// regions: fitness = execution time (regions + transits), infeasible when a joint velocity or
-/// acceleration limit (reduced by timing.joint_limit_margin) or a nozzle limit breaks, judged on
-/// RegionJointModel. Without a robot (robot == nullptr) only the nozzle limits apply and transits
-/// are not counted.
+/// Tuning of TimingParams (k1, k2, start_length_m, end_length_m, turn_speed_mps, turn_accel_mps2)
+/// region by region, in spraying order: fitness = execution time of the region plus the transit to
+/// it, infeasible when a joint velocity or acceleration limit (reduced by
+/// timing.joint_limit_margin) or a nozzle limit breaks on the leads or turns (what the parameters
+/// shape, RegionJointModel::Evaluation's tuned_* figures). Without a robot
+/// (robot == nullptr) only the nozzle limits apply and transits are not counted.
 struct TimingTuning {
-  TimingParams params;
-  double duration_s = 0.0;         // of the regions with the tuned params
-  double initial_duration_s = 0.0; // with the config's params
+  std::vector<TimingParams> params;  // one per region: time_plan's params (the config's where the
+                                     // swarm found no timing within the limits)
+  std::vector<char> feasible;        // per region: the swarm found a timing within the limits
+  double duration_s = 0.0;           // of the regions (and transits) with the tuned params; a
+                                     // region without a feasible timing adds 1e6 x its worst ratio
+  double initial_duration_s = 0.0;   // with the config's params (+inf when they break a limit)
   bool initial_feasible = false;
-  PsoResult pso;
+  std::vector<PsoResult> pso;        // per region
 };
 TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions_in_order,
                          const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config);
