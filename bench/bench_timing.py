@@ -30,6 +30,7 @@ import numpy as np
 from shotcrete import _core, synthetic_cloud
 from shotcrete.cli_robot import load_robot
 from shotcrete.config import load_config
+from shotcrete.pipeline import swarm_report
 
 SPEEDS = (0.22, 0.30, 0.18, 0.26, 0.34, 0.20, 0.28, 0.24)  # m/s, as the deposition would set them
 
@@ -119,7 +120,7 @@ def main() -> None:
                 "best_history_s": [h if h < 1e5 else None for h in tun.pso[0].best_history],
                 "success_history": tun.pso[0].success_history,
                 "particles": tc.pso_particles, "iterations": tc.pso_iterations})
-    pso["swarm_feasible"] = bool(tun.duration_s < 1e5)
+    pso["swarm_feasible"] = bool(tun.feasible[0])
     result["cycloid_arcs_pso"] = pso
 
     tb = result["quintic_baseline"]["duration_s"]
@@ -196,10 +197,10 @@ def demo_plan_timing(cfg, robot, mode):
     tuned = _core.plan_for_arm(surface, cfg, robot)
     cfg.timing.tune_with_pso = False
     swarm = figures(tuned.plan, tuned.trajectory, time.perf_counter() - t0)
-    swarm.update({"config_timing_duration_s": tuned.config_duration_s, "used": tuned.tuned_timing_used,
-                  "regions_tuned": int(sum(tuned.tuning.feasible)), "regions": len(tuned.tuning.feasible),
-                  "saving_vs_config_timing": 1.0 - tuned.trajectory.duration_s / tuned.config_duration_s,
-                  "error": tuned.tuning_error or None})
+    summary = swarm_report(tuned)
+    del summary["params"]
+    swarm.update(summary)
+    swarm["saving_vs_config_timing"] = 1.0 - tuned.trajectory.duration_s / tuned.config_duration_s
     out["with_timing_swarm"] = swarm
     return out
 

@@ -62,6 +62,7 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
     speed_mps.push_back(v * factor);
     ++added;
   };
+  std::map<std::size_t, double> pass_end_factor;  // one bound per pass sample a run leaves / reaches
   for (std::size_t i = 1; i + 1 < tr.size(); ++i) {
     const auto kind = static_cast<SegmentKind>(tr.kind[i]);
     const bool pass = kind == SegmentKind::Pass || tr.spraying[i];
@@ -80,9 +81,13 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
     // slower; the change scales with v^2 at a given run length.
     if (ra > 1.0) {
       const long j = adjacent_pass_sample(tr, i);
-      if (j > 0) add(static_cast<std::size_t>(j), fa);
+      if (j > 0) {
+        auto [it, fresh] = pass_end_factor.emplace(static_cast<std::size_t>(j), fa);
+        if (!fresh) it->second = std::min(it->second, fa);
+      }
     }
   }
+  for (const auto& [j, factor] : pass_end_factor) add(j, factor);
   return added;
 }
 
@@ -143,8 +148,9 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
       const auto before = region_worst_ratio(cur, regions.size(), robot);
       const auto after = region_worst_ratio(tuned, regions.size(), robot);
       bool mixed = false;
+      std::vector<char> used = out.tuning->feasible;
       for (std::size_t r = 0; r < regions.size(); ++r)
-        if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), mixed = true;
+        if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), used[r] = 0, mixed = true;
       if (mixed) {
         if (progress) progress("timing swarm", 0.9);
         tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
@@ -153,6 +159,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
           no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
         out.trajectory = std::move(tuned);
         out.tuning->params = params;
+        out.tuning->feasible = used;  // regions timed with the swarm's parameters
         out.tuned_timing_used = true;
       }
     } catch (const std::exception& e) {

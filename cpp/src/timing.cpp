@@ -1202,6 +1202,8 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
   if (q_start.size() != dof)
     throw std::invalid_argument("time_plan: q_start has " + std::to_string(q_start.size()) + " entries, the robot has " +
                                 std::to_string(dof) + " joints");
+  for (std::size_t r = 0; r < regions.size(); ++r)
+    if (regions[r].empty()) throw std::invalid_argument("time_plan: region " + std::to_string(r) + " has no passes");
   if (params_in.size() > 1 && params_in.size() != regions.size())
     throw std::invalid_argument("time_plan: " + std::to_string(params_in.size()) + " timing parameter sets for " +
                                 std::to_string(regions.size()) + " regions (give none, one, or one per region)");
@@ -1609,9 +1611,9 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
                                    lo, hi, opt, {x0}));
     // No feasible particle: the config's parameters, which time_plan eases where the arm needs it.
     out.feasible.push_back(out.pso.back().best_f < 1e6);
-    out.params.push_back(out.feasible.back() ? params_of(out.pso.back().best_x, timing) : p0_region);
+    out.params.push_back(out.feasible.back() ? params_of(out.pso.back().best_x, timing) : p0);
     out.duration_s += out.feasible.back() ? out.pso.back().best_f : initial_region;
-    if (model) cost(out.params.back(), &q_prev);
+    if (model) cost(out.feasible.back() ? out.params.back() : p0_region, &q_prev);
   }
   out.initial_duration_s = out.initial_feasible ? initial : std::numeric_limits<double>::infinity();
   return out;

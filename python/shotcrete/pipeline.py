@@ -78,6 +78,17 @@ def ik_report(arm_plan, robot, check_every: int = 10) -> dict:
             "untracked_regions": int(traj.untracked_regions)}
 
 
+def swarm_report(arm_plan) -> dict:
+    """The timing swarm's figures (timing.tune_with_pso) of a ``_core.plan_for_arm`` result."""
+    tun, traj = arm_plan.tuning, arm_plan.trajectory
+    return {"used": bool(arm_plan.tuned_timing_used), "error": arm_plan.tuning_error or None,
+            "config_timing_duration_s": arm_plan.config_duration_s,
+            "duration_s": traj.duration_s if traj is not None else None,
+            "regions_tuned": int(sum(tun.feasible)) if tun else 0, "regions": len(tun.feasible) if tun else 0,
+            "evaluations": int(sum(p.evaluations for p in tun.pso)) if tun else 0,
+            "params": [p.to_dict() for p in tun.params] if tun else []}
+
+
 def _pass_tracks(plan_round, surface):
     """Per pass: (d, s) of the wall point it aims at, and its speed, for the map figures."""
     axis, radius = surface.axis, surface.profile.radius_m
@@ -169,13 +180,7 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
             "config_timing_duration_s": arm_plan.config_duration_s,
         }
         if arm_plan.tuning is not None or arm_plan.tuning_error:
-            tun = arm_plan.tuning
-            result["trajectory"]["swarm"] = {
-                "used": bool(arm_plan.tuned_timing_used), "error": arm_plan.tuning_error or None,
-                "regions_tuned": int(sum(tun.feasible)) if tun else 0, "regions": len(tun.feasible) if tun else 0,
-                "evaluations": int(sum(p.evaluations for p in tun.pso)) if tun else 0,
-                "params": [p.to_dict() for p in tun.params] if tun else [],
-            }
+            result["trajectory"]["swarm"] = swarm_report(arm_plan)
     else:
         result["total_time_s"] = None
 

@@ -182,6 +182,13 @@ class ShotcreteNode {
       // The plan stays usable (markers, summary) without a trajectory; only ~execute needs it.
       if (arm.trajectory) trajectory = std::make_shared<shotcrete::TimedTrajectory>(std::move(*arm.trajectory));
       else timing_note = ", no trajectory: " + arm.timing_error;
+      if (arm.tuning) {
+        std::ostringstream t;
+        t << std::fixed << std::setprecision(1) << " timing_swarm=" << (arm.tuned_timing_used ? "used" : "not_faster")
+          << " config_timing_s=" << arm.config_duration_s;
+        timing_note += t.str();
+      }
+      if (!arm.tuning_error.empty()) timing_note += ", timing swarm failed: " + arm.tuning_error;
     } catch (const std::exception& e) {
       summary = std::string("planning failed: ") + e.what();
       return false;

@@ -589,6 +589,7 @@ TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
       EXPECT_LE(t.duration_s, t.initial_duration_s);
     }
     ASSERT_LT(t.duration_s, 1e5) << "no feasible timing found at " << amax;
+    ASSERT_EQ(t.feasible, std::vector<char>{1}) << "the swarm fell back to the config at " << amax;
     // Re-check the tuned particle independently, on a finer sampling.
     ASSERT_EQ(t.params.size(), 1u);
     const TimingParams& tuned = t.params[0];
@@ -608,6 +609,7 @@ TEST(RobotTiming, TunedRegionsRespectJointLimits) {
                                                axial_region(3, 1.0, 0.2, 0.1, 0.7, {0.3})};
   const TimingTuning tun = tune_timing(&robot, regions, robot.neutral(), tc, rc);
   ASSERT_LT(tun.duration_s, 1e5) << "no feasible timing";
+  ASSERT_EQ(tun.feasible, std::vector<char>(regions.size(), 1)) << "the swarm fell back to the config";
   ASSERT_EQ(tun.params.size(), regions.size());
   const TimedTrajectory tr = time_plan(robot, regions, robot.neutral(), tc, rc, tun.params);
   EXPECT_EQ(tr.untracked_regions, 0);

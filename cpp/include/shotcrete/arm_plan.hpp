@@ -37,8 +37,9 @@ struct ArmPlan {
   std::string timing_error;
   int replans = 0;       // plan_bay runs after the first
   SpeedCapMap learned;   // bounds added by the re-plans
-  // timing.tune_with_pso: the swarm's per-region parameters, the duration with the config's
-  // parameters, and whether the tuned trajectory replaced it (faster, no worse on the limits).
+  // timing.tune_with_pso: the swarm's per-region parameters (once used, feasible[r] is false
+  // where region r kept the config's), the duration with the config's parameters, and whether the
+  // tuned trajectory replaced it (faster, within the limits or no worse).
   std::optional<TimingTuning> tuning;
   double config_duration_s = 0.0;
   bool tuned_timing_used = false;
@@ -52,7 +53,8 @@ struct ArmPlan {
 /// at most timing.max_replans times. The deposit is always simulated at the speeds the trajectory
 /// sprays. An IK or timing failure leaves the trajectory empty with the reason in timing_error.
 /// With timing.tune_with_pso the final plan's regions are then tuned by tune_timing and timed
-/// again; that trajectory is kept when it is shorter and its worst joint ratios are no worse.
+/// again; that trajectory is kept when it is shorter and each worst joint ratio stays within its
+/// limit or no worse than before (regions that came out worse keep the config's parameters).
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
 

@@ -406,8 +406,10 @@ struct TimingTuning {
                                      // swarm found no timing within the limits)
   std::vector<char> feasible;        // per region: the swarm found a timing within the limits
   double duration_s = 0.0;           // of the regions (and transits) with the tuned params; a
-                                     // region without a feasible timing adds 1e6 x its worst ratio
-  double initial_duration_s = 0.0;   // with the config's params (+inf when they break a limit)
+                                     // region without a feasible timing adds the config's cost
+                                     // (its duration, or 1e6 x its worst ratio)
+  double initial_duration_s = 0.0;   // with the config's params, each region from where the tuned
+                                     // previous one ends (+inf when they break a limit)
   bool initial_feasible = false;
   std::vector<PsoResult> pso;        // per region
 };
