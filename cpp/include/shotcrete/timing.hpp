@@ -316,7 +316,8 @@ struct TimedTrajectory {
 /// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
 /// 5 more times) with the accelerations of the offending lead or gap scaled down by its own excess
 /// (the others keep theirs); the passes keep their planned speeds. params: empty = the config's
-/// for every region, one = for every region, or one per region (tune_timing's). Whatever stays over a limit (on the passes, or where longer runs would leave the reach)
+/// for every region, one = for every region, or one per region (tune_timing's). Whatever stays
+/// over a limit (on the passes, or where longer runs would leave the reach)
 /// is reported in max_acceleration_ratio, not hidden.
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
