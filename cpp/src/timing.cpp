@@ -1000,13 +1000,18 @@ NozzlePose pose_of(const Eigen::Isometry3d& T) {
 namespace {
 void finish_trajectory(const Robot& robot, TimedTrajectory& tr);
 
-// Arc-length spans [start, end] of the rest-to-rest pieces of a region path (stop-and-go
-// middles, motion 2): the arm moves there in joint space.
-std::vector<std::pair<double, double>> joint_move_spans(const CartesianPath& path) {
+// Arc-length spans [start, end] of a region path tracked in Cartesian space: everything but its
+// rest-to-rest pieces (stop-and-go middles, motion 2), where the arm moves in joint space. Shared
+// by time_region and RegionJointModel so both track the same stretches.
+std::vector<std::pair<double, double>> cartesian_stretches(const CartesianPath& path) {
   std::vector<std::pair<double, double>> out;
+  double open = 0.0;
   for (std::size_t i = 0; i < path.pieces().size(); ++i)
-    if (path.pieces()[i].motion == 2)
-      out.emplace_back(path.piece_start_m(i), path.piece_start_m(i) + path.pieces()[i].length_m());
+    if (path.pieces()[i].motion == 2) {
+      out.emplace_back(open, path.piece_start_m(i));
+      open = path.piece_start_m(i) + path.pieces()[i].length_m();
+    }
+  out.emplace_back(open, path.length_m());
   return out;
 }
 
@@ -1095,13 +1100,11 @@ RegionTiming time_region(const Robot& robot, const std::vector<Pass>& passes, in
   // the nozzle stands still at both ends and sprays nothing there, so a joint quintic at the
   // limits replaces the straight Cartesian move, whose joint accelerations near the slew axis
   // can be many times the limits.
-  std::vector<std::pair<double, double>> windows;  // profile time spans tracked in Cartesian space
-  double t_open = 0.0;
-  for (const auto& [sa, sb] : joint_move_spans(path)) {
-    windows.emplace_back(t_open, prof.time_at_distance(sa));
-    t_open = prof.time_at_distance(sb);
-  }
-  windows.emplace_back(t_open, prof.duration_s());
+  const auto stretches = cartesian_stretches(path);
+  std::vector<std::pair<double, double>> windows;  // their profile time spans, from 0 to the end
+  for (std::size_t c = 0; c < stretches.size(); ++c)
+    windows.emplace_back(c == 0 ? 0.0 : prof.time_at_distance(stretches[c].first),
+                         c + 1 == stretches.size() ? prof.duration_s() : prof.time_at_distance(stretches[c].second));
   Eigen::VectorXd q_prev = q_prev_in;
   double t0 = 0.0;
   for (std::size_t c = 0; c < windows.size(); ++c) {
@@ -1315,14 +1318,7 @@ RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& 
       vel_limit_(robot.velocity_limits()),
       acc_limit_(robot.acceleration_limits()) {
   if (!(step_m > 0.0)) throw std::invalid_argument("RegionJointModel: step_m must be > 0");
-  // Stretches between the joint moves (time_region's windows, in arc length).
-  std::vector<std::pair<double, double>> spans;
-  double open = 0.0;
-  for (const auto& [sa, sb] : joint_move_spans(path_)) {
-    spans.emplace_back(open, sa);
-    open = sb;
-  }
-  spans.emplace_back(open, path_.length_m());
+  const auto spans = cartesian_stretches(path_);  // time_region's windows, in arc length
   Eigen::VectorXd q_prev = seed;
   for (std::size_t c = 0; c < spans.size(); ++c) {
     const auto [s0, s1] = spans[c];
@@ -1344,11 +1340,11 @@ RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& 
 }
 
 int RegionJointModel::stretch_at(double s) const {
-  for (std::size_t k = 0; k < stretches_.size(); ++k) {
-    if (s <= stretches_[k].s.back() || k + 1 == stretches_.size()) return static_cast<int>(k);
-    if (s < stretches_[k + 1].s.front()) return -1;
-  }
-  return static_cast<int>(stretches_.size()) - 1;
+  // Last stretch starting at or before s (the swarm calls this for every sample of every particle).
+  const auto it = std::upper_bound(stretches_.begin(), stretches_.end(), s,
+                                   [](double x, const Stretch& st) { return x < st.s.front(); });
+  const std::size_t k = it == stretches_.begin() ? 0 : static_cast<std::size_t>(it - stretches_.begin()) - 1;
+  return s > stretches_[k].s.back() && k + 1 < stretches_.size() ? -1 : static_cast<int>(k);
 }
 
 void RegionJointModel::interpolate(const Stretch& st, double s, Eigen::VectorXd& q, Eigen::VectorXd& dq,
