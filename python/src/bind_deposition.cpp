@@ -1,7 +1,7 @@
 #include <sstream>
 
 #include "bindings.hpp"
-#include "shotcrete/deposition.hpp"
+#include "shotcrete/deposition/deposition.hpp"
 
 using namespace shotcrete;
 

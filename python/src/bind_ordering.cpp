@@ -1,5 +1,5 @@
 #include "bindings.hpp"
-#include "shotcrete/ordering.hpp"
+#include "shotcrete/ordering/ordering.hpp"
 #include "shotcrete/types.hpp"
 
 using namespace shotcrete;

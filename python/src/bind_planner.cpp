@@ -1,7 +1,7 @@
 #include "bindings.hpp"
-#include "shotcrete/planner.hpp"
-#include "shotcrete/robot.hpp"
-#include "shotcrete/timing.hpp"
+#include "shotcrete/planning/planner.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/timing/timing.hpp"
 
 using namespace shotcrete;
 

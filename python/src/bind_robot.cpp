@@ -1,5 +1,5 @@
 #include "bindings.hpp"
-#include "shotcrete/robot.hpp"
+#include "shotcrete/robot/robot.hpp"
 
 using namespace shotcrete;
 

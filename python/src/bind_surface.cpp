@@ -1,10 +1,10 @@
 #include "bindings.hpp"
-#include "shotcrete/grid.hpp"
-#include "shotcrete/io.hpp"
-#include "shotcrete/preprocess.hpp"
-#include "shotcrete/profile.hpp"
-#include "shotcrete/surface.hpp"
-#include "shotcrete/synth.hpp"
+#include "shotcrete/surface/grid.hpp"
+#include "shotcrete/io/io.hpp"
+#include "shotcrete/surface/preprocess.hpp"
+#include "shotcrete/surface/profile.hpp"
+#include "shotcrete/surface/surface.hpp"
+#include "shotcrete/io/synth.hpp"
 
 using namespace shotcrete;
 

@@ -1,9 +1,9 @@
 #include <sstream>
 
 #include "bindings.hpp"
-#include "shotcrete/robot.hpp"
-#include "shotcrete/arm_plan.hpp"
-#include "shotcrete/timing.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/timing/timing.hpp"
 
 using namespace shotcrete;
 

@@ -5,7 +5,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
-#include "shotcrete/deposition.hpp"
+#include "shotcrete/deposition/deposition.hpp"
 
 namespace py = pybind11;
 

@@ -27,16 +27,16 @@
 #include <thread>
 
 #include "ros_conversions.hpp"
-#include "shotcrete/arm_plan.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
 #include "shotcrete/config.hpp"
-#include "shotcrete/deposition.hpp"
-#include "shotcrete/grid.hpp"
-#include "shotcrete/io.hpp"
-#include "shotcrete/planner.hpp"
-#include "shotcrete/robot.hpp"
-#include "shotcrete/surface.hpp"
-#include "shotcrete/synth.hpp"
-#include "shotcrete/timing.hpp"
+#include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/surface/grid.hpp"
+#include "shotcrete/io/io.hpp"
+#include "shotcrete/planning/planner.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/surface/surface.hpp"
+#include "shotcrete/io/synth.hpp"
+#include "shotcrete/timing/timing.hpp"
 
 namespace shotcrete_ros {
 namespace {

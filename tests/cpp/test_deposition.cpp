@@ -11,9 +11,9 @@
 #include <string>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/deposition.hpp"
-#include "shotcrete/grid.hpp"
-#include "shotcrete/synth.hpp"
+#include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/surface/grid.hpp"
+#include "shotcrete/io/synth.hpp"
 
 using namespace shotcrete;
 

@@ -8,7 +8,7 @@
 #include <numeric>
 #include <random>
 
-#include "shotcrete/ordering.hpp"
+#include "shotcrete/ordering/ordering.hpp"
 
 using namespace shotcrete;
 

@@ -4,9 +4,9 @@
 #include <cmath>
 #include <limits>
 
-#include "shotcrete/planner.hpp"
-#include "shotcrete/preprocess.hpp"
-#include "shotcrete/synth.hpp"
+#include "shotcrete/planning/planner.hpp"
+#include "shotcrete/surface/preprocess.hpp"
+#include "shotcrete/io/synth.hpp"
 
 using namespace shotcrete;
 

@@ -8,7 +8,7 @@
 #include <regex>
 #include <sstream>
 
-#include "shotcrete/robot.hpp"
+#include "shotcrete/robot/robot.hpp"
 
 using namespace shotcrete;
 

@@ -6,11 +6,11 @@
 #include <random>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/grid.hpp"
-#include "shotcrete/io.hpp"
-#include "shotcrete/preprocess.hpp"
-#include "shotcrete/surface.hpp"
-#include "shotcrete/synth.hpp"
+#include "shotcrete/surface/grid.hpp"
+#include "shotcrete/io/io.hpp"
+#include "shotcrete/surface/preprocess.hpp"
+#include "shotcrete/surface/surface.hpp"
+#include "shotcrete/io/synth.hpp"
 
 using namespace shotcrete;
 

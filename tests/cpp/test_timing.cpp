@@ -7,9 +7,9 @@
 #include <algorithm>
 #include <functional>
 
-#include "shotcrete/arm_plan.hpp"
-#include "shotcrete/robot.hpp"
-#include "shotcrete/timing.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/timing/timing.hpp"
 
 using namespace shotcrete;
 

@@ -2,7 +2,7 @@
 // Cloud checks and PCL preprocessing: crop box, voxel downsampling, statistical outlier removal,
 // and k-NN normals oriented toward the tunnel axis.
 #include "shotcrete/config.hpp"
-#include "shotcrete/profile.hpp"
+#include "shotcrete/surface/profile.hpp"
 #include "shotcrete/types.hpp"
 
 namespace shotcrete {

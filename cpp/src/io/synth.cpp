@@ -1,4 +1,4 @@
-#include "shotcrete/synth.hpp"
+#include "shotcrete/io/synth.hpp"
 
 #include <cmath>
 #include <random>

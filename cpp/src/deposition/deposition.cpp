@@ -1,4 +1,4 @@
-#include "shotcrete/deposition.hpp"
+#include "shotcrete/deposition/deposition.hpp"
 
 #include <nlopt.hpp>
 

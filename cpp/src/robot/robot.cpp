@@ -1,4 +1,4 @@
-#include "shotcrete/robot.hpp"
+#include "shotcrete/robot/robot.hpp"
 
 #include <algorithm>
 #include <chrono>

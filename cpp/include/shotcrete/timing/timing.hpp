@@ -17,8 +17,8 @@
 #include <vector>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/deposition.hpp"
-#include "shotcrete/planner.hpp"
+#include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/planning/planner.hpp"
 
 namespace shotcrete {
 

@@ -1,4 +1,4 @@
-#include "shotcrete/preprocess.hpp"
+#include "shotcrete/surface/preprocess.hpp"
 
 #include <pcl/features/normal_3d_omp.h>
 #include <pcl/filters/statistical_outlier_removal.h>

@@ -7,9 +7,9 @@
 #include <vector>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/deposition.hpp"
-#include "shotcrete/grid.hpp"
-#include "shotcrete/surface.hpp"
+#include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/surface/grid.hpp"
+#include "shotcrete/surface/surface.hpp"
 
 namespace shotcrete {
 

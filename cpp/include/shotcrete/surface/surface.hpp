@@ -5,7 +5,7 @@
 #include <string>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/grid.hpp"
+#include "shotcrete/surface/grid.hpp"
 #include "shotcrete/types.hpp"
 
 namespace shotcrete {

@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/grid.hpp"
+#include "shotcrete/surface/grid.hpp"
 #include "shotcrete/types.hpp"
 
 namespace shotcrete {

@@ -1,4 +1,4 @@
-#include "shotcrete/io.hpp"
+#include "shotcrete/io/io.hpp"
 
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>

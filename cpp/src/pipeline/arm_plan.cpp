@@ -1,5 +1,5 @@
 // Bay planning for a given arm: caps, plan, time, learn, re-plan (see arm_plan.hpp).
-#include "shotcrete/arm_plan.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
 
 #include <array>
 #include <cmath>
@@ -7,7 +7,7 @@
 #include <map>
 #include <memory>
 
-#include "shotcrete/robot.hpp"
+#include "shotcrete/robot/robot.hpp"
 
 namespace shotcrete {
 

@@ -1,4 +1,4 @@
-#include "shotcrete/profile.hpp"
+#include "shotcrete/surface/profile.hpp"
 
 #include <Eigen/Eigenvalues>
 #include <cmath>

@@ -10,7 +10,7 @@
 #include <Eigen/Geometry>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/deposition.hpp"  // NozzlePose
+#include "shotcrete/deposition/deposition.hpp"  // NozzlePose
 
 namespace shotcrete {
 

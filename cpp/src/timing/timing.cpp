@@ -1,5 +1,5 @@
 // Motion timing: speed profiles, turn-arounds, sampling, joint-space timing, AIWCPSO.
-#include "shotcrete/timing.hpp"
+#include "shotcrete/timing/timing.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -10,7 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "shotcrete/robot.hpp"
+#include "shotcrete/robot/robot.hpp"
 
 namespace shotcrete {
 

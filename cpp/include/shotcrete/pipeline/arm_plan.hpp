@@ -6,8 +6,8 @@
 #include <string>
 #include <vector>
 
-#include "shotcrete/planner.hpp"
-#include "shotcrete/timing.hpp"
+#include "shotcrete/planning/planner.hpp"
+#include "shotcrete/timing/timing.hpp"
 
 namespace shotcrete {
 

@@ -1,8 +1,8 @@
-#include "shotcrete/surface.hpp"
+#include "shotcrete/surface/surface.hpp"
 
 #include <chrono>
 
-#include "shotcrete/preprocess.hpp"
+#include "shotcrete/surface/preprocess.hpp"
 
 namespace shotcrete {
 namespace {

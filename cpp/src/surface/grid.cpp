@@ -1,4 +1,4 @@
-#include "shotcrete/grid.hpp"
+#include "shotcrete/surface/grid.hpp"
 
 #include <algorithm>
 #include <cmath>

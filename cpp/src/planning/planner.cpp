@@ -1,4 +1,4 @@
-#include "shotcrete/planner.hpp"
+#include "shotcrete/planning/planner.hpp"
 
 #include <nlopt.hpp>
 
@@ -11,7 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "shotcrete/ordering.hpp"
+#include "shotcrete/ordering/ordering.hpp"
 
 namespace shotcrete {
 

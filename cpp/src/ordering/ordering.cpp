@@ -4,7 +4,7 @@
 // endpoints of its regions; the exit of entry e is e ^ 1 and region = e >> 1, reversed = e & 1.
 // Distances live in one (2n + 1) x 2n row-major matrix whose last row is the start point (all zero
 // when there is no start), so "before the first region" is just row 2n everywhere.
-#include "shotcrete/ordering.hpp"
+#include "shotcrete/ordering/ordering.hpp"
 
 #include <algorithm>
 #include <chrono>

@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "shotcrete/config.hpp"
-#include "shotcrete/profile.hpp"
+#include "shotcrete/surface/profile.hpp"
 #include "shotcrete/types.hpp"
 
 namespace shotcrete {
