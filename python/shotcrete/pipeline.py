@@ -176,7 +176,8 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
             "rate_hz": config.timing.trajectory_rate_hz,
             "max_velocity_ratio": trajectory.max_velocity_ratio,
             "max_acceleration_ratio": trajectory.max_acceleration_ratio,
-            "max_position_violation": trajectory.max_position_violation,
+            "max_position_violation_rad": trajectory.max_position_violation_rad,
+            "max_position_violation_m": trajectory.max_position_violation_m,
             "config_timing_duration_s": arm_plan.config_duration_s,
         }
         if arm_plan.tuning is not None or arm_plan.tuning_error:

@@ -110,6 +110,12 @@ void bind_timing(py::module_& m) {
       .value("LEAD", SegmentKind::Lead)
       .value("LINK", SegmentKind::Link)
       .value("TRANSIT", SegmentKind::Transit);
+  py::enum_<PieceMotion>(m, "PieceMotion", "How the speed profile treats a path piece.")
+      .value("BY_KIND", PieceMotion::ByKind)
+      .value("STOP_AT_END", PieceMotion::StopAtEnd)
+      .value("REST_TO_REST", PieceMotion::RestToRest)
+      .value("START_FROM_REST", PieceMotion::StartFromRest)
+      .value("SPRAY_OFF_GAP", PieceMotion::SprayOffGap);
 
   py::class_<SpeedPiece>(m, "SpeedPiece", "Speed change v0 -> v1 over duration_s (cycloid or quintic shape).")
       .def(py::init([](double v0, double v1, double T, SpeedShape s) { return SpeedPiece{v0, v1, T, s}; }),
@@ -188,6 +194,12 @@ void bind_timing(py::module_& m) {
                                for (const auto& x : p.pieces()) k.push_back(x.kind);
                                return k;
                              })
+      .def_property_readonly("piece_motions",
+                             [](const CartesianPath& p) {
+                               std::vector<PieceMotion> k;
+                               for (const auto& x : p.pieces()) k.push_back(x.motion);
+                               return k;
+                             })
       .def_property_readonly("piece_lengths_m",
                              [](const CartesianPath& p) {
                                std::vector<double> k;
@@ -222,7 +234,12 @@ void bind_timing(py::module_& m) {
   m.def(
       "region_path",
       [](const py::handle& passes, double lead_in, double lead_out, bool spray_on_turns, double turn_run_m) {
-        return region_path(region_from_py(passes), lead_in, lead_out, spray_on_turns, 0, turn_run_m);
+        RegionPathOptions o;
+        o.lead_in_m = lead_in;
+        o.lead_out_m = lead_out;
+        o.spray_on_turns = spray_on_turns;
+        o.turn_run_m = turn_run_m;
+        return region_path(region_from_py(passes), o);
       },
       py::arg("passes"), py::arg("lead_in_m"), py::arg("lead_out_m"), py::arg("spray_on_turns") = false,
       py::arg("turn_run_m") = 0.0,
@@ -285,7 +302,10 @@ void bind_timing(py::module_& m) {
       .def_readonly("max_acceleration_ratio", &TimedTrajectory::max_acceleration_ratio)
       .def_readonly("worst_velocity_joint", &TimedTrajectory::worst_velocity_joint)
       .def_readonly("worst_acceleration_joint", &TimedTrajectory::worst_acceleration_joint)
-      .def_readonly("max_position_violation", &TimedTrajectory::max_position_violation_rad)
+      .def_readonly("max_position_violation_rad", &TimedTrajectory::max_position_violation_rad,
+                    "largest excursion of a revolute joint outside its position limits [rad]")
+      .def_readonly("max_position_violation_m", &TimedTrajectory::max_position_violation_m,
+                    "largest excursion of a prismatic joint outside its position limits [m]")
       .def_readonly("untracked_regions", &TimedTrajectory::untracked_regions)
       .def("joint_table", &TimedTrajectory::joint_table, "(N, 1 + 3 dof): t, q, qd, qdd")
       .def("joint_table_header", &TimedTrajectory::joint_table_header)

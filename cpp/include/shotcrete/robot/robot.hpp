@@ -70,6 +70,37 @@ class Robot {
   std::unique_ptr<Impl> impl_;
 };
 
+/// How the spray-axis part of the task error measures the turn from the spray axis z onto the
+/// target axis t. Both vanish only where the axes agree and agree to third order in the angle near
+/// there; their Gauss-Newton paths differ, so the same start reaches a slightly different point of
+/// the redundant arm's self-motion (see track_joint_path).
+enum class AxisError {
+  RotationVector,  // exact: (z x t) / |z x t| times the angle; antiparallel turns about the nozzle x axis
+  CrossProduct,    // z x t (length sin angle), with e(3) + 2 past 90 deg so that the far side is pushed
+                   // away from the antipodal point where z x t vanishes
+};
+
+/// Error of the 5-DOF spraying task (roll about the spray axis free): the position error (3) and
+/// the spray-axis turn (AxisError) expressed on the nozzle's x / y axes (2).
+struct TaskError {
+  Eigen::Matrix<double, 5, 1> e = Eigen::Matrix<double, 5, 1>::Zero();
+  double position_m = 0.0;  // |position error|
+  double angle_rad = 0.0;   // angle between the spray axis and the target axis (exact in either form)
+};
+/// Task error of a nozzle at position p with rotation R (spray axis = R's z column) towards the
+/// target position and unit axis, all in one frame.
+TaskError task_error(const Eigen::Vector3d& p, const Eigen::Matrix3d& R, const Eigen::Vector3d& target_position_m,
+                     const Eigen::Vector3d& target_axis, AxisError form = AxisError::RotationVector);
+/// The 5 x dof task Jacobian at rotation R (for either form): the linear rows of the 6 x dof
+/// geometric Jacobian J and its angular rows on the nozzle's x / y axes (same frame as J).
+Eigen::Matrix<double, 5, Eigen::Dynamic> task_jacobian(const Eigen::Matrix3d& R,
+                                                       const Eigen::Matrix<double, 6, Eigen::Dynamic>& J);
+/// Task error of the robot at q towards `target` (tunnel frame; the target axis need not be unit);
+/// `jacobian` (optional) receives the task Jacobian. The IK (solve_ik_5dof) descends on the
+/// rotation-vector form, the joint tracking (track_joint_path) on the cross-product form.
+TaskError task_error(const Robot& robot, const Eigen::VectorXd& q, const NozzlePose& target,
+                     Eigen::MatrixXd* jacobian = nullptr, AxisError form = AxisError::RotationVector);
+
 struct IkResult {
   bool success = false;
   Eigen::VectorXd q;                 // the best configuration found (within limits)

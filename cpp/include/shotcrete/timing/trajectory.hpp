@@ -1,0 +1,78 @@
+#pragma once
+// Joint-space timing (design section 7b): joint quintics between rest configurations and the timed
+// joint trajectory of regions sprayed in order.
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/deposition/deposition.hpp"  // NozzlePose
+#include "shotcrete/planning/planner.hpp"  // Pass
+#include "shotcrete/timing/cartesian_path.hpp"
+#include "shotcrete/timing/region_path.hpp"  // TimingParams
+#include "shotcrete/timing/speed_profile.hpp"
+
+namespace shotcrete {
+
+class Robot;
+
+/// Rest-to-rest quintic q0 -> q1 (q = q0 + dq (10 tau^3 - 15 tau^4 + 6 tau^5)): the shortest
+/// duration meeting every joint's velocity (peak 1.875 |dq| / T) and acceleration
+/// (peak 10 / sqrt(3) |dq| / T^2) limit.
+double quintic_min_duration(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, const Eigen::VectorXd& vel_limit,
+                            const Eigen::VectorXd& acc_limit);
+/// Position, velocity, acceleration of that quintic at t in [0, T].
+void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double duration_s, double t_s,
+                   Eigen::VectorXd& q, Eigen::VectorXd& qd, Eigen::VectorXd& qdd);
+
+struct TimedTrajectory {
+  std::vector<double> t_s;
+  std::vector<Eigen::VectorXd> q, qd, qdd;
+  std::vector<NozzlePose> nozzle;
+  std::vector<char> spraying;
+  std::vector<int> pass_index;   // -1 off a pass (turns, leads, transits)
+  std::vector<int> region_index; // -1 on transits between regions (stop-and-go moves inside one: its index)
+  std::vector<char> kind;        // SegmentKind
+  double duration_s = 0.0;
+  double spray_time_s = 0.0;     // time with spraying on (exact, from the profiles)
+  double transit_time_s = 0.0;   // joint-space moves: between regions and stop-and-go inside them
+  // Limit check of the finite-difference velocities / accelerations (worst |value| / limit).
+  double max_velocity_ratio = 0.0;
+  double max_acceleration_ratio = 0.0;
+  int worst_velocity_joint = -1, worst_acceleration_joint = -1;
+  // Largest excursion outside the position limits: of the revolute joints, of the prismatic ones.
+  double max_position_violation_rad = 0.0;
+  double max_position_violation_m = 0.0;
+  int untracked_regions = 0;  // regions where exact tracking failed and solve_path's result is used
+
+  std::size_t size() const { return t_s.size(); }
+  /// Dense matrix (samples x (1 + 3 dof)): t, q..., qd..., qdd... ; for CSV / numpy.
+  Eigen::MatrixXd joint_table() const;
+  /// Header of joint_table: t_s,q0,...,qd0,...,qdd0,...
+  std::vector<std::string> joint_table_header() const;
+  /// CSV with the joint table plus nozzle position/axis, spraying, pass and region index.
+  std::string to_csv() const;
+};
+
+/// Timed trajectory of regions sprayed in order (each a serpentine of passes), starting at rest at
+/// q_start: transit (joint quintic, minimum duration) -> region (IK per sample, warm-started)
+/// -> transit -> ... Velocities / accelerations by finite differences of the sampled joint path.
+/// Inside a region the stop-and-go moves (between passes that are no serpentine neighbours) are
+/// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Where the
+/// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
+/// 5 more times) with the accelerations of the offending lead or gap scaled down by its own excess
+/// (the others keep theirs); the passes keep their planned speeds. params: empty = the config's
+/// for every region, one = for every region, or one per region (tune_timing's). Whatever stays
+/// over a limit (on the passes, or where longer runs would leave the reach)
+/// is reported in max_acceleration_ratio, not hidden.
+TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
+                          const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
+                          const std::vector<TimingParams>& params = {});
+
+/// One timed Cartesian path (e.g. a region, or the quintic baseline) in joint space from rest to
+/// rest: sampled at rate_hz, joints tracked from the solve_path start found from `seed`,
+/// velocities / accelerations by finite differences and the limit check; no transits.
+TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const SpeedProfile& profile,
+                          const Eigen::VectorXd& seed, double rate_hz, const RobotConfig& robot_config);
+
+}  // namespace shotcrete

@@ -1,0 +1,246 @@
+// The nozzle path of a region: lead-in, passes, the joins between them (turn-around, spray-off gap
+// or stop-and-go), lead-out; and the quintic baseline path.
+#include "shotcrete/timing/region_path.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "detail.hpp"
+
+namespace shotcrete {
+
+using namespace timing_detail;
+
+namespace {
+
+void check_pass(const Pass& p, std::size_t i) {
+  if (p.waypoints.size() < 2)
+    throw std::invalid_argument("pass " + std::to_string(i) + " has " + std::to_string(p.waypoints.size()) +
+                                " waypoints; at least 2 are needed");
+  if (!(p.speed_mps > 0.0) || !std::isfinite(p.speed_mps))
+    throw std::invalid_argument("pass " + std::to_string(i) + " has speed_mps = " + num(p.speed_mps) +
+                                "; it must be > 0");
+}
+
+Eigen::Vector3d start_direction(const Pass& p) {
+  return normalized_or(p.waypoints[1].position_m - p.waypoints[0].position_m, Eigen::Vector3d::UnitX());
+}
+Eigen::Vector3d end_direction(const Pass& p) {
+  const auto n = p.waypoints.size();
+  return normalized_or(p.waypoints[n - 1].position_m - p.waypoints[n - 2].position_m, Eigen::Vector3d::UnitX());
+}
+double first_speed(const Pass& p) { return p.speed_at(0); }
+double last_speed(const Pass& p) { return p.speed_at(p.waypoints.size() - 1); }
+
+// Constant-speed runs of a pass with a per-waypoint speed profile, with the planner's dwell
+// semantics: waypoint i owns half of each neighbouring interval at speed_at(i).
+void speed_runs(const Pass& p, std::vector<double>& len, std::vector<double>& speed) {
+  len.clear();
+  speed.clear();
+  const std::size_t n = p.waypoints.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    double own = 0.0;
+    if (i > 0) own += 0.5 * (p.waypoints[i].position_m - p.waypoints[i - 1].position_m).norm();
+    if (i + 1 < n) own += 0.5 * (p.waypoints[i + 1].position_m - p.waypoints[i].position_m).norm();
+    const double v = p.speed_at(i);
+    if (!(v > 0.0) || !std::isfinite(v))
+      throw std::invalid_argument("pass speed profile value " + num(v) + " m/s at waypoint " + std::to_string(i) +
+                                  " must be > 0");
+    if (!speed.empty() && std::abs(speed.back() - v) <= 1e-12 * v) {
+      len.back() += own;
+    } else {
+      len.push_back(own);
+      speed.push_back(v);
+    }
+  }
+}
+
+void check_region(const std::vector<Pass>& passes, const RegionPathOptions& o) {
+  if (passes.empty()) throw std::invalid_argument("region_path: the region has no passes");
+  for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
+  if (!o.gap_accel_scale.empty() && o.gap_accel_scale.size() + 1 != passes.size())
+    throw std::invalid_argument("region_path: " + std::to_string(o.gap_accel_scale.size()) +
+                                " gap acceleration scales for " + std::to_string(passes.size()) + " passes");
+  for (double g : o.gap_accel_scale)
+    if (!(g > 0.0 && g <= 1.0)) throw std::invalid_argument("region_path: gap acceleration scale " + num(g) + " must be in (0, 1]");
+  if (!(o.lead_in_m > 0.0) || !(o.lead_out_m > 0.0))
+    throw std::invalid_argument("region_path: lead-in " + num(o.lead_in_m) + " m and lead-out " + num(o.lead_out_m) +
+                                " m must be > 0 (start and stop happen off the passes)");
+}
+
+// Pass i of the region as a path piece, with its constant-speed runs when it has a speed profile.
+PathPiece pass_piece(const Pass& p, std::size_t i, int pass_index) {
+  PathPiece piece = polyline_piece(SegmentKind::Pass, p.waypoints, first_speed(p), true, pass_index);
+  piece.speed_out_mps = last_speed(p);
+  if (!p.speed_profile_mps.empty()) {
+    if (p.speed_profile_mps.size() != p.waypoints.size())
+      throw std::invalid_argument("pass " + std::to_string(i) + " has " + std::to_string(p.speed_profile_mps.size()) +
+                                  " speed profile values for " + std::to_string(p.waypoints.size()) + " waypoints");
+    speed_runs(p, piece.run_len_m, piece.run_speed_mps);
+    if (piece.run_len_m.size() == 1) piece.run_len_m.clear(), piece.run_speed_mps.clear();  // constant after all
+  }
+  return piece;
+}
+
+// The join from pass p to the next pass q: directions at the ends and the gap between them.
+struct Join {
+  const Pass& p;
+  const Pass& q;
+  Eigen::Vector3d da, db, gap;
+  double gap_scale;  // the gap's share of the options' accelerations
+  // Distance across the pass direction (the pass spacing of a serpentine).
+  double across_m() const { return (gap - gap.dot(da) * da).norm(); }
+};
+
+// The next pass continues the same line further on (the optimal planner switches the spray off
+// over segments that would only overfill): carry on along the line, spray off, no stop.
+void append_spray_off_gap(CartesianPath& path, const Join& j) {
+  // Tangent to both passes: their end directions may differ by a few degrees.
+  PathPiece link = polyline_piece(SegmentKind::Link, tangent_curve(j.p.waypoints.back(), j.da, j.q.waypoints.front(), j.db),
+                                  last_speed(j.p), false, -1);
+  link.speed_out_mps = first_speed(j.q);
+  link.motion = PieceMotion::SprayOffGap;
+  if (link.length_m() > 0.0) path.append(std::move(link));
+}
+
+// Serpentine neighbours: a turn-around.
+void append_turn(CartesianPath& path, const Join& j, const RegionPathOptions& o) {
+  const double turn_accel = j.gap_scale * o.turn_accel_mps2;
+  const double v_out = last_speed(j.p), v_in = first_speed(j.q);
+  // Runs long enough for the change between the pass speed and the arc speed at
+  // turn_accel_mps2 (cycloid peak |v1^2 - v0^2| / length): fast passes need metres, not 0.1 m.
+  double run_out = o.turn_run_m, run_in = o.turn_run_m;
+  if (o.turn_run_m > 0.0 && turn_accel > 0.0) {
+    const double vt = turn_arc_speed(0.5 * j.across_m(), v_out, v_in, o.turn_speed_mps, turn_accel);
+    if (vt > 0.0) {
+      run_out = std::max(run_out, std::abs(v_out * v_out - vt * vt) / turn_accel);
+      run_in = std::max(run_in, std::abs(v_in * v_in - vt * vt) / turn_accel);
+    }
+  }
+  TurnAroundOptions turn;
+  turn.speed_in_mps = v_out;
+  turn.speed_out_mps = v_in;
+  turn.spraying = o.spray_on_turns;
+  turn.run_out_m = run_out;
+  turn.run_in_m = run_in;
+  turn.dir_b_start = j.db;
+  for (auto& t : turn_around(j.p.waypoints.back(), j.da, j.q.waypoints.front(), turn)) {
+    if (t.kind == SegmentKind::Turn) t.accel_scale = j.gap_scale;  // the profile eases the arc speed alike
+    path.append(std::move(t));
+  }
+}
+
+// Stop and go: the direction changes only where the nozzle stands still.
+void append_stop_and_go(CartesianPath& path, const Join& j, const RegionPathOptions& o) {
+  const double stop_accel = j.gap_scale * o.stop_accel_mps2;
+  const double v_out = last_speed(j.p), v_in = first_speed(j.q);
+  const double run = o.turn_run_m > 0.0 ? o.turn_run_m : 0.1;
+  // Long enough to stop from / start to the pass speeds within the acceleration limit (plain
+  // cycloidal stop / start, peak v^2 / s).
+  double run_out = run, run_in = run;
+  if (stop_accel > 0.0) {
+    run_out = std::max(run, v_out * v_out / stop_accel);
+    run_in = std::max(run, v_in * v_in / stop_accel);
+  }
+  NozzlePose a = j.p.waypoints.back(), b = j.q.waypoints.front();
+  a.position_m += run_out * j.da;
+  b.position_m -= run_in * j.db;
+  PathPiece out = polyline_piece(SegmentKind::Link, {j.p.waypoints.back(), a}, v_out, false, -1);
+  out.motion = PieceMotion::StopAtEnd;
+  path.append(std::move(out));
+  PathPiece mid = polyline_piece(SegmentKind::Link, {a, b}, std::max(v_out, v_in), false, -1);
+  mid.motion = PieceMotion::RestToRest;
+  path.append(std::move(mid));
+  PathPiece in = polyline_piece(SegmentKind::Link, {b, j.q.waypoints.front()}, v_in, false, -1);
+  in.motion = PieceMotion::StartFromRest;
+  path.append(std::move(in));
+}
+
+void append_join(CartesianPath& path, const Join& j, const RegionPathOptions& o) {
+  const double cos_turn = j.da.dot(j.db);
+  const double along = j.gap.dot(j.da), across = j.across_m();
+  if (cos_turn > 0.99 && along >= 0.0 && across < 1e-3) append_spray_off_gap(path, j);
+  else if (cos_turn < -0.5 && across > 1e-3) append_turn(path, j, o);
+  else append_stop_and_go(path, j, o);
+}
+
+}  // namespace
+
+CartesianPath region_path(const std::vector<Pass>& passes, const RegionPathOptions& o) {
+  check_region(passes, o);
+  CartesianPath path;
+  const Pass& first = passes.front();
+  NozzlePose lead0 = first.waypoints.front();
+  lead0.position_m -= o.lead_in_m * start_direction(first);
+  path.append(polyline_piece(SegmentKind::Lead, {lead0, first.waypoints.front()}, first_speed(first), false, -1));
+  for (std::size_t i = 0; i < passes.size(); ++i) {
+    const Pass& p = passes[i];
+    path.append(pass_piece(p, i, o.first_pass_index + static_cast<int>(i)));
+    if (i + 1 == passes.size()) break;
+    const Pass& q = passes[i + 1];
+    const Join join{p, q, end_direction(p), start_direction(q),
+                    q.waypoints.front().position_m - p.waypoints.back().position_m,
+                    o.gap_accel_scale.empty() ? 1.0 : o.gap_accel_scale[i]};
+    append_join(path, join, o);
+  }
+  const Pass& last = passes.back();
+  NozzlePose lead1 = last.waypoints.back();
+  lead1.position_m += o.lead_out_m * end_direction(last);
+  path.append(polyline_piece(SegmentKind::Lead, {last.waypoints.back(), lead1}, last_speed(last), false, -1));
+  return path;
+}
+
+CartesianPath timing_region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m,
+                                 const TimingConfig& timing, int first_pass_index,
+                                 const std::vector<double>& gap_accel_scale) {
+  RegionPathOptions o;
+  o.lead_in_m = lead_in_m;
+  o.lead_out_m = lead_out_m;
+  o.spray_on_turns = timing.spray_on_turns;
+  o.first_pass_index = first_pass_index;
+  o.turn_run_m = timing.turn_run_m;
+  o.stop_accel_mps2 = timing.nozzle_max_accel_mps2;
+  o.turn_speed_mps = timing.turn_speed_mps;
+  o.turn_accel_mps2 = timing.speed_change_accel_mps2;
+  o.gap_accel_scale = gap_accel_scale;
+  return region_path(passes, o);
+}
+
+BaselinePath quintic_baseline(const std::vector<Pass>& passes, double max_accel_mps2, double stepover_speed_mps,
+                              int first_pass_index) {
+  if (passes.empty()) throw std::invalid_argument("quintic_baseline: the region has no passes");
+  for (std::size_t i = 0; i < passes.size(); ++i) check_pass(passes[i], i);
+  if (!(max_accel_mps2 > 0.0)) throw std::invalid_argument("quintic_baseline: max_accel_mps2 must be > 0");
+  if (!(stepover_speed_mps > 0.0)) throw std::invalid_argument("quintic_baseline: stepover_speed_mps must be > 0");
+  const double peak = shape_peak_dg(SpeedShape::Quintic);
+  BaselinePath out;
+  NozzlePose prev_end;
+  for (std::size_t i = 0; i < passes.size(); ++i) {
+    const Pass& p = passes[i];
+    const double v = p.speed_mps, ta = peak * v / max_accel_mps2, ext = 0.5 * v * ta;
+    NozzlePose a = p.waypoints.front(), b = p.waypoints.back();
+    a.position_m -= ext * start_direction(p);
+    b.position_m += ext * end_direction(p);
+    if (i > 0) {  // straight step-over, from rest to rest
+      out.path.append(polyline_piece(SegmentKind::Link, {prev_end, a}, stepover_speed_mps, false, -1));
+      const double len = out.path.pieces().back().length_m();
+      double vs = stepover_speed_mps, ts = peak * vs / max_accel_mps2;
+      if (len < vs * ts) {  // too short to reach the step-over speed at the acceleration limit
+        vs = std::sqrt(len * max_accel_mps2 / peak);
+        ts = peak * vs / max_accel_mps2;
+      }
+      if (len > 0.0) out.profile.append(rest_to_rest(len, vs, ts, SpeedShape::Quintic));
+    }
+    out.path.append(polyline_piece(SegmentKind::Lead, {a, p.waypoints.front()}, v, false, -1));
+    out.path.append(polyline_piece(SegmentKind::Pass, p.waypoints, v, true, first_pass_index + static_cast<int>(i)));
+    out.path.append(polyline_piece(SegmentKind::Lead, {p.waypoints.back(), b}, v, false, -1));
+    const double len = 2.0 * ext + out.path.pieces()[out.path.pieces().size() - 2].length_m();
+    out.profile.append(rest_to_rest(len, v, ta, SpeedShape::Quintic));
+    prev_end = b;
+  }
+  return out;
+}
+
+}  // namespace shotcrete

@@ -1,0 +1,471 @@
+// Joint-space timing: joint quintics, the timed trajectory of regions in spraying order (with the
+// re-timing of awkward joins) and of a single path.
+#include "shotcrete/timing/trajectory.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "detail.hpp"
+#include "shotcrete/robot/joint_tracking.hpp"
+#include "shotcrete/robot/robot.hpp"
+
+namespace shotcrete {
+
+using namespace timing_detail;
+
+// ------------------------------------------------------------------------------------------------
+// Joint quintics and the trajectory table
+// ------------------------------------------------------------------------------------------------
+
+double quintic_min_duration(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, const Eigen::VectorXd& vel_limit,
+                            const Eigen::VectorXd& acc_limit) {
+  const Eigen::Index n = q0.size();
+  if (q1.size() != n || vel_limit.size() != n || acc_limit.size() != n)
+    throw std::invalid_argument("quintic_min_duration: q0, q1 and the limits must have the same size");
+  const double kv = 1.875, ka = 10.0 / std::sqrt(3.0);  // peaks of s' and s'' of 10t^3-15t^4+6t^5
+  double t = 0.0;
+  for (Eigen::Index j = 0; j < n; ++j) {
+    if (!(vel_limit[j] > 0.0) || !(acc_limit[j] > 0.0))
+      throw std::invalid_argument("quintic_min_duration: joint " + std::to_string(j) + " has a non-positive limit");
+    const double dq = std::abs(q1[j] - q0[j]);
+    t = std::max({t, kv * dq / vel_limit[j], std::sqrt(ka * dq / acc_limit[j])});
+  }
+  return t;
+}
+
+void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double T, double t, Eigen::VectorXd& q,
+                   Eigen::VectorXd& qd, Eigen::VectorXd& qdd) {
+  const Eigen::VectorXd dq = q1 - q0;
+  if (T <= 0.0) {
+    q = q1;
+    qd = Eigen::VectorXd::Zero(q0.size());
+    qdd = Eigen::VectorXd::Zero(q0.size());
+    return;
+  }
+  const double x = std::clamp(t / T, 0.0, 1.0);
+  q = q0 + dq * shape_g(SpeedShape::Quintic, x);
+  qd = dq * (shape_dg(SpeedShape::Quintic, x) / T);
+  qdd = dq * (shape_ddg(SpeedShape::Quintic, x) / (T * T));
+}
+
+Eigen::MatrixXd TimedTrajectory::joint_table() const {
+  const Eigen::Index n = static_cast<Eigen::Index>(t_s.size());
+  const Eigen::Index dof = q.empty() ? 0 : q.front().size();
+  Eigen::MatrixXd m(n, 1 + 3 * dof);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    m(i, 0) = t_s[k];
+    m.block(i, 1, 1, dof) = q[k].transpose();
+    m.block(i, 1 + dof, 1, dof) = qd[k].transpose();
+    m.block(i, 1 + 2 * dof, 1, dof) = qdd[k].transpose();
+  }
+  return m;
+}
+
+std::vector<std::string> TimedTrajectory::joint_table_header() const {
+  const std::size_t dof = q.empty() ? 0 : static_cast<std::size_t>(q.front().size());
+  std::vector<std::string> h{"t_s"};
+  for (const char* p : {"q", "qd", "qdd"})
+    for (std::size_t j = 0; j < dof; ++j) h.push_back(std::string(p) + std::to_string(j));
+  return h;
+}
+
+std::string TimedTrajectory::to_csv() const {
+  std::ostringstream o;
+  o << std::setprecision(10);
+  const auto h = joint_table_header();
+  for (std::size_t k = 0; k < h.size(); ++k) o << (k ? "," : "") << h[k];
+  o << ",x_m,y_m,z_m,ax,ay,az,spraying,pass_index,region_index,kind\n";
+  const Eigen::MatrixXd m = joint_table();
+  for (Eigen::Index i = 0; i < m.rows(); ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    for (Eigen::Index j = 0; j < m.cols(); ++j) o << (j ? "," : "") << m(i, j);
+    const auto& p = nozzle[k];
+    o << "," << p.position_m.x() << "," << p.position_m.y() << "," << p.position_m.z() << "," << p.axis.x() << ","
+      << p.axis.y() << "," << p.axis.z() << "," << int(spraying[k]) << "," << pass_index[k] << "," << region_index[k]
+      << "," << int(kind[k]) << "\n";
+  }
+  return o.str();
+}
+
+std::vector<std::pair<double, double>> timing_detail::cartesian_stretches(const CartesianPath& path) {
+  std::vector<std::pair<double, double>> out;
+  double open = 0.0;
+  for (std::size_t i = 0; i < path.pieces().size(); ++i)
+    if (path.pieces()[i].motion == PieceMotion::RestToRest) {
+      out.emplace_back(open, path.piece_start_m(i));
+      open = path.piece_start_m(i) + path.pieces()[i].length_m();
+    }
+  out.emplace_back(open, path.length_m());
+  return out;
+}
+
+namespace {
+
+NozzlePose pose_of(const Eigen::Isometry3d& T) {
+  NozzlePose p;
+  p.position_m = T.translation();
+  p.axis = T.linear().col(2);
+  return p;
+}
+
+// Exact time spent on spraying pieces (from the profile, not from the samples).
+double spraying_time(const CartesianPath& path, const SpeedProfile& prof) {
+  double t = 0.0;
+  for (std::size_t i = 0; i < path.pieces().size(); ++i)
+    if (path.pieces()[i].spraying)
+      t += prof.time_at_distance(path.piece_start_m(i) + path.pieces()[i].length_m()) -
+           prof.time_at_distance(path.piece_start_m(i));
+  return t;
+}
+
+void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass,
+                 int region, char kind) {
+  tr.t_s.push_back(t);
+  tr.q.push_back(q);
+  tr.nozzle.push_back(pose);
+  tr.spraying.push_back(spray);
+  tr.pass_index.push_back(pass);
+  tr.region_index.push_back(region);
+  tr.kind.push_back(kind);
+}
+
+// Velocities / accelerations by finite differences and the limit check.
+void finish_trajectory(const Robot& robot, TimedTrajectory& tr) {
+  const int dof = robot.dof();
+  finite_differences(tr.t_s, tr.q, tr.qd, tr.qdd);
+  const Eigen::VectorXd& vl = robot.velocity_limits();
+  const Eigen::VectorXd& al = robot.acceleration_limits();
+  const std::vector<bool>& prismatic = robot.joint_is_prismatic();
+  for (std::size_t i = 0; i < tr.size(); ++i)
+    for (int j = 0; j < dof; ++j) {
+      const double rv = std::abs(tr.qd[i][j]) / vl[j], ra = std::abs(tr.qdd[i][j]) / al[j];
+      if (rv > tr.max_velocity_ratio) { tr.max_velocity_ratio = rv; tr.worst_velocity_joint = j; }
+      if (ra > tr.max_acceleration_ratio) { tr.max_acceleration_ratio = ra; tr.worst_acceleration_joint = j; }
+      double& violation = prismatic[static_cast<std::size_t>(j)] ? tr.max_position_violation_m
+                                                                 : tr.max_position_violation_rad;
+      violation = std::max({violation, robot.lower_limits()[j] - tr.q[i][j], tr.q[i][j] - robot.upper_limits()[j]});
+    }
+}
+
+// ------------------------------------------------------------------------------------------------
+// One region
+// ------------------------------------------------------------------------------------------------
+
+// What timing a region needs besides the region itself.
+struct TimingContext {
+  const Robot& robot;
+  const TimingConfig& timing;
+  const RobotConfig& robot_config;
+};
+
+// A region to time: its passes, its place in the spraying order and the number of passes before it,
+// its parameters. slot_scale (passes + 1 values in (0, 1]: the lead-in, the gap after each pass but
+// the last, the lead-out) scales the accelerations that size that slot's non-spraying motion (lead
+// length, stop-and-go runs, the runs and arc of a turn); the passes keep their planned speeds.
+struct RegionJob {
+  const std::vector<Pass>& passes;
+  int region = 0;
+  int pass_offset = 0;
+  TimingParams params;
+  std::vector<double> slot_scale;
+};
+
+// A region timed from rest at q_prev: slot gives each sample's slot (-1 on joint moves).
+struct RegionTiming {
+  TimedTrajectory part;
+  std::vector<int> slot;
+  bool tracked = true;
+};
+
+// The region's path and profile with leads at least as long as the nozzle acceleration limit needs
+// at its end speeds (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)): fast
+// passes get longer run-ups than the config's default. The swarm's parameters already satisfy this.
+struct RegionSetup {
+  TimingParams params;  // the job's, with the leads lengthened
+  std::vector<double> gap_scale;
+  double max_lead_m = 0.0;  // the lead the first stretch is tracked from (as the swarm's model)
+  CartesianPath path;
+  SpeedProfile profile;
+};
+
+RegionSetup set_up_region(const TimingContext& ctx, const RegionJob& job) {
+  const std::vector<Pass>& passes = job.passes;
+  const std::vector<double>& slot_scale = job.slot_scale;
+  const double stop_accel = ctx.timing.nozzle_max_accel_mps2;  // sizes the leads, as in timing_region_path
+  if (slot_scale.size() != passes.size() + 1)
+    throw std::logic_error("time_region: one acceleration scale per lead and gap");
+  RegionSetup rs;
+  rs.max_lead_m = std::max({swarm_max_lead(passes, ctx.timing), job.params.start_length_m, job.params.end_length_m});
+  rs.gap_scale.assign(slot_scale.begin() + 1, slot_scale.end() - 1);
+  TimingParams& rp = rs.params;
+  rp = job.params;
+  if (!passes.empty() && passes.front().waypoints.size() >= 2) {
+    const Pass& f = passes.front();
+    const Pass& l = passes.back();
+    const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
+    rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * slot_scale.front() * stop_accel));
+    rp.end_length_m =
+        std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * slot_scale.back() * stop_accel));
+  }
+  rs.path = timing_region_path(passes, rp.start_length_m, rp.end_length_m, ctx.timing, job.pass_offset, rs.gap_scale);
+  rs.profile = region_profile(rs.path, rp);
+  return rs;
+}
+
+// Slot of each piece: the number of passes before it.
+std::vector<int> piece_slots(const CartesianPath& path) {
+  std::vector<int> piece_slot;
+  int passes_before = 0;
+  for (const auto& piece : path.pieces()) {
+    piece_slot.push_back(passes_before);
+    if (piece.kind == SegmentKind::Pass) ++passes_before;
+  }
+  return piece_slot;
+}
+
+// Profile time spans of the Cartesian stretches, from 0 to the end.
+std::vector<std::pair<double, double>> stretch_windows(const CartesianPath& path, const SpeedProfile& prof) {
+  const auto stretches = cartesian_stretches(path);
+  std::vector<std::pair<double, double>> windows;
+  for (std::size_t c = 0; c < stretches.size(); ++c)
+    windows.emplace_back(c == 0 ? 0.0 : prof.time_at_distance(stretches[c].first),
+                         c + 1 == stretches.size() ? prof.duration_s() : prof.time_at_distance(stretches[c].second));
+  return windows;
+}
+
+// Joints along the region's first stretch (samples `poses`). The joint path starts where the
+// swarm's RegionJointModel starts it (at the longest lead-in) so that both see the same q(s): the
+// unused part of that lead-in is prepended, then dropped. If that longer lead-in leaves the reach,
+// the bound is halved as in tune_timing.
+std::vector<Eigen::VectorXd> first_stretch_joints(const TimingContext& ctx, const RegionJob& job,
+                                                  const RegionSetup& rs, const std::vector<NozzlePose>& samples,
+                                                  const Eigen::VectorXd& q_prev, bool& tracked) {
+  const double start_length = rs.params.start_length_m;
+  std::vector<Eigen::VectorXd> jq;
+  std::size_t prefix = 0;
+  for (double lead = std::max(rs.max_lead_m, start_length);; lead = std::max(0.5 * lead, start_length)) {
+    std::vector<NozzlePose> poses;
+    const double unused = std::max(0.0, lead - start_length);
+    if (unused > 0.0) {
+      const CartesianPath long_path = timing_region_path(job.passes, lead, lead, ctx.timing, 0, rs.gap_scale);
+      const int m = static_cast<int>(std::ceil(unused / 0.005));
+      for (int k = 0; k < m; ++k) poses.push_back(long_path.pose_at(unused * k / m));
+    }
+    prefix = poses.size();
+    poses.insert(poses.end(), samples.begin(), samples.end());
+    try {
+      jq = timing_joint_path(ctx.robot, poses, q_prev, ctx.robot_config, &tracked);
+      break;
+    } catch (const std::exception& e) {
+      if (unused <= 0.0) throw std::runtime_error("time_plan: region " + std::to_string(job.region) + ": " + e.what());
+    }
+  }
+  jq.erase(jq.begin(), jq.begin() + static_cast<std::ptrdiff_t>(prefix));
+  return jq;
+}
+
+// Joint quintic from rest at q0 to rest at q1, appended from time t0 (not included) as samples
+// of kind Transit (region index `region`, slot -1). Returns its duration.
+double append_joint_move(const Robot& robot, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double t0,
+                         double rate_hz, int region, RegionTiming& out) {
+  const double T = quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits());
+  if (!(T > 0.0)) return T;
+  for (double t : time_grid(T, rate_hz)) {
+    if (t == 0.0) continue;
+    Eigen::VectorXd q, qd, qdd;
+    quintic_joint(q0, q1, T, t, q, qd, qdd);
+    push_sample(out.part, t0 + t, q, pose_of(robot.fk(q)), 0, -1, region, static_cast<char>(SegmentKind::Transit));
+    out.slot.push_back(-1);
+  }
+  return T;
+}
+
+// One region timed from rest at q_prev: the transit to it, then its Cartesian stretches joined by
+// joint-space rest-to-rest moves. Times start at 0 at q_prev (which is not included).
+RegionTiming time_region(const TimingContext& ctx, const RegionJob& job, const Eigen::VectorXd& q_prev_in) {
+  const double rate = ctx.timing.trajectory_rate_hz;
+  const RegionSetup rs = set_up_region(ctx, job);
+  const CartesianPath& path = rs.path;
+  const std::vector<int> piece_slot = piece_slots(path);
+  const int r = job.region;
+  RegionTiming out;
+  TimedTrajectory& tr = out.part;
+  // The region is tracked in stretches between its rest-to-rest moves (stop-and-go middles):
+  // the nozzle stands still at both ends and sprays nothing there, so a joint quintic at the
+  // limits replaces the straight Cartesian move, whose joint accelerations near the slew axis
+  // can be many times the limits.
+  const auto windows = stretch_windows(path, rs.profile);
+  Eigen::VectorXd q_prev = q_prev_in;
+  double t0 = 0.0;
+  for (std::size_t c = 0; c < windows.size(); ++c) {
+    const auto [wa, wb] = windows[c];
+    const CartesianSamples cs = sample_window(path, rs.profile, rate, wa, wb);
+    std::vector<Eigen::VectorXd> jq;
+    bool tracked = false;
+    if (c == 0) {
+      jq = first_stretch_joints(ctx, job, rs, cs.nozzle, q_prev, tracked);
+    } else {
+      try {
+        jq = timing_joint_path(ctx.robot, cs.nozzle, q_prev, ctx.robot_config, &tracked);
+      } catch (const std::exception& e) {
+        throw std::runtime_error("time_plan: region " + std::to_string(r) + ", stretch " + std::to_string(c) +
+                                 " (after a stop-and-go move): " + e.what());
+      }
+    }
+    out.tracked = out.tracked && tracked;
+    // Joint quintic from the previous rest configuration: the transit between regions (c == 0)
+    // or the stop-and-go move inside the region.
+    const double T = append_joint_move(ctx.robot, q_prev, jq.front(), t0, rate, c == 0 ? -1 : r, out);
+    if (T > 0.0) {
+      t0 += T;
+      tr.transit_time_s += T;
+    }
+    for (std::size_t k = 1; k < cs.t_s.size(); ++k) {
+      push_sample(tr, t0 + cs.t_s[k] - wa, jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], r, cs.kind[k]);
+      double local = 0.0;
+      out.slot.push_back(piece_slot[path.locate(cs.s_m[k], local)]);
+    }
+    t0 += wb - wa;
+    q_prev = jq.back();
+  }
+  tr.duration_s = t0;
+  tr.spray_time_s = spraying_time(path, rs.profile);
+  return out;
+}
+
+// Worst |qdd| / limit per slot on the non-spraying Cartesian samples (turns, links, leads) of a
+// region timed from rest at q_prev; passes keep their speeds and joint moves are within the limits
+// by design. A non-finite value counts as the worst possible.
+std::vector<double> off_pass_accel_ratios(const Robot& robot, const RegionTiming& rt, const Eigen::VectorXd& q_prev,
+                                          std::size_t slots) {
+  const TimedTrajectory& part = rt.part;
+  std::vector<double> t{0.0};
+  std::vector<Eigen::VectorXd> q{q_prev}, qd, qdd;
+  t.insert(t.end(), part.t_s.begin(), part.t_s.end());
+  q.insert(q.end(), part.q.begin(), part.q.end());
+  finite_differences(t, q, qd, qdd);
+  std::vector<double> worst(slots, 0.0);
+  for (std::size_t i = 0; i < part.size(); ++i) {
+    const auto kind = static_cast<SegmentKind>(part.kind[i]);
+    if (kind == SegmentKind::Pass || kind == SegmentKind::Transit || rt.slot[i] < 0) continue;
+    double ratio = qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff();
+    if (!std::isfinite(ratio)) ratio = std::numeric_limits<double>::max();
+    double& w = worst[static_cast<std::size_t>(rt.slot[i])];
+    w = std::max(w, ratio);
+  }
+  return worst;
+}
+
+// The region timed from rest at q_prev, re-timed where its turns, runs or leads break a joint
+// acceleration limit (e.g. near the slew axis, where a nozzle acceleration is a large slew
+// acceleration) with gentler accelerations there: the joint acceleration scales about linearly
+// with them. Each lead and gap has its own scale, so one awkward stop does not lengthen every run
+// (long leads can leave the reach or swing the arm out). A slot that got worse when eased, or a
+// timing that leaves the reach, goes halfway back to its best scale. At most kAttempts timings;
+// the one with the smallest excess is kept.
+RegionTiming time_region_within_limits(const TimingContext& ctx, RegionJob job, const Eigen::VectorXd& q_prev) {
+  constexpr int kAttempts = 6;
+  const std::size_t slots = job.passes.size() + 1;
+  std::vector<double>& scale = job.slot_scale;
+  scale.assign(slots, 1.0);
+  std::vector<double> best_scale(slots, 1.0), best_slot_ratio(slots, std::numeric_limits<double>::infinity());
+  double best_ratio = std::numeric_limits<double>::infinity();
+  RegionTiming best;
+  for (int attempt = 0; attempt < kAttempts; ++attempt) {
+    RegionTiming rt;
+    try {
+      rt = time_region(ctx, job, q_prev);
+    } catch (const std::exception&) {
+      if (attempt == 0) throw;
+      for (std::size_t k = 0; k < slots; ++k) scale[k] = std::sqrt(scale[k] * best_scale[k]);
+      continue;
+    }
+    const std::vector<double> ratios = off_pass_accel_ratios(ctx.robot, rt, q_prev, slots);
+    const double ratio = *std::max_element(ratios.begin(), ratios.end());
+    if (attempt == 0 || ratio < best_ratio) best_ratio = ratio, best = std::move(rt);
+    if (ratio <= 1.0) break;
+    for (std::size_t k = 0; k < slots; ++k) {
+      const bool improved = ratios[k] < best_slot_ratio[k];
+      if (improved) best_slot_ratio[k] = ratios[k], best_scale[k] = scale[k];
+      if (ratios[k] <= 1.0 && improved) continue;
+      scale[k] = improved ? scale[k] * std::max(0.25, 0.9 / ratios[k]) : std::sqrt(scale[k] * best_scale[k]);
+    }
+  }
+  return best;
+}
+
+void check_plan_input(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
+                      const std::vector<TimingParams>& params) {
+  if (q_start.size() != robot.dof())
+    throw std::invalid_argument("time_plan: q_start has " + std::to_string(q_start.size()) + " entries, the robot has " +
+                                std::to_string(robot.dof()) + " joints");
+  for (std::size_t r = 0; r < regions.size(); ++r)
+    if (regions[r].empty()) throw std::invalid_argument("time_plan: region " + std::to_string(r) + " has no passes");
+  if (params.size() > 1 && params.size() != regions.size())
+    throw std::invalid_argument("time_plan: " + std::to_string(params.size()) + " timing parameter sets for " +
+                                std::to_string(regions.size()) + " regions (give none, one, or one per region)");
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------
+// Plans and paths
+// ------------------------------------------------------------------------------------------------
+
+TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
+                          const TimingConfig& timing, const RobotConfig& robot_config,
+                          const std::vector<TimingParams>& params_in) {
+  check_plan_input(robot, regions, q_start, params_in);
+  const TimingContext ctx{robot, timing, robot_config};
+  TimedTrajectory tr;
+  push_sample(tr, 0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
+  double t0 = 0.0;
+  Eigen::VectorXd q_prev = q_start;
+  int pass_offset = 0;
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    const TimingParams params =
+        params_in.empty() ? TimingParams::from_config(timing) : params_in[params_in.size() == 1 ? 0 : r];
+    const RegionTiming best =
+        time_region_within_limits(ctx, RegionJob{regions[r], static_cast<int>(r), pass_offset, params, {}}, q_prev);
+    const TimedTrajectory& part = best.part;
+    for (std::size_t k = 0; k < part.size(); ++k)
+      push_sample(tr, t0 + part.t_s[k], part.q[k], part.nozzle[k], part.spraying[k], part.pass_index[k],
+                  part.region_index[k], part.kind[k]);
+    t0 += part.duration_s;
+    tr.transit_time_s += part.transit_time_s;
+    tr.spray_time_s += part.spray_time_s;
+    if (!best.tracked) ++tr.untracked_regions;
+    if (!part.q.empty()) q_prev = part.q.back();
+    pass_offset += static_cast<int>(regions[r].size());
+  }
+  tr.duration_s = t0;
+  finish_trajectory(robot, tr);
+  return tr;
+}
+
+TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const SpeedProfile& profile,
+                          const Eigen::VectorXd& seed, double rate_hz, const RobotConfig& robot_config) {
+  const CartesianSamples cs = sample_path(path, profile, rate_hz);
+  bool tracked = false;
+  const auto jq = timing_joint_path(robot, cs.nozzle, seed, robot_config, &tracked);
+  TimedTrajectory tr;
+  tr.t_s = cs.t_s;
+  tr.q = jq;
+  tr.nozzle = cs.nozzle;
+  tr.spraying = cs.spraying;
+  tr.pass_index = cs.pass_index;
+  tr.region_index.assign(cs.t_s.size(), 0);
+  tr.kind = cs.kind;
+  tr.duration_s = profile.duration_s();
+  tr.untracked_regions = tracked ? 0 : 1;
+  tr.spray_time_s = spraying_time(path, profile);
+  finish_trajectory(robot, tr);
+  return tr;
+}
+
+}  // namespace shotcrete

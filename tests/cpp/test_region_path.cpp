@@ -1,0 +1,458 @@
+// Region paths: turn-around geometry, turn runs, serpentines, pass speed profiles, spray-off gaps,
+// stop-and-go joins, the nozzle check and the quintic baseline.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "shotcrete/timing/region_path.hpp"
+#include "shotcrete/timing/sampling.hpp"
+#include "timing_fixtures.hpp"
+
+using namespace shotcrete;
+
+using shotcrete::test::axial_region;
+using shotcrete::test::kPi;
+
+namespace {
+
+// region_path's options with these leads (and turn runs), the rest at their defaults.
+RegionPathOptions leads(double lead_in_m, double lead_out_m, double turn_run_m = 0.0) {
+  RegionPathOptions o;
+  o.lead_in_m = lead_in_m;
+  o.lead_out_m = lead_out_m;
+  o.turn_run_m = turn_run_m;
+  return o;
+}
+
+// turn_around's options from speed v_in to v_out, no spray, no runs.
+TurnAroundOptions speeds(double v_in, double v_out) {
+  TurnAroundOptions o;
+  o.speed_in_mps = v_in;
+  o.speed_out_mps = v_out;
+  return o;
+}
+
+}  // namespace
+
+TEST(Geometry, TurnAroundDiameterIsSpacingAndTangentsContinuous) {
+  // Pass a ends at x = 1.0 going +x; pass b starts at x = 1.15 going -x, 0.2 m across (in y).
+  NozzlePose ea, sb;
+  ea.position_m = {1.0, 0.0, 2.0};
+  sb.position_m = {1.15, 0.2, 2.0};
+  ea.axis = sb.axis = Eigen::Vector3d(0, 0, 1);
+  const auto pieces = turn_around(ea, Eigen::Vector3d::UnitX(), sb, speeds(0.3, 0.2));
+  ASSERT_EQ(pieces.size(), 2u);  // extension of a (0.15 m) + arc
+  EXPECT_EQ(pieces[0].kind, SegmentKind::Link);
+  EXPECT_NEAR(pieces[0].length_m(), 0.15, 1e-12);
+  const PathPiece& arc = pieces[1];
+  ASSERT_TRUE(arc.is_arc);
+  EXPECT_NEAR(2.0 * arc.radius_m, 0.2, 1e-12);  // diameter = spacing
+  EXPECT_NEAR(arc.length_m(), kPi * 0.1, 1e-12);
+  // Every arc point is r from the centre, the arc bulges beyond the pass ends by r.
+  double max_x = -1e9;
+  for (int i = 0; i <= 100; ++i) {
+    const auto p = arc.pose_at(arc.length_m() * i / 100.0).position_m;
+    ASSERT_NEAR((p - arc.center).norm(), 0.1, 1e-12);
+    max_x = std::max(max_x, p.x());
+  }
+  EXPECT_NEAR(max_x, 1.15 + 0.1, 1e-6);
+  // Positions and tangents continuous at the joints; the arc ends heading -x onto pass b.
+  EXPECT_NEAR((pieces[0].pose_at(0.15).position_m - arc.pose_at(0).position_m).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((arc.pose_at(arc.length_m()).position_m - sb.position_m).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((pieces[0].tangent_at(0.1) - arc.tangent_at(0.0)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((arc.tangent_at(arc.length_m()) - Eigen::Vector3d(-1, 0, 0)).norm(), 0.0, 1e-12);
+  // Tangent is the derivative of position along the arc.
+  const double h = 1e-6, s0 = 0.13;
+  const Eigen::Vector3d fd = (arc.pose_at(s0 + h).position_m - arc.pose_at(s0 - h).position_m) / (2 * h);
+  EXPECT_NEAR((fd - arc.tangent_at(s0)).norm(), 0.0, 1e-6);
+  EXPECT_NEAR(arc.curvature_at(0.1), 10.0, 1e-12);
+  // The other way round: b sticks out less -> b gets the extension.
+  sb.position_m = {0.9, 0.2, 2.0};
+  const auto p2 = turn_around(ea, Eigen::Vector3d::UnitX(), sb, speeds(0.3, 0.3));
+  ASSERT_EQ(p2.size(), 2u);
+  EXPECT_TRUE(p2[0].is_arc);
+  EXPECT_NEAR(p2[1].length_m(), 0.1, 1e-12);
+  EXPECT_NEAR((p2[1].tangent_at(0.05) - Eigen::Vector3d(-1, 0, 0)).norm(), 0.0, 1e-12);
+  // With runs, both sides get a link whatever the offset, and the pieces stay contiguous.
+  for (double xb : {0.7, 0.95, 1.05, 1.4}) {
+    sb.position_m = {xb, 0.2, 2.0};
+    TurnAroundOptions runs = speeds(0.3, 0.3);
+    runs.run_out_m = 0.1;
+    const auto p3 = turn_around(ea, Eigen::Vector3d::UnitX(), sb, runs);
+    ASSERT_EQ(p3.size(), 3u) << xb;
+    EXPECT_NEAR((p3[0].pose_at(0).position_m - ea.position_m).norm(), 0.0, 1e-12);
+    for (int k = 0; k < 2; ++k)
+      EXPECT_NEAR((p3[k].pose_at(p3[k].length_m()).position_m - p3[k + 1].pose_at(0).position_m).norm(), 0.0, 1e-12) << xb;
+    EXPECT_NEAR((p3[2].pose_at(p3[2].length_m()).position_m - sb.position_m).norm(), 0.0, 1e-12) << xb;
+  }
+  sb.position_m = {1.2, 0.0, 2.0};
+  EXPECT_THROW(turn_around(ea, Eigen::Vector3d::UnitX(), sb, speeds(0.3, 0.3)), std::invalid_argument);
+}
+
+TEST(Geometry, TurnAroundWithUnequalRunsAndSkewedPassesHasNoCorner) {
+  // Pass a ends at x = 1.0 going +x; pass b starts 0.2 m across, 0.3 m further on, heading back
+  // 10 deg off -x (a wall-following pass is never exactly antiparallel).
+  NozzlePose ea, sb;
+  ea.position_m = {1.0, 0.0, 2.0};
+  sb.position_m = {1.3, 0.2, 2.0};
+  ea.axis = sb.axis = Eigen::Vector3d(0, 0, 1);
+  const double skew = 10.0 * kPi / 180.0;
+  const Eigen::Vector3d db(-std::cos(skew), std::sin(skew), 0.0);
+  // Run-out 0.1 m, run-in 0.5 m: the arc sits where both have run on by at least their runs.
+  TurnAroundOptions runs = speeds(0.3, 0.2);
+  runs.run_out_m = 0.1;
+  runs.run_in_m = 0.5;
+  runs.dir_b_start = db;
+  const auto pieces = turn_around(ea, Eigen::Vector3d::UnitX(), sb, runs);
+  ASSERT_EQ(pieces.size(), 3u);
+  const PathPiece& arc = pieces[1];
+  ASSERT_TRUE(arc.is_arc);
+  EXPECT_NEAR(2.0 * arc.radius_m, 0.2, 1e-12);   // diameter = the spacing across, whatever the runs
+  EXPECT_NEAR(arc.u.dot(arc.d), 0.0, 1e-12);     // a true half circle
+  EXPECT_NEAR(pieces[0].length_m(), 0.3 + 0.5, 1e-12);  // b's run-in decides: 0.3 offset + 0.5
+  EXPECT_NEAR((arc.pose_at(0).position_m - sb.position_m).x(), 0.5, 1e-12);
+  // Contiguous, ends on b, and no corner anywhere: the direction turns by < 1.5 deg between
+  // consecutive 1 mm steps, and the path leaves along +x and arrives along db.
+  for (int k = 0; k < 2; ++k)
+    EXPECT_NEAR((pieces[k].pose_at(pieces[k].length_m()).position_m - pieces[k + 1].pose_at(0).position_m).norm(), 0.0,
+                1e-12);
+  const PathPiece& in = pieces[2];
+  EXPECT_NEAR((in.pose_at(in.length_m()).position_m - sb.position_m).norm(), 0.0, 1e-12);
+  CartesianPath path;
+  for (const auto& p : pieces) path.append(p);
+  Eigen::Vector3d prev = Eigen::Vector3d::UnitX();
+  double worst_deg = 0.0;
+  for (double s = 0.0005; s < path.length_m(); s += 0.001) {
+    const Eigen::Vector3d t = path.tangent_at(s);
+    worst_deg = std::max(worst_deg, std::acos(std::clamp(t.dot(prev), -1.0, 1.0)) * 180.0 / kPi);
+    prev = t;
+  }
+  EXPECT_LT(worst_deg, 1.5);
+  EXPECT_LT(std::acos(std::clamp(prev.dot(db), -1.0, 1.0)) * 180.0 / kPi, 1.0);
+  // Without dir_b the run-in stays straight along -x (the antiparallel case).
+  runs.dir_b_start.setZero();
+  const auto straight = turn_around(ea, Eigen::Vector3d::UnitX(), sb, runs);
+  EXPECT_EQ(straight[2].poses.size(), 2u);
+}
+
+TEST(Region, TurnRunsSizedForTheSpeedChange) {
+  // Passes at 0.8 m/s, 0.2 m apart: the arc (r = 0.1 m) is capped at sqrt(0.5 * 0.1) = 0.224 m/s
+  // and the runs must bring 0.8 m/s down to it at 0.5 m/s^2: (0.64 - 0.05) / 0.5 = 1.18 m.
+  const auto passes = axial_region(2, 1.2, 0.2, 0.0, 1.2, {0.8}, 4.6, 4.6 + 1e-9);
+  const double a = 0.5;
+  RegionPathOptions opt = leads(0.1, 0.1, 0.1);
+  opt.turn_accel_mps2 = a;
+  const CartesianPath path = region_path(passes, opt);
+  TimingParams prm = TimingParams::from_config(TimingConfig{});
+  prm.speed_change_accel_mps2 = a;
+  const SpeedProfile prof = region_profile(path, prm);
+  int runs = 0;
+  for (std::size_t i = 0; i < path.pieces().size(); ++i) {
+    const auto& p = path.pieces()[i];
+    if (p.kind != SegmentKind::Link) continue;
+    ++runs;
+    const double r = 0.5 * (passes[1].waypoints.front().position_m - passes[0].waypoints.back().position_m).norm();
+    const double vt = std::sqrt(a * r);
+    EXPECT_NEAR(p.length_m(), (0.64 - vt * vt) / a, 1e-6);
+    const double t0 = prof.time_at_distance(path.piece_start_m(i));
+    const double t1 = prof.time_at_distance(path.piece_start_m(i) + p.length_m());
+    double peak = 0.0;
+    for (double t = t0; t <= t1; t += 0.001) peak = std::max(peak, std::abs(prof.at(t).a_mps2));
+    EXPECT_LT(peak, a + 1e-3);
+    EXPECT_GT(peak, 0.9 * a);
+  }
+  EXPECT_EQ(runs, 2);
+  // A gap scale of 0.5 halves the turn's acceleration: longer runs, and the profile caps the arc
+  // speed at the eased centripetal acceleration (the arc carries its own).
+  opt.gap_accel_scale = {0.5};
+  const CartesianPath eased = region_path(passes, opt);
+  const SpeedProfile eased_prof = region_profile(eased, prm);
+  for (std::size_t i = 0; i < eased.pieces().size(); ++i) {
+    const auto& p = eased.pieces()[i];
+    const double r = 0.5 * (passes[1].waypoints.front().position_m - passes[0].waypoints.back().position_m).norm();
+    if (p.kind == SegmentKind::Link) {
+      EXPECT_NEAR(p.length_m(), (0.64 - 0.5 * a * r) / (0.5 * a), 1e-6);
+    }
+    if (p.kind != SegmentKind::Turn) continue;
+    EXPECT_NEAR(p.accel_scale, 0.5, 1e-12);
+    const double mid = eased_prof.time_at_distance(eased.piece_start_m(i) + 0.5 * p.length_m());
+    EXPECT_NEAR(eased_prof.at(mid).v_mps, std::sqrt(0.5 * a * r), 1e-6);
+  }
+  // Without the acceleration the runs keep turn_run_m.
+  const CartesianPath fixed = region_path(passes, leads(0.1, 0.1, 0.1));
+  for (const auto& p : fixed.pieces()) {
+    if (p.kind == SegmentKind::Link) {
+      EXPECT_NEAR(p.length_m(), 0.1, 1e-9);
+    }
+  }
+}
+
+TEST(Region, SerpentineNeverStopsAndKeepsPassSpeeds) {
+  const auto passes = axial_region(6, 1.2, 0.2, 0.0, 1.2, {0.2, 0.3, 0.25});
+  TimingParams prm;
+  prm.k1 = 0.6;
+  prm.k2 = 0.4;
+  prm.start_length_m = prm.end_length_m = 0.12;
+  const CartesianPath path = region_path(passes, leads(prm.start_length_m, prm.end_length_m));
+  const SpeedProfile prof = region_profile(path, prm);
+  EXPECT_NEAR(prof.length_m(), path.length_m(), 1e-9);
+  // Path length: passes + leads + half circles of the spacing at the nozzle radius.
+  const double chord = 2.0 * 4.6 * std::sin(0.5 * 0.2 / 5.6);
+  EXPECT_NEAR(path.length_m(), 6 * 1.2 + 0.24 + 5 * kPi * chord / 2.0, 1e-6);
+  const CartesianSamples cs = sample_path(path, prof, 200.0);
+  ASSERT_GT(cs.t_s.size(), 100u);
+  double max_dv = 0.0, max_step = 0.0;
+  std::vector<double> pass_time(6, 0.0);
+  const auto dw = spray_dwells(cs.t_s, cs.spraying);
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+    if (i > 0) {
+      max_dv = std::max(max_dv, std::abs(cs.speed_mps[i] - cs.speed_mps[i - 1]));
+      max_step = std::max(max_step, cs.t_s[i] - cs.t_s[i - 1]);
+      // Position continuity: the nozzle moves at most v dt between samples.
+      ASSERT_LE((cs.nozzle[i].position_m - cs.nozzle[i - 1].position_m).norm(), 0.3 * (cs.t_s[i] - cs.t_s[i - 1]) + 1e-9);
+    }
+    if (cs.kind[i] != static_cast<char>(SegmentKind::Lead)) {
+      ASSERT_GT(cs.speed_mps[i], 0.05) << "stopped inside the region at t = " << cs.t_s[i];
+    }
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_TRUE(cs.spraying[i]);
+      ASSERT_NEAR(cs.speed_mps[i], passes[static_cast<std::size_t>(cs.pass_index[i])].speed_mps, 1e-12);
+      pass_time[static_cast<std::size_t>(cs.pass_index[i])] += dw[i];
+    } else {
+      ASSERT_FALSE(cs.spraying[i]);
+      ASSERT_EQ(cs.pass_index[i], -1);
+    }
+  }
+  EXPECT_LE(max_step, 1.0 / 200.0 + 1e-12);
+  EXPECT_LT(max_dv, 0.01);  // no speed jumps at 200 Hz
+  // Dwells add up to each pass's duration within one sample.
+  for (int i = 0; i < 6; ++i) EXPECT_NEAR(pass_time[static_cast<std::size_t>(i)], 1.2 / passes[static_cast<std::size_t>(i)].speed_mps, 1.0 / 200.0);
+  EXPECT_NEAR(cs.speed_mps.front(), 0.0, 1e-12);
+  EXPECT_NEAR(cs.speed_mps.back(), 0.0, 1e-12);
+  // With runs the arc speed is capped by the centripetal limit: sqrt(a r) = 0.2026 m/s < 0.3 m/s.
+  {
+    const CartesianPath with_runs = region_path(passes, leads(prm.start_length_m, prm.end_length_m, 0.1));
+    const SpeedProfile capped = region_profile(with_runs, prm);
+    const CartesianSamples c2 = sample_path(with_runs, capped, 500.0);
+    double amax = 0.0;
+    for (std::size_t i = 0; i < c2.t_s.size(); ++i)
+      if (c2.kind[i] == static_cast<char>(SegmentKind::Turn)) amax = std::max(amax, c2.normal_accel_mps2[i]);
+    EXPECT_LE(amax, 0.5 + 1e-9);
+    EXPECT_GT(amax, 0.49);
+  }
+  // Turn speed > 0: the middle of each arc runs at the turn speed.
+  prm.turn_speed_mps = 0.5;
+  prm.speed_change_accel_mps2 = 10.0;  // the arc speed cap sqrt(a r) above 0.5 m/s
+  const SpeedProfile fast = region_profile(path, prm);
+  EXPECT_LT(fast.duration_s(), prof.duration_s());
+  double vmax_turn = 0.0;
+  for (const auto& s : sample_path(path, fast, 500.0).speed_mps) vmax_turn = std::max(vmax_turn, s);
+  EXPECT_NEAR(vmax_turn, 0.5, 1e-4);
+}
+
+TEST(Region, TurnRunsCarryTheSpeedChange) {
+  const auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.0, {0.3, 0.2});
+  TimingParams prm;
+  prm.turn_speed_mps = 0.12;
+  const CartesianPath path = region_path(passes, leads(0.1, 0.1, 0.15));
+  const SpeedProfile prof = region_profile(path, prm);
+  EXPECT_NEAR(prof.length_m(), path.length_m(), 1e-9);
+  // Every arc is run entirely at the turn speed; the speed is continuous (max step at 1 kHz).
+  const CartesianSamples cs = sample_path(path, prof, 1000.0);
+  double max_dv = 0.0;
+  int on_arc = 0;
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+    if (i > 0) max_dv = std::max(max_dv, std::abs(cs.speed_mps[i] - cs.speed_mps[i - 1]));
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Turn)) {
+      ASSERT_NEAR(cs.speed_mps[i], 0.12, 1e-9);
+      ++on_arc;
+    }
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_NEAR(cs.speed_mps[i], passes[static_cast<std::size_t>(cs.pass_index[i])].speed_mps, 1e-12);
+    }
+  }
+  EXPECT_GT(on_arc, 100);
+  EXPECT_LT(max_dv, 3e-3);  // peak 2.7 m/s^2 (the lead-in start), no jumps
+  // Runs of 0.15 m on both sides of each of the 2 arcs.
+  int runs = 0;
+  for (const auto& p : path.pieces())
+    if (p.kind == SegmentKind::Link) {
+      EXPECT_NEAR(p.length_m(), 0.15, 1e-9);
+      ++runs;
+    }
+  EXPECT_EQ(runs, 4);
+}
+
+TEST(Region, PassSpeedProfileKeptWithSmoothChanges) {
+  // One pass of 1 m: waypoints 0..50 at 0.2 m/s, 51..100 at 0.4 m/s (optimal-mode speed profile).
+  auto passes = axial_region(1, 1.0, 0.2, 0.0, 1.0, {0.3});
+  Pass& p = passes[0];
+  for (std::size_t k = 0; k < p.waypoints.size(); ++k) p.speed_profile_mps.push_back(k <= 50 ? 0.2 : 0.4);
+  TimingParams prm;
+  prm.speed_change_accel_mps2 = 0.5;
+  const CartesianPath path = region_path(passes, leads(0.1, 0.1));
+  const SpeedProfile prof = region_profile(path, prm);
+  // Planner's dwell semantics: waypoint k owns half of each neighbouring interval at its speed, so
+  // the switch sits at s = 0.505 m; the cycloid spans h = |dv| (va + vb) / (2 a) = 0.12 m each side.
+  double planned = 0.0;
+  for (std::size_t k = 0; k + 1 < p.waypoints.size(); ++k) {
+    const double len = (p.waypoints[k + 1].position_m - p.waypoints[k].position_m).norm();
+    planned += 0.5 * len / p.speed_at(k) + 0.5 * len / p.speed_at(k + 1);
+  }
+  const double h = 0.2 * 0.6 / (2 * 0.5);
+  const double expected = planned - (h / 0.2 + h / 0.4) + 2 * h / 0.3;
+  const double t0 = prof.time_at_distance(path.piece_start_m(1)), t1 = prof.time_at_distance(path.piece_start_m(2));
+  EXPECT_NEAR(t1 - t0, expected, 1e-6);
+  // Away from the switch the planned speeds hold; the change is continuous with peak 0.5 m/s^2.
+  const double s0 = path.piece_start_m(1);
+  EXPECT_NEAR(prof.at(prof.time_at_distance(s0 + 0.2)).v_mps, 0.2, 1e-12);
+  EXPECT_NEAR(prof.at(prof.time_at_distance(s0 + 0.8)).v_mps, 0.4, 1e-12);
+  const double ta = prof.time_at_distance(s0 + 0.505 - h), tb = prof.time_at_distance(s0 + 0.505 + h);
+  EXPECT_NEAR(tb - ta, 2 * h / 0.3, 1e-6);  // the change spans exactly the 2 h around the switch
+  EXPECT_NEAR(prof.at(0.5 * (ta + tb)).v_mps, 0.3, 1e-6);
+  EXPECT_NEAR(prof.at(ta).v_mps, 0.2, 1e-6);
+  EXPECT_NEAR(prof.at(tb).v_mps, 0.4, 1e-6);
+  double amax = 0.0;
+  for (const auto& pc : prof.pieces())
+    if (pc.v0_mps == 0.2 && pc.v1_mps == 0.4) amax = pc.peak_accel_mps2();
+  EXPECT_NEAR(amax, 0.5, 1e-9);
+  passes[0].speed_profile_mps.pop_back();
+  EXPECT_THROW(region_path(passes, leads(0.1, 0.1)), std::invalid_argument);
+}
+
+TEST(Region, NozzleCheckSeesCentripetalAcceleration) {
+  const auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.4});
+  TimingParams prm;
+  prm.k1 = 1.0;
+  prm.k2 = 0.0;
+  prm.start_length_m = prm.end_length_m = 0.5;  // gentle start/stop: the arc dominates
+  prm.speed_change_accel_mps2 = 10.0;           // no arc speed cap
+  const CartesianPath path = region_path(passes, leads(0.5, 0.5));
+  const auto c = check_nozzle(path, region_profile(path, prm), NozzleLimits{1.0, 1.0});
+  double r = 0.0;
+  for (const auto& p : path.pieces())
+    if (p.is_arc) r = p.radius_m;
+  ASSERT_GT(r, 0.0);
+  EXPECT_NEAR(c.max_accel_mps2, 0.4 * 0.4 / r, 1e-6);
+  EXPECT_NEAR(c.max_speed_mps, 0.4, 1e-12);
+  EXPECT_EQ(c.ok(), 0.16 / r <= 1.0);
+}
+
+TEST(Baseline, FullStopsAtEveryCorner) {
+  const auto passes = axial_region(4, 1.2, 0.2, 0.0, 1.2, {0.3});
+  const BaselinePath b = quintic_baseline(passes, 0.5, 0.3);
+  EXPECT_NEAR(b.profile.length_m(), b.path.length_m(), 1e-9);
+  // The speed is zero where each piece of the baseline path starts (lead-in starts, step-overs).
+  int stops = 0;
+  for (std::size_t i = 0; i < b.path.pieces().size(); ++i) {
+    const auto& p = b.path.pieces()[i];
+    if (p.kind == SegmentKind::Link || (p.kind == SegmentKind::Lead && (i == 0 || b.path.pieces()[i - 1].kind == SegmentKind::Link))) {
+      const double t = b.profile.time_at_distance(b.path.piece_start_m(i));
+      EXPECT_NEAR(b.profile.at(t).v_mps, 0.0, 1e-6);
+      ++stops;
+    }
+  }
+  EXPECT_EQ(stops, 4 + 3);
+  const auto c = check_nozzle(b.path, b.profile, NozzleLimits{1.0, 0.5});
+  EXPECT_NEAR(c.max_accel_mps2, 0.5, 1e-9);  // accelerations sized to the limit
+  // Passes are sprayed at their speed.
+  for (const auto& s : [&] { return sample_path(b.path, b.profile, 100.0); }().speed_mps) EXPECT_LE(s, 0.3 + 1e-12);
+  // Cycloid + arcs with the same acceleration limit is faster.
+  TimingParams prm;
+  prm.k1 = 1.0;
+  prm.k2 = 0.0;
+  prm.start_length_m = prm.end_length_m = 0.5 * 0.3 * (2.0 * 0.3 / 0.5);  // peak 0.5 m/s^2
+  const CartesianPath path = region_path(passes, leads(prm.start_length_m, prm.end_length_m));
+  EXPECT_LT(region_profile(path, prm).duration_s(), b.profile.duration_s());
+}
+
+TEST(RegionPath, SprayOffGapOnTheSameLineIsCrossedWithoutStopping) {
+  // Two passes on one line with a 0.2 m gap (the optimal planner switched the spray off there).
+  auto line = [](double x0, double x1) {
+    Pass p;
+    for (double x = x0; x <= x1 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, 4.6), Eigen::Vector3d(0, 0, 1)});
+    p.length_m = x1 - x0;
+    return p;
+  };
+  Pass a = line(0.0, 0.4), b = line(0.6, 1.2);
+  a.speed_mps = 0.2;
+  b.speed_mps = 0.3;
+  const CartesianPath path = region_path({a, b}, leads(0.1, 0.1, 0.1));
+  int gaps = 0;
+  for (const auto& piece : path.pieces())
+    if (piece.motion == PieceMotion::SprayOffGap) {
+      ++gaps;
+      EXPECT_FALSE(piece.spraying);
+      EXPECT_NEAR(piece.length_m(), 0.2, 1e-9);
+    }
+  EXPECT_EQ(gaps, 1);
+  const SpeedProfile prof = region_profile(path, TimingParams::from_config(TimingConfig{}));
+  EXPECT_NEAR(prof.length_m(), path.length_m(), 1e-6);
+  // The nozzle never stops between the lead-in and the lead-out, and the speed goes 0.2 -> 0.3.
+  double vmin = 1e9;
+  for (double t = 0.2 * prof.duration_s(); t < 0.8 * prof.duration_s(); t += 0.01) vmin = std::min(vmin, prof.at(t).v_mps);
+  EXPECT_GT(vmin, 0.19);
+  // On the passes the planned speeds hold exactly.
+  const CartesianSamples cs = sample_path(path, prof, 500.0);
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i)
+    if (cs.kind[i] == static_cast<char>(SegmentKind::Pass)) {
+      ASSERT_NEAR(cs.speed_mps[i], cs.pass_index[i] == 0 ? 0.2 : 0.3, 1e-12);
+    }
+}
+
+TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
+  // Two passes along +x on neighbouring lines (not a serpentine): stop-and-go between them. At
+  // 0.8 m/s and 0.5 m/s^2 the plain cycloidal stop needs 0.8^2 / 0.5 = 1.28 m (a k2 = 0.5 cruise
+  // would need 3.84 m).
+  auto line = [](double z) {
+    Pass p;
+    for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
+    p.length_m = 1.2;
+    p.speed_mps = 0.8;
+    return p;
+  };
+  const std::vector<Pass> passes = {line(4.6), line(4.8)};
+  const CartesianPath fixed = region_path(passes, leads(0.1, 0.1, 0.1));
+  RegionPathOptions stop = leads(0.1, 0.1, 0.1);
+  stop.stop_accel_mps2 = 0.5;
+  const CartesianPath grown = region_path(passes, stop);
+  double out_fixed = 0, out_grown = 0;
+  for (const auto& p : fixed.pieces())
+    if (p.motion == PieceMotion::StopAtEnd) out_fixed = p.length_m();
+  for (const auto& p : grown.pieces())
+    if (p.motion == PieceMotion::StopAtEnd) out_grown = p.length_m();
+  EXPECT_NEAR(out_fixed, 0.1, 1e-9);
+  EXPECT_NEAR(out_grown, 0.8 * 0.8 / 0.5, 1e-9);
+  // The stop then peaks at the acceleration limit.
+  TimingParams prm = TimingParams::from_config(TimingConfig{});
+  prm.k1 = prm.k2 = 0.5;
+  const SpeedProfile prof = region_profile(grown, prm);
+  ASSERT_EQ(grown.pieces()[2].motion, PieceMotion::StopAtEnd);  // lead-in, pass, run-out, ...
+  const double t_from = prof.time_at_distance(grown.piece_start_m(2)), t_stop = prof.time_at_distance(grown.piece_start_m(3));
+  double peak = 0.0;
+  for (double t = t_from; t <= t_stop; t += 0.001) peak = std::max(peak, std::abs(prof.at(t).a_mps2));
+  EXPECT_GT(peak, 0.45);
+  EXPECT_LT(peak, 0.5 + 1e-3);
+  // Per-gap scales ease only their own gap: a third line, the second gap at half the acceleration.
+  const std::vector<Pass> three = {line(4.6), line(4.8), line(5.0)};
+  stop.gap_accel_scale = {1.0, 0.5};
+  const CartesianPath eased = region_path(three, stop);
+  std::vector<double> outs, ins;
+  for (const auto& p : eased.pieces()) {
+    if (p.motion == PieceMotion::StopAtEnd) outs.push_back(p.length_m());
+    if (p.motion == PieceMotion::StartFromRest) ins.push_back(p.length_m());
+  }
+  ASSERT_EQ(outs.size(), 2u);
+  ASSERT_EQ(ins.size(), 2u);
+  EXPECT_NEAR(outs[0], 0.64 / 0.5, 1e-9);
+  EXPECT_NEAR(ins[0], 0.64 / 0.5, 1e-9);
+  EXPECT_NEAR(outs[1], 0.64 / 0.25, 1e-9);
+  EXPECT_NEAR(ins[1], 0.64 / 0.25, 1e-9);
+  // One scale per gap, each in (0, 1].
+  for (const std::vector<double>& bad : {std::vector<double>{1.0}, {1.0, 0.0}, {1.5, 1.0}, {NAN, 1.0}}) {
+    stop.gap_accel_scale = bad;
+    EXPECT_THROW(region_path(three, stop), std::invalid_argument);
+  }
+}

@@ -1,0 +1,139 @@
+// Joint-space timing: joint quintics, stop-and-go moves in joint space, bad input, and the speed
+// caps learnt from a timed trajectory.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/timing/trajectory.hpp"
+#include "timing_fixtures.hpp"
+
+using namespace shotcrete;
+
+using shotcrete::test::axial_region;
+
+TEST(Joint, QuinticMinDurationHitsTheBindingLimit) {
+  Eigen::VectorXd q0(3), q1(3), vl(3), al(3);
+  q0 << 0.0, 1.0, -0.5;
+  q1 << 1.2, 0.8, 0.5;
+  vl << 0.5, 1.0, 2.0;
+  al << 2.0, 1.0, 0.2;
+  const double T = quintic_min_duration(q0, q1, vl, al);
+  EXPECT_NEAR(T, std::max({1.875 * 1.2 / 0.5, std::sqrt(10.0 / std::sqrt(3.0) * 1.0 / 0.2)}), 1e-12);
+  double rv = 0.0, ra = 0.0;
+  Eigen::VectorXd q, qd, qdd;
+  for (int i = 0; i <= 10000; ++i) {
+    quintic_joint(q0, q1, T, T * i / 10000.0, q, qd, qdd);
+    rv = std::max(rv, qd.cwiseAbs().cwiseQuotient(vl).maxCoeff());
+    ra = std::max(ra, qdd.cwiseAbs().cwiseQuotient(al).maxCoeff());
+  }
+  EXPECT_LE(rv, 1.0 + 1e-9);
+  EXPECT_LE(ra, 1.0 + 1e-9);
+  EXPECT_NEAR(std::max(rv, ra), 1.0, 1e-6);  // minimum: one limit is reached
+  quintic_joint(q0, q1, T, T, q, qd, qdd);
+  EXPECT_NEAR((q - q1).norm(), 0.0, 1e-12);
+  EXPECT_NEAR(qd.norm() + qdd.norm(), 0.0, 1e-12);
+}
+
+TEST(RobotTiming, StopAndGoMovesHappenInJointSpace) {
+  // Two axial passes both heading +x on neighbouring lines: stop-and-go between them. The move
+  // from the run-out's end to the run-in's start is a joint quintic at the limits (kind Transit
+  // inside the region), not a straight nozzle line.
+  auto passes = axial_region(2, 1.0, 0.3, 0.0, 1.2, {0.2});
+  std::reverse(passes[1].waypoints.begin(), passes[1].waypoints.end());
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig tc;
+  const TimedTrajectory tr = time_plan(robot, {passes}, robot.neutral(), tc, RobotConfig{});
+  EXPECT_EQ(tr.untracked_regions, 0);
+  std::size_t first = tr.size(), last = 0;
+  for (std::size_t i = 0; i < tr.size(); ++i)
+    if (tr.kind[i] == static_cast<char>(SegmentKind::Transit) && tr.region_index[i] == 0)
+      first = std::min(first, i), last = std::max(last, i);
+  ASSERT_LT(first, last) << "no joint-space move inside the region";
+  // At rest at both ends; its duration is the minimal quintic between them.
+  const Eigen::VectorXd& q0 = tr.q[first - 1];
+  const Eigen::VectorXd& q1 = tr.q[last];
+  const double T = quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits());
+  EXPECT_NEAR(tr.t_s[last] - tr.t_s[first - 1], T, 1e-9);
+  for (std::size_t i = first; i <= last; ++i) {
+    Eigen::VectorXd q, qd, qdd;
+    quintic_joint(q0, q1, T, tr.t_s[i] - tr.t_s[first - 1], q, qd, qdd);
+    ASSERT_LT((q - tr.q[i]).cwiseAbs().maxCoeff(), 1e-12);
+  }
+  EXPECT_LE(tr.max_velocity_ratio, 1.0 + 1e-3);
+  EXPECT_LE(tr.max_acceleration_ratio, 1.03);
+}
+
+TEST(RobotTiming, BadInput) {
+  const Robot robot = Robot::load(RobotConfig{});
+  EXPECT_THROW(time_plan(robot, {}, Eigen::VectorXd::Zero(3), TimingConfig{}, RobotConfig{}), std::invalid_argument);
+  auto passes = axial_region(2, 1.0, 0.2, 0.0, 1.0, {0.2});
+  passes[1].speed_mps = 0.0;
+  EXPECT_THROW(time_plan(robot, {passes}, robot.neutral(), TimingConfig{}, RobotConfig{}), std::invalid_argument);
+  // A pass far outside the reach: a runtime_error naming the region.
+  auto far = axial_region(2, 1.0, 0.2, 30.0, 1.0, {0.2});
+  try {
+    time_plan(robot, {far}, robot.neutral(), TimingConfig{}, RobotConfig{});
+    FAIL() << "no error for an unreachable region";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("region 0"), std::string::npos) << e.what();
+  }
+}
+
+TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
+  // A straight pass at 0.5 m/s whose middle sample breaks joint 0's velocity limit 2x and joint 1's
+  // acceleration limit 3x; a link sample over an acceleration limit only (not the planner's).
+  const Eigen::VectorXd vel = Eigen::VectorXd::Constant(2, 1.0), acc = Eigen::VectorXd::Constant(2, 1.0);
+  TimedTrajectory tr;
+  for (int i = 0; i < 9; ++i) {
+    tr.t_s.push_back(0.1 * i);
+    NozzlePose p;
+    p.position_m = Eigen::Vector3d(0.05 * i, 0, 0);
+    tr.nozzle.push_back(p);
+    tr.q.push_back(Eigen::VectorXd::Zero(2));
+    tr.qd.push_back(Eigen::VectorXd::Constant(2, 0.5));
+    tr.qdd.push_back(Eigen::VectorXd::Zero(2));
+    tr.spraying.push_back(i < 6);
+    tr.pass_index.push_back(i < 6 ? 0 : -1);
+    tr.region_index.push_back(0);
+    tr.kind.push_back(static_cast<char>(i < 6 ? SegmentKind::Pass : SegmentKind::Link));
+  }
+  tr.qd[3] = Eigen::Vector2d(2.0, 0.5);
+  tr.qdd[3] = Eigen::Vector2d(0.0, 3.0);
+  tr.qdd[7] = Eigen::Vector2d(5.0, 0.0);
+  SpeedCapMap map;
+  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);
+  ASSERT_EQ(map.speed_mps.size(), 2u);
+  // min(0.9 / 2, sqrt(0.9 / 3)) * 0.5 m/s
+  EXPECT_NEAR(map.speed_mps[0], 0.5 * std::min(0.45, std::sqrt(0.3)), 1e-12);
+  EXPECT_NEAR(map.at(Eigen::Vector3d(0.15 - 0.09, 0, 0)), map.speed_mps[0], 1e-12);
+  EXPECT_TRUE(std::isinf(map.at(Eigen::Vector3d(0.15 - 0.11, 0, 0))));
+  // The link sample over the acceleration limit (its run stops from the pass end): the bound goes
+  // to the last pass sample (5), sqrt(0.9 / 5) of its speed.
+  EXPECT_EQ(map.points_m[1], tr.nozzle[5].position_m);
+  EXPECT_NEAR(map.speed_mps[1], 0.5 * std::sqrt(0.9 / 5.0), 1e-12);
+  // A link sample over a velocity limit counts at its own position: it cruises at the speed of a
+  // pass next to it.
+  tr.qdd[7].setZero();
+  tr.qd[7] = Eigen::Vector2d(0.0, 1.5);
+  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);  // sample 3 again, and sample 7
+  EXPECT_EQ(map.points_m.back(), tr.nozzle[7].position_m);
+  EXPECT_NEAR(map.speed_mps.back(), 0.5 * 0.9 / 1.5, 1e-12);
+  // A run-in (the link comes after a joint move and before a pass): the next pass's first sample.
+  TimedTrajectory in = tr;
+  for (int i = 0; i < 9; ++i) {
+    in.kind[i] = static_cast<char>(i < 2 ? SegmentKind::Transit : i < 4 ? SegmentKind::Link : SegmentKind::Pass);
+    in.spraying[i] = i >= 4;
+    in.qd[i] = Eigen::Vector2d(0.0, 0.5);
+    in.qdd[i].setZero();
+  }
+  in.qdd[2] = Eigen::Vector2d(0.0, 4.0);
+  SpeedCapMap run_in;
+  EXPECT_EQ(run_in.learn(in, vel, acc, 0.9), 1);
+  EXPECT_EQ(run_in.points_m[0], in.nozzle[4].position_m);
+  EXPECT_NEAR(run_in.speed_mps[0], 0.5 * std::sqrt(0.9 / 4.0), 1e-12);
+}
