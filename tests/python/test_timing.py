@@ -61,6 +61,9 @@ def test_region_path_turns_and_dwells():
     path = _core.region_path(passes, 0.1, 0.1)
     chord = 2 * 4.6 * math.sin(0.5 * 0.2 / 5.6)
     np.testing.assert_allclose(path.turn_radii_m, [chord / 2] * 4, rtol=1e-9)
+    # A serpentine: every piece by its kind (no stop-and-go, no spray-off gap).
+    assert set(path.piece_motions) == {_core.PieceMotion.BY_KIND}
+    assert path.piece_kinds.count(_core.SegmentKind.TURN) == 4
     params = _core.TimingParams()
     prof = _core.region_profile(path, params)
     assert prof.length_m == pytest.approx(path.length_m, rel=1e-12)
@@ -111,6 +114,7 @@ def test_time_plan_on_robot():
     assert summ["max_velocity_ratio"] <= 1.0 + 1e-3
     assert summ["max_acceleration_ratio"] <= 1.03
     assert summ["untracked_regions"] == 0
+    assert tr.max_position_violation_rad <= 0.0 and tr.max_position_violation_m <= 0.0
     n = len(tr)
     assert tr.q.shape == (n, robot.dof) and tr.qdd.shape == (n, robot.dof)
     assert tr.joint_table().shape == (n, 1 + 3 * robot.dof)
