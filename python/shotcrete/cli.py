@@ -7,7 +7,7 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from . import _core, cli_deposition, cli_order, cli_robot
+from . import cli_deposition, cli_order, cli_robot, synthetic_cloud
 from .cli_common import cli_config, console, print_json, user_errors
 from .io import read_cloud, write_cloud
 from .pipeline import run_job
@@ -60,7 +60,7 @@ def synth(out: Path = typer.Option(..., "--out", help="cloud file to write (.pcd
             if seed < 0:
                 raise ValueError("--seed must be >= 0")
             cfg.synth.seed = seed
-        cloud = _core.make_synthetic_bay(cfg.synth).sample(cfg.grid.cell_size_m)
+        cloud = synthetic_cloud(cfg)
         write_cloud(out, cloud)
         console.print(f"wrote {len(cloud)} points to {out}")
 
@@ -74,7 +74,7 @@ def demo(out: Path = typer.Option(Path("out/demo"), "--out", help="output direct
     with user_errors():
         cfg = cli_config(config)
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
-        cloud = _core.make_synthetic_bay(cfg.synth).sample(cfg.grid.cell_size_m)
+        cloud = synthetic_cloud(cfg)
         result = _run_job(cloud, cfg, out, as_json)
         _emit(result, as_json, SUMMARY)
         if not as_json:
