@@ -14,7 +14,7 @@ import numpy as np
 
 import shotcrete
 from shotcrete import _core
-from shotcrete.cli_deposition import fit_report, spacing_report
+from shotcrete.deposition import fit_report, spacing_report
 
 ROOT = Path(__file__).resolve().parents[1]
 

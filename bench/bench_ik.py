@@ -10,7 +10,7 @@ import platform
 import time
 from pathlib import Path
 
-from shotcrete.cli_robot import ik_bench, load_robot, reach, reach_figure, robot_summary
+from shotcrete.robot import ik_bench, load_robot, reach, reach_figure, robot_summary
 from shotcrete.config import load_config
 
 

@@ -28,9 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from shotcrete import _core, synthetic_cloud
-from shotcrete.cli_robot import load_robot
 from shotcrete.config import load_config
-from shotcrete.pipeline import swarm_report
+from shotcrete.robot import load_robot
 
 SPEEDS = (0.22, 0.30, 0.18, 0.26, 0.34, 0.20, 0.28, 0.24)  # m/s, as the deposition would set them
 
@@ -51,7 +50,7 @@ def axial_region(n, length, wall_spacing, x0, theta0, standoff, R=5.6, speeds=SP
 def joint_summary(tr) -> dict:
     s = tr.summary()
     s["feasible"] = bool(s["max_velocity_ratio"] <= 1.0 + 1e-3 and s["max_acceleration_ratio"] <= 1.0 + 1e-3
-                         and s["max_position_violation"] <= 0.0)
+                         and s["max_position_violation_rad"] <= 0.0 and s["max_position_violation_m"] <= 0.0)
     return s
 
 
@@ -197,7 +196,7 @@ def demo_plan_timing(cfg, robot, mode):
     tuned = _core.plan_for_arm(surface, cfg, robot)
     cfg.timing.tune_with_pso = False
     swarm = figures(tuned.plan, tuned.trajectory, time.perf_counter() - t0)
-    summary = swarm_report(tuned)
+    summary = _core.summarise_job(surface, tuned, robot, cfg).to_dict()["trajectory"]["swarm"]
     del summary["params"]
     swarm.update(summary)
     swarm["saving_vs_config_timing"] = 1.0 - tuned.trajectory.duration_s / tuned.config_duration_s

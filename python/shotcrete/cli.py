@@ -1,52 +1,24 @@
 """The ``shotcrete`` command line: synth, demo, plan (and the stage tools registered below)."""
 from __future__ import annotations
 
-import json
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from . import _core
-from .config import load_config
-from .io import UNIT_SCALES, read_cloud, write_cloud
+from . import cli_deposition, cli_order, cli_robot, synthetic_cloud
+from .cli_common import cli_config, console, print_json, user_errors
+from .io import read_cloud, write_cloud
+from .pipeline import run_job
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Shotcrete spraying plans from a 3-D scan of a tunnel bay.")
-console = Console(stderr=True, soft_wrap=True)  # errors on one line, never wrapped
-
-EXIT_BAD_INPUT = 2
-
-
-@contextmanager
-def user_errors():
-    """Bad input becomes one red line and exit code 2, never a traceback."""
-    try:
-        yield
-    except (ValueError, FileNotFoundError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(EXIT_BAD_INPUT)
-    except RuntimeError as exc:
-        console.print(f"[red]failed:[/red] {exc}", highlight=False)
-        raise typer.Exit(1)
-
-
-def _config(path: Optional[Path], units: str = "m"):
-    config = load_config(path)
-    if units not in UNIT_SCALES:
-        raise ValueError(f"--units must be one of {', '.join(UNIT_SCALES)}, got {units!r}")
-    if units != "m":
-        config.io.unit_scale = UNIT_SCALES[units]
-    return config
 
 
 def _emit(result: dict, as_json: bool, summary_keys: list[str]) -> None:
     if as_json:
-        sys.stdout.write(json.dumps(result, indent=2, default=float) + "\n")
+        print_json(result, indent=2, default=float)
         return
     for key in summary_keys:
         if key in result:
@@ -54,8 +26,6 @@ def _emit(result: dict, as_json: bool, summary_keys: list[str]) -> None:
 
 
 def _run_job(cloud, config, out: Path, as_json: bool, inputs=()) -> dict:
-    from .pipeline import run_job
-
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console,
                   disable=as_json) as bar:
         tasks: dict[str, int] = {}
@@ -85,12 +55,12 @@ def synth(out: Path = typer.Option(..., "--out", help="cloud file to write (.pcd
     with user_errors():
         if out.exists() and not force:
             raise ValueError(f"{out} exists; pass --force to overwrite it")
-        cfg = _config(config)
+        cfg = cli_config(config)
         if seed is not None:
             if seed < 0:
                 raise ValueError("--seed must be >= 0")
             cfg.synth.seed = seed
-        cloud = _core.make_synthetic_bay(cfg.synth).sample(cfg.grid.cell_size_m)
+        cloud = synthetic_cloud(cfg)
         write_cloud(out, cloud)
         console.print(f"wrote {len(cloud)} points to {out}")
 
@@ -102,9 +72,9 @@ def demo(out: Path = typer.Option(Path("out/demo"), "--out", help="output direct
          tune_timing: bool = typer.Option(False, "--tune-timing", help=TUNE_HELP)):
     """Plan and simulate the built-in synthetic bay; writes report.json/report.html to OUT."""
     with user_errors():
-        cfg = _config(config)
+        cfg = cli_config(config)
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
-        cloud = _core.make_synthetic_bay(cfg.synth).sample(cfg.grid.cell_size_m)
+        cloud = synthetic_cloud(cfg)
         result = _run_job(cloud, cfg, out, as_json)
         _emit(result, as_json, SUMMARY)
         if not as_json:
@@ -120,7 +90,7 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
          tune_timing: bool = typer.Option(False, "--tune-timing", help=TUNE_HELP)):
     """Plan a scanned bay; writes report.json/report.html, the plan and the sprayed cloud to OUT."""
     with user_errors():
-        cfg = _config(config, units)
+        cfg = cli_config(config, units)
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
         cloud = read_cloud(cloud_path)
         result = _run_job(cloud, cfg, out, as_json, inputs=[cloud_path])
@@ -129,9 +99,10 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
             console.print(f"[green]report:[/green] {Path(out) / 'report.html'}")
 
 
-from .cli_order import register as _register_order; _register_order(app)  # noqa: E402,E702
-from .cli_deposition import register as _register_deposition; _register_deposition(app)  # noqa: E402,E702
-from .cli_robot import register as _register_robot; _register_robot(app)  # noqa: E402,E702
+# The stage tools, listed after synth, demo and plan.
+cli_order.register(app)
+cli_deposition.register(app)
+cli_robot.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point alias

@@ -13,6 +13,16 @@ from matplotlib.colors import BoundaryNorm, ListedColormap  # noqa: E402
 from . import _core  # noqa: E402
 
 
+def save(fig, path: Path, dpi: int = 110) -> Path:
+    """Lays out, writes (creating the directory) and closes a figure."""
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def grid_extent(grid) -> list[float]:
     """[d_min, d_max, s_min, s_max] in metres of the unrolled grid (s = arc length at r_design)."""
     r = grid.profile.radius_m

@@ -3,6 +3,7 @@
 #include "bindings.hpp"
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/pipeline/job_summary.hpp"
 #include "shotcrete/timing/timing.hpp"
 
 using namespace shotcrete;
@@ -310,22 +311,8 @@ void bind_timing(py::module_& m) {
       .def("joint_table", &TimedTrajectory::joint_table, "(N, 1 + 3 dof): t, q, qd, qdd")
       .def("joint_table_header", &TimedTrajectory::joint_table_header)
       .def("to_csv", &TimedTrajectory::to_csv)
-      .def("summary",
-           [](const TimedTrajectory& t) {
-             py::dict d;
-             d["samples"] = t.size();
-             d["duration_s"] = t.duration_s;
-             d["spray_time_s"] = t.spray_time_s;
-             d["transit_time_s"] = t.transit_time_s;
-             d["max_velocity_ratio"] = t.max_velocity_ratio;
-             d["max_acceleration_ratio"] = t.max_acceleration_ratio;
-             d["worst_velocity_joint"] = t.worst_velocity_joint;
-             d["worst_acceleration_joint"] = t.worst_acceleration_joint;
-             d["max_position_violation"] = t.max_position_violation_rad;
-             d["untracked_regions"] = t.untracked_regions;
-             return d;
-           },
-           "JSON-friendly scalars.")
+      .def("summary", [](const TimedTrajectory& t) { return json_loads(to_json(summarise_trajectory(t))); },
+           "The scalars (summarise_trajectory) as a dict.")
       .def("__len__", &TimedTrajectory::size);
 
   m.def(

@@ -21,6 +21,9 @@ inline Eigen::MatrixXd pose_axes(const std::vector<shotcrete::NozzlePose>& poses
   return m;
 }
 
+// The core writes its summaries as JSON (to_json); Python gets them as dicts from the same text.
+inline py::object json_loads(const std::string& text) { return py::module_::import("json").attr("loads")(text); }
+
 // One function per core header; module.cpp calls them all.
 void bind_config(py::module_& m);
 void bind_surface(py::module_& m);
@@ -29,3 +32,4 @@ void bind_ordering(py::module_& m);
 void bind_robot(py::module_& m);
 void bind_planner(py::module_& m);
 void bind_timing(py::module_& m);
+void bind_pipeline(py::module_& m);

@@ -1,7 +1,7 @@
 #include "bindings.hpp"
 
 PYBIND11_MODULE(_core, m) {
-  m.doc() = "shotcrete core (C++): surface, deposition, planning, ordering, robot";
+  m.doc() = "shotcrete core (C++): surface, deposition, planning, ordering, robot, timing, pipeline";
   bind_config(m);
   bind_surface(m);
   bind_deposition(m);
@@ -9,4 +9,5 @@ PYBIND11_MODULE(_core, m) {
   bind_robot(m);
   bind_planner(m);
   bind_timing(m);
+  bind_pipeline(m);
 }

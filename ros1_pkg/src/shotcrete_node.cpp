@@ -1,9 +1,11 @@
 // shotcrete_node: the planner on the core library, driven from ROS.
 //
 // Input:     ~cloud_in (sensor_msgs/PointCloud2, tunnel frame), or ~cloud_file, or ~synthetic + ~seed.
-// Services:  ~plan, ~execute (std_srvs/Trigger: success + a one-line summary).
+// Services:  ~plan (std_srvs/Trigger: success + the job summary as JSON, the core's JobSummary, as
+//            in report.json), ~execute (success + a one-line summary).
 // Published: ~cloud (PointCloud2, TD as intensity and rgb; republished while concrete is deposited),
-//            ~grid_levels, ~passes (MarkerArray), ~summary (String), /joint_states, /tf_static.
+//            ~grid_levels, ~passes (MarkerArray), ~summary (String: the plan's JSON summary),
+//            /joint_states, /tf_static.
 // Config:    ~config (YAML; default the repository's config/default.yaml), and every
 //            ~<section>/<key> of the config field table overrides that one value.
 #include <geometry_msgs/TransformStamped.h>
@@ -28,6 +30,7 @@
 
 #include "ros_conversions.hpp"
 #include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/pipeline/job_summary.hpp"
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition/deposition.hpp"
 #include "shotcrete/surface/grid.hpp"
@@ -146,7 +149,8 @@ class ShotcreteNode {
     return true;
   }
 
-  /// Plans the current surface; fills `summary`. Returns false (with the reason) on failure.
+  /// Plans the current surface; fills `summary` with the job summary (JSON). Returns false (with
+  /// the reason) on failure.
   bool plan(std::string& summary) {
     std::unique_lock<std::mutex> work(work_mutex_, std::try_to_lock);
     if (!work.owns_lock()) {
@@ -154,9 +158,11 @@ class ShotcreteNode {
       return false;
     }
     std::shared_ptr<const Surface> surface;
+    long points_in = 0;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface = surface_;
+      points_in = points_in_;
     }
     if (!surface) {
       summary = "no cloud yet: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
@@ -165,8 +171,7 @@ class ShotcreteNode {
     const auto t0 = Clock::now();
     auto plan = std::make_shared<Plan>();
     std::shared_ptr<shotcrete::TimedTrajectory> trajectory;
-    std::string timing_note;
-    int replans = 0;
+    shotcrete::JobSummary job;
     try {
       // Planned for the arm (speeds its joints can follow), timed, re-planned where needed.
       double last_report = -1.0;
@@ -177,41 +182,20 @@ class ShotcreteNode {
           last_report = t;
         }
       });
+      job = shotcrete::summarise_job(*surface, arm, *robot_, config_, {points_in});
       *plan = std::move(arm.plan);
-      replans = arm.replans;
       // The plan stays usable (markers, summary) without a trajectory; only ~execute needs it.
       if (arm.trajectory) trajectory = std::make_shared<shotcrete::TimedTrajectory>(std::move(*arm.trajectory));
-      else timing_note = ", no trajectory: " + arm.timing_error;
-      if (arm.tuning) {
-        std::ostringstream t;
-        t << std::fixed << std::setprecision(1) << " timing_swarm=" << (arm.tuned_timing_used ? "used" : "not_faster")
-          << " config_timing_s=" << arm.config_duration_s;
-        timing_note += t.str();
-      }
-      if (!arm.tuning_error.empty()) timing_note += ", timing swarm failed: " + arm.tuning_error;
     } catch (const std::exception& e) {
       summary = std::string("planning failed: ") + e.what();
       return false;
     }
-    const double plan_s = seconds_since(t0);
-
-    int passes = 0, regions = 0;
-    for (const auto& round : plan->rounds) {
-      regions += static_cast<int>(round.regions.size());
-      for (const auto& region : round.regions) passes += static_cast<int>(region.passes.size());
-    }
-    std::ostringstream s;
-    s << std::fixed << std::setprecision(2) << "rounds=" << plan->rounds.size() << " regions=" << regions
-      << " passes=" << passes << " spray_time_s=" << plan->spray_time_s << " stop='" << plan->stop_reason
-      << "' levels_before=" << levels_text(shotcrete::level_counts(surface->levels));
-    if (!plan->rounds.empty()) s << " levels_after=" << levels_text(plan->rounds.back().levels_after);
-    s << " unreachable_cells=" << plan->unreachable_cells.size();
-    if (trajectory)
-      s << " trajectory_s=" << trajectory->duration_s << " samples=" << trajectory->size()
-        << " max_velocity_ratio=" << trajectory->max_velocity_ratio
-        << " max_acceleration_ratio=" << trajectory->max_acceleration_ratio;
-    s << " replans=" << replans << " plan_and_timing_s=" << plan_s << timing_note;
-    summary = s.str();
+    summary = job.to_json();
+    // One line in the log; the whole summary goes to ~summary and the service response.
+    const std::string timed = job.trajectory ? "trajectory " + std::to_string(job.trajectory->duration_s) + " s"
+                                             : "no trajectory: " + job.ik.error;
+    ROS_INFO("plan in %.1f s: %d rounds, %d passes, spray %.0f s, %s (summary on %s)", seconds_since(t0),
+             job.rounds, job.passes, job.spray_time_s, timed.c_str(), summary_pub_.getTopic().c_str());
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       plan_ = plan;
@@ -337,6 +321,7 @@ class ShotcreteNode {
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface_ = surface;
+      points_in_ = static_cast<long>(cloud.size());
       plan_.reset();
       trajectory_.reset();
     }
@@ -362,10 +347,7 @@ class ShotcreteNode {
       res.success = false;
       res.message = std::string("plan failed: ") + e.what();
     }
-    if (res.success)
-      ROS_INFO("plan: %s", res.message.c_str());
-    else
-      ROS_WARN("plan: %s", res.message.c_str());
+    if (!res.success) ROS_WARN("plan: %s", res.message.c_str());  // plan() logs a success itself
     return true;
   }
 
@@ -567,6 +549,7 @@ class ShotcreteNode {
   std::mutex work_mutex_;   // one plan / execution / cloud update at a time
   std::mutex state_mutex_;  // guards the snapshots below
   std::shared_ptr<const Surface> surface_;
+  long points_in_ = 0;  // points of the cloud surface_ was built from
   std::shared_ptr<const Plan> plan_;
   std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
 
@@ -599,7 +582,6 @@ int main(int argc, char** argv) {
     if (have_cloud && auto_plan) {
       std::string summary;
       if (node->plan(summary)) {
-        ROS_INFO("plan: %s", summary.c_str());
         if (auto_execute) {
           if (node->execute(summary))
             ROS_INFO("execute: %s", summary.c_str());

@@ -1,6 +1,7 @@
 #!/usr/bin/python3
 """rostest: malformed clouds on ~cloud_in are logged with their reason and ignored; the node keeps
 running, refuses to plan without a cloud, and plans a good cloud afterwards."""
+import json
 import math
 import os
 import struct
@@ -75,7 +76,7 @@ class BadMessages(unittest.TestCase):
         self.assertIsNotNone(clouds.wait(timeout=60, after=t), "good cloud not accepted after bad ones")
         res = plan()
         self.assertTrue(res.success, res.message)
-        self.assertIn("passes=", res.message)
+        self.assertGreater(json.loads(res.message)["passes"], 0)
         # ... and a bad cloud after a plan leaves the plan in place.
         t = time.time()
         pub.publish(u.cloud_msg(nan))

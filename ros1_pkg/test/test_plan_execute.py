@@ -2,6 +2,7 @@
 """rostest: a real master and shotcrete_node. Publish a small bay, call ~plan, check the markers and
 the summary; call ~execute, check /joint_states (rate, names, limits, motion) and that the
 republished cloud's TD goes down."""
+import json
 import math
 import os
 import sys
@@ -45,10 +46,15 @@ class PlanExecute(unittest.TestCase):
 
         plan = rospy.ServiceProxy(u.NS + "/plan", Trigger)()
         self.assertTrue(plan.success, plan.message)
-        for key in ("rounds=", "passes=", "spray_time_s=", "levels_before=", "trajectory_s="):
-            self.assertIn(key, plan.message)
-        n_passes = int(plan.message.split("passes=")[1].split()[0])
-        self.assertGreater(n_passes, 0)
+        report = json.loads(plan.message)  # the job summary, as in report.json
+        for key in ("rounds", "passes", "spray_time_s", "levels_before", "levels_after", "residual_mm", "ik"):
+            self.assertIn(key, report)
+        self.assertGreater(report["passes"], 0)
+        self.assertGreater(report["spray_time_s"], 0.0)
+        self.assertTrue(report["ik"]["solved"], report["ik"])
+        self.assertGreaterEqual(report["total_time_s"], report["spray_time_s"])
+        self.assertEqual(report["points_in"], len(points))
+        self.assertGreater(report["trajectory"]["samples"], 0)
 
         def has_passes(m):
             return any(k.ns == "passes" and k.points for k in m.markers)
@@ -60,6 +66,7 @@ class PlanExecute(unittest.TestCase):
         self.assertTrue(any(k.ns == "regions" and k.points for k in pm.markers), "no region outlines")
         sm = summary.wait(lambda m: m.data == plan.message, timeout=5)
         self.assertIsNotNone(sm, "~summary does not carry the plan summary")
+        self.assertEqual(json.loads(sm.data), report)
 
         n_clouds = len(clouds.snapshot())
         n_levels = len(levels.snapshot())

@@ -26,7 +26,8 @@ def test_plan_api_finishes_the_bay(small, mode):
     cfg = cfg.copy()
     cfg.planner.mode = mode
     stages = []
-    plan = shotcrete.plan(cloud, cfg, lambda stage, f: stages.append(stage))
+    plan = shotcrete.plan(cloud, cfg, lambda stage, f: stages.append(stage), arm=False)  # plan_bay
+    assert isinstance(plan, shotcrete.Plan)
     assert plan.rounds and stages
     surface = shotcrete.build_surface(cloud, cfg)
     valid = np.asarray(surface.grid.valid).reshape(-1)
@@ -59,6 +60,14 @@ def test_optimal_beats_graded_on_residual(small):
     assert rms["optimal"] < rms["graded"]
 
 
+def _leaves(node, prefix=""):
+    if isinstance(node, dict):
+        return {k: v for key, child in node.items() for k, v in _leaves(child, f"{prefix}{key}.").items()}
+    if isinstance(node, list):
+        return {k: v for i, child in enumerate(node) for k, v in _leaves(child, f"{prefix}{i}.").items()}
+    return {prefix[:-1]: node}
+
+
 def test_cli_demo_report_contract(tmp_path, run_cli):
     cfg = tmp_path / "small.yaml"
     cfg.write_text(SMALL_BAY)
@@ -67,6 +76,23 @@ def test_cli_demo_report_contract(tmp_path, run_cli):
     assert r.exit_code == 0, r.output
     report = json.loads((out / "report.json").read_text())
     assert REPORT_KEYS <= set(report)
+    # report.json is the core's job summary (+ timings_s, files), and shotcrete.plan() plans as the
+    # CLI does: for the arm.
+    config = shotcrete.load_config(cfg)
+    cloud = shotcrete.synthetic_cloud(config)
+    job = shotcrete.plan(cloud, config)
+    assert isinstance(job, shotcrete.ArmPlan) and job.trajectory is not None
+    summary = shotcrete.summarise_job(shotcrete.build_surface(cloud, config), job, shotcrete.load_robot(config),
+                                      config, points_in=len(cloud))
+    expected = _leaves(summary.to_dict())
+    got = _leaves({k: report[k] for k in summary.to_dict()})
+    assert set(got) == set(expected)
+    numbers = [k for k, v in expected.items() if isinstance(v, float)]
+    assert {k: got[k] for k in numbers} == pytest.approx({k: expected[k] for k in numbers}, rel=1e-9)
+    assert {k: got[k] for k in expected if k not in numbers} == {k: v for k, v in expected.items() if k not in numbers}
+    assert set(report) - set(summary.to_dict()) == {"timings_s", "files"}
+    assert summary.passes == report["passes"]
+    assert summary.trajectory.duration_s == pytest.approx(report["total_time_s"], rel=1e-9)
     assert set(report["residual_mm"]) >= {"mean", "min", "max", "rms"}
     assert report["ik"]["solved"] and report["ik"]["worst_position_error_m"] < 1e-3
     assert report["total_time_s"] >= report["spray_time_s"] > 0
@@ -88,6 +114,8 @@ def test_bad_planner_config_names_the_key(small, tmp_path, run_cli):
     bad.planner.standoff_m = 2.0
     with pytest.raises(ValueError, match="planner.standoff_m"):
         shotcrete.plan(cloud, bad)
+    with pytest.raises(ValueError, match="arm=True"):
+        shotcrete.plan(cloud, cfg, arm=False, robot=shotcrete.load_robot(cfg))
     yaml = tmp_path / "bad.yaml"
     yaml.write_text("planner: {mode: fastest}\n")
     r = run_cli("demo", "--out", tmp_path / "o", "--config", yaml)

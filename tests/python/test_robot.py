@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 import shotcrete
 from shotcrete import _core
 from shotcrete.cli import app
-from shotcrete.cli_robot import load_robot, urdf_path
+from shotcrete.robot import load_robot, urdf_path
 
 
 def _rpy(r, p, y):

@@ -103,7 +103,7 @@ def test_pso_known_minimum():
 
 def test_time_plan_on_robot():
     cfg = shotcrete.load_config()
-    from shotcrete.cli_robot import load_robot
+    from shotcrete.robot import load_robot
 
     robot = load_robot(cfg)
     regions = [_axial_region()]
@@ -135,7 +135,7 @@ def test_plan_for_arm_sprays_within_the_joint_limits(small_config, small_cloud):
     acceleration limits (finite differences of the trajectory itself), and the plan's deposit is
     simulated at the speeds the trajectory sprays (spray time within 3 %: the trajectory changes
     speed smoothly across segment boundaries, the planner's dwell steps)."""
-    from shotcrete.cli_robot import load_robot
+    from shotcrete.robot import load_robot
 
     cfg = small_config
     robot = load_robot(cfg)
@@ -163,7 +163,7 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     """timing.tune_with_pso: the swarm's per-region parameters replace the config's only when the
     whole trajectory gets shorter and no joint ratio gets worse; the regions it could not make
     feasible keep the config's parameters."""
-    from shotcrete.cli_robot import load_robot
+    from shotcrete.robot import load_robot
 
     cfg = small_config
     cfg.timing.tune_with_pso = True

@@ -1,0 +1,116 @@
+#pragma once
+// The one summary of a planned job: the surface, the plan for the arm and its trajectory in
+// figures. report.json (Python), the ROS node's ~summary and the Python API all carry this struct,
+// written as JSON by to_json.
+#include <cstddef>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/surface/surface.hpp"
+#include "shotcrete/timing/timing.hpp"
+
+namespace shotcrete {
+
+class Robot;
+
+/// A TD over the valid grid cells [mm].
+struct TdStatsMm {
+  double mean = 0.0, min = 0.0, max = 0.0, rms = 0.0, abs_max = 0.0;
+};
+
+struct RoundSummary {
+  int round = 0;  // from 1
+  std::string kind;
+  int level = 0;
+  int regions = 0;
+  int passes = 0;
+  double spray_time_s = 0.0;
+  std::string order_method;
+  double link_length_m = 0.0;
+  std::map<int, int> levels_before, levels_after;  // cells per level
+};
+
+/// The arm on the plan: the poses it must reach and an independent check of the trajectory (FK of
+/// every check_every-th joint sample against the nozzle pose it was timed for).
+struct IkSummary {
+  int poses = 0;  // waypoints of all passes
+  int regions = 0;
+  int replans = 0;
+  int learned_speed_bounds = 0;
+  bool solved = true;  // false: no trajectory, `error` says why
+  std::string error;
+  bool checked = false;  // there is a trajectory and its samples were checked
+  int samples_checked = 0;
+  double worst_position_error_m = 0.0;
+  double worst_angle_error_rad = 0.0;
+  int untracked_regions = 0;
+};
+
+/// The scalars of a timed trajectory.
+struct TrajectorySummary {
+  std::size_t samples = 0;
+  double duration_s = 0.0, spray_time_s = 0.0, transit_time_s = 0.0;
+  double max_velocity_ratio = 0.0, max_acceleration_ratio = 0.0;
+  int worst_velocity_joint = -1, worst_acceleration_joint = -1;
+  double max_position_violation_rad = 0.0;  // revolute joints, outside their position limits
+  double max_position_violation_m = 0.0;    // prismatic joints
+  int untracked_regions = 0;
+};
+TrajectorySummary summarise_trajectory(const TimedTrajectory& trajectory);
+/// {samples, duration_s, ..., max_position_violation_rad, max_position_violation_m, untracked_regions}: every field.
+std::string to_json(const TrajectorySummary& summary);
+
+/// The timing swarm of a plan for the arm (timing.tune_with_pso).
+struct SwarmSummary {
+  bool used = false;          // the tuned trajectory replaced the config's
+  std::string error;          // why the swarm failed (empty: it did not)
+  double config_timing_duration_s = 0.0;
+  std::optional<double> duration_s;  // of the trajectory kept
+  int regions_tuned = 0, regions = 0, evaluations = 0;
+  std::vector<TimingParams> params;  // per region
+};
+
+struct JobSummary {
+  std::string mode;  // planner.mode
+  int cells = 0;     // valid grid cells
+  int grid_n_theta = 0, grid_n_d = 0;
+  long points_in = 0, points_used = 0;  // raw cloud, preprocessed cloud
+  double design_radius_m = 0.0, axis_fit_rms_m = 0.0;
+  std::map<int, int> levels_before;
+  TdStatsMm td_before_mm;
+  std::map<int, int> levels_after;  // of the simulated TD after the last round
+  TdStatsMm residual_mm;
+  int rounds = 0, regions = 0, passes = 0;
+  std::string stop_reason;
+  std::vector<std::string> warnings;
+  int unreachable_cells = 0;
+  double spray_time_s = 0.0, required_volume_m3 = 0.0, deposition_rate_m3ph = 0.0, physical_limit_s = 0.0;
+  std::optional<double> spray_time_ratio;  // spray time / physical limit; none when the limit is 0
+  double sprayed_volume_m3 = 0.0, link_length_m = 0.0;
+  int speed_capped = 0;
+  std::vector<RoundSummary> rounds_detail;
+  IkSummary ik;
+  std::optional<TrajectorySummary> trajectory;  // none when the timing failed (ik.error)
+  double trajectory_rate_hz = 0.0;               // timing.trajectory_rate_hz
+  double config_timing_duration_s = 0.0;         // trajectory duration with the config's timing
+  std::optional<SwarmSummary> swarm;             // with a trajectory, when the swarm ran or failed
+
+  /// The JSON object report.json starts with (same keys, same order); total_time_s is the
+  /// trajectory's duration (null without one). Compact, one line.
+  std::string to_json() const;
+};
+
+struct JobSummaryOptions {
+  long points_in = 0;    // points of the raw cloud the surface was built from
+  int check_every = 10;  // FK check of every n-th trajectory sample
+};
+
+/// Summary of a bay planned for the arm (plan_for_arm) on `surface`.
+JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const Robot& robot, const Config& config,
+                         const JobSummaryOptions& options = {});
+
+}  // namespace shotcrete

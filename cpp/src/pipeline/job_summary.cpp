@@ -1,0 +1,295 @@
+// The job summary and its JSON (see job_summary.hpp).
+#include "shotcrete/pipeline/job_summary.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "shotcrete/io/json_writer.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/surface/grid.hpp"
+
+namespace shotcrete {
+
+namespace {
+
+TdStatsMm td_stats_mm(const Eigen::VectorXd& td_m, const std::vector<bool>& valid) {
+  double sum = 0.0, sum2 = 0.0;
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo, abs_max = 0.0;
+  int n = 0;
+  for (std::size_t c = 0; c < valid.size(); ++c) {
+    if (!valid[c]) continue;
+    const double r = td_m[static_cast<Eigen::Index>(c)] * 1000.0;
+    sum += r;
+    sum2 += r * r;
+    lo = std::min(lo, r);
+    hi = std::max(hi, r);
+    abs_max = std::max(abs_max, std::abs(r));
+    ++n;
+  }
+  if (n == 0) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    return {nan, nan, nan, nan, nan};
+  }
+  return {sum / n, lo, hi, std::sqrt(sum2 / n), abs_max};
+}
+
+// a . b with fused multiply-adds in index order, as numpy's dot (OpenBLAS) computed the FK check
+// for report.json before it moved here: near 1, acos turns the last bit of an axis dot product into
+// 1e-8 rad, so the figure depends on the rounding.
+double dot_fma(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return std::fma(a.z(), b.z(), std::fma(a.y(), b.y(), a.x() * b.x()));
+}
+
+int count_passes(const Round& round) {
+  int n = 0;
+  for (const auto& region : round.regions) n += static_cast<int>(region.passes.size());
+  return n;
+}
+
+IkSummary summarise_ik(const ArmPlan& arm_plan, const Robot& robot, int check_every) {
+  IkSummary ik;
+  for (const auto& round : arm_plan.plan.rounds)
+    for (const auto& region : round.regions) {
+      ++ik.regions;
+      for (const auto& pass : region.passes) ik.poses += static_cast<int>(pass.waypoints.size());
+    }
+  ik.replans = arm_plan.replans;
+  ik.learned_speed_bounds = static_cast<int>(arm_plan.learned.speed_mps.size());
+  if (ik.regions == 0) return ik;
+  if (!arm_plan.trajectory) {
+    ik.solved = false;
+    ik.error = arm_plan.timing_error;
+    return ik;
+  }
+  // Independent of the tracking itself: FK of the timed joints against the nozzle poses.
+  const TimedTrajectory& tr = *arm_plan.trajectory;
+  const std::size_t step = static_cast<std::size_t>(std::max(1, check_every));
+  ik.checked = true;
+  for (std::size_t i = 0; i < tr.size(); i += step) {
+    const Eigen::Isometry3d T = robot.fk(tr.q[i]);
+    const Eigen::Vector3d axis = T.linear().col(2), miss = T.translation() - tr.nozzle[i].position_m;
+    ik.worst_position_error_m = std::max(ik.worst_position_error_m, std::sqrt(dot_fma(miss, miss)));
+    ik.worst_angle_error_rad =
+        std::max(ik.worst_angle_error_rad, std::acos(std::clamp(dot_fma(axis, tr.nozzle[i].axis), -1.0, 1.0)));
+    ++ik.samples_checked;
+  }
+  ik.untracked_regions = tr.untracked_regions;
+  return ik;
+}
+
+SwarmSummary summarise_swarm(const ArmPlan& arm_plan) {
+  SwarmSummary s;
+  s.used = arm_plan.tuned_timing_used;
+  s.error = arm_plan.tuning_error;
+  s.config_timing_duration_s = arm_plan.config_duration_s;
+  if (arm_plan.trajectory) s.duration_s = arm_plan.trajectory->duration_s;
+  if (const auto& tun = arm_plan.tuning) {
+    s.regions_tuned = static_cast<int>(std::count_if(tun->feasible.begin(), tun->feasible.end(), [](char f) { return f != 0; }));
+    s.regions = static_cast<int>(tun->feasible.size());
+    for (const auto& p : tun->pso) s.evaluations += p.evaluations;
+    s.params = tun->params;
+  }
+  return s;
+}
+
+// ---------------------------------------------------------------------------------------------
+// JSON
+// ---------------------------------------------------------------------------------------------
+void write(JsonWriter& w, const std::map<int, int>& counts) {
+  w.begin_object();
+  for (const auto& [level, n] : counts) w.field(std::to_string(level), n);
+  w.end_object();
+}
+
+void write(JsonWriter& w, const TdStatsMm& s) {
+  w.begin_object().field("mean", s.mean).field("min", s.min).field("max", s.max).field("rms", s.rms);
+  w.field("abs_max", s.abs_max).end_object();
+}
+
+void write(JsonWriter& w, const RoundSummary& r) {
+  w.begin_object().field("round", r.round).field("kind", r.kind).field("level", r.level);
+  w.field("regions", r.regions).field("passes", r.passes).field("spray_time_s", r.spray_time_s);
+  w.field("order_method", r.order_method).field("link_length_m", r.link_length_m);
+  w.key("levels_before");
+  write(w, r.levels_before);
+  w.key("levels_after");
+  write(w, r.levels_after);
+  w.end_object();
+}
+
+void write(JsonWriter& w, const IkSummary& ik) {
+  w.begin_object().field("poses", ik.poses).field("regions", ik.regions).field("replans", ik.replans);
+  w.field("learned_speed_bounds", ik.learned_speed_bounds).field("solved", ik.solved);
+  if (!ik.solved) w.field("error", ik.error);
+  if (ik.checked) {
+    w.field("samples_checked", ik.samples_checked).field("worst_position_error_m", ik.worst_position_error_m);
+    w.field("worst_angle_error_rad", ik.worst_angle_error_rad).field("untracked_regions", ik.untracked_regions);
+  }
+  w.end_object();
+}
+
+void write(JsonWriter& w, const TimingParams& p) {
+  w.begin_object().field("k1", p.k1).field("k2", p.k2).field("start_length_m", p.start_length_m);
+  w.field("end_length_m", p.end_length_m).field("turn_speed_mps", p.turn_speed_mps);
+  w.field("turn_accel_mps2", p.turn_accel_mps2).end_object();
+}
+
+void write(JsonWriter& w, const SwarmSummary& s) {
+  w.begin_object().field("used", s.used).key("error");
+  if (s.error.empty()) w.null();
+  else w.value(s.error);
+  w.field("config_timing_duration_s", s.config_timing_duration_s).key("duration_s");
+  if (s.duration_s) w.value(*s.duration_s);
+  else w.null();
+  w.field("regions_tuned", s.regions_tuned).field("regions", s.regions).field("evaluations", s.evaluations);
+  w.key("params").begin_array();
+  for (const auto& p : s.params) write(w, p);
+  w.end_array().end_object();
+}
+
+// The report's trajectory section: the trajectory's scalars it has always carried, the sample
+// rate and the duration with the config's timing, and the swarm.
+void write_report_trajectory(JsonWriter& w, const JobSummary& s) {
+  const TrajectorySummary& t = *s.trajectory;
+  w.begin_object().field("duration_s", t.duration_s).field("spray_time_s", t.spray_time_s);
+  w.field("transit_time_s", t.transit_time_s).field("samples", t.samples).field("rate_hz", s.trajectory_rate_hz);
+  w.field("max_velocity_ratio", t.max_velocity_ratio).field("max_acceleration_ratio", t.max_acceleration_ratio);
+  w.field("max_position_violation_rad", t.max_position_violation_rad);
+  w.field("max_position_violation_m", t.max_position_violation_m);
+  w.field("config_timing_duration_s", s.config_timing_duration_s);
+  if (s.swarm) {
+    w.key("swarm");
+    write(w, *s.swarm);
+  }
+  w.end_object();
+}
+
+}  // namespace
+
+TrajectorySummary summarise_trajectory(const TimedTrajectory& t) {
+  TrajectorySummary s;
+  s.samples = t.size();
+  s.duration_s = t.duration_s;
+  s.spray_time_s = t.spray_time_s;
+  s.transit_time_s = t.transit_time_s;
+  s.max_velocity_ratio = t.max_velocity_ratio;
+  s.max_acceleration_ratio = t.max_acceleration_ratio;
+  s.worst_velocity_joint = t.worst_velocity_joint;
+  s.worst_acceleration_joint = t.worst_acceleration_joint;
+  s.max_position_violation_rad = t.max_position_violation_rad;
+  s.max_position_violation_m = t.max_position_violation_m;
+  s.untracked_regions = t.untracked_regions;
+  return s;
+}
+
+std::string to_json(const TrajectorySummary& t) {
+  JsonWriter w;
+  w.begin_object().field("samples", t.samples).field("duration_s", t.duration_s);
+  w.field("spray_time_s", t.spray_time_s).field("transit_time_s", t.transit_time_s);
+  w.field("max_velocity_ratio", t.max_velocity_ratio).field("max_acceleration_ratio", t.max_acceleration_ratio);
+  w.field("worst_velocity_joint", t.worst_velocity_joint).field("worst_acceleration_joint", t.worst_acceleration_joint);
+  w.field("max_position_violation_rad", t.max_position_violation_rad);
+  w.field("max_position_violation_m", t.max_position_violation_m).field("untracked_regions", t.untracked_regions);
+  w.end_object();
+  return w.str();
+}
+
+JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const Robot& robot, const Config& config,
+                         const JobSummaryOptions& options) {
+  const Grid& grid = surface.grid;
+  const Plan& plan = arm_plan.plan;
+  if (plan.td_after_m.size() != static_cast<Eigen::Index>(grid.valid.size()))
+    throw std::invalid_argument("summarise_job: the plan has " + std::to_string(plan.td_after_m.size()) +
+                                " cells, the surface's grid " + std::to_string(grid.valid.size()) +
+                                ": plan the same surface");
+  JobSummary s;
+  s.mode = config.planner.mode;
+  s.cells = grid.valid_count();
+  s.grid_n_theta = grid.n_theta;
+  s.grid_n_d = grid.n_d;
+  s.points_in = options.points_in;
+  s.points_used = static_cast<long>(surface.cloud.size());
+  s.design_radius_m = surface.profile.radius_m;
+  s.axis_fit_rms_m = surface.axis_fit_rms_m;
+  s.levels_before = level_counts(surface.levels);
+  s.td_before_mm = td_stats_mm(grid.td_m, grid.valid);
+
+  std::vector<int> levels_after(grid.valid.size(), kNoDataLevel);
+  for (std::size_t c = 0; c < grid.valid.size(); ++c)
+    if (grid.valid[c]) levels_after[c] = level_of_td_mm(plan.td_after_m[static_cast<Eigen::Index>(c)] * 1000.0);
+  s.levels_after = level_counts(levels_after);
+  s.residual_mm = td_stats_mm(plan.td_after_m, grid.valid);
+
+  s.rounds = static_cast<int>(plan.rounds.size());
+  for (std::size_t i = 0; i < plan.rounds.size(); ++i) {
+    const Round& r = plan.rounds[i];
+    RoundSummary rs{static_cast<int>(i) + 1, r.kind, r.level, static_cast<int>(r.regions.size()), count_passes(r),
+                    r.spray_time_s, r.order_method, r.link_length_m, r.levels_before, r.levels_after};
+    s.regions += rs.regions;
+    s.passes += rs.passes;
+    s.link_length_m += r.link_length_m;
+    s.rounds_detail.push_back(std::move(rs));
+  }
+  s.stop_reason = plan.stop_reason;
+  s.warnings = plan.warnings;
+  s.unreachable_cells = static_cast<int>(plan.unreachable_cells.size());
+  s.spray_time_s = plan.spray_time_s;
+  s.required_volume_m3 = plan.required_volume_m3;
+  s.deposition_rate_m3ph = plan.deposition_rate_m3ps * 3600.0;
+  s.physical_limit_s = plan.physical_limit_s;
+  if (plan.physical_limit_s > 0) s.spray_time_ratio = plan.spray_time_s / plan.physical_limit_s;
+  s.sprayed_volume_m3 = plan.spray_time_s * plan.deposition_rate_m3ps;
+  s.speed_capped = plan.speed_capped;
+
+  s.ik = summarise_ik(arm_plan, robot, options.check_every);
+  s.trajectory_rate_hz = config.timing.trajectory_rate_hz;
+  s.config_timing_duration_s = arm_plan.config_duration_s;
+  if (arm_plan.trajectory) {
+    s.trajectory = summarise_trajectory(*arm_plan.trajectory);
+    if (arm_plan.tuning || !arm_plan.tuning_error.empty()) s.swarm = summarise_swarm(arm_plan);
+  }
+  return s;
+}
+
+std::string JobSummary::to_json() const {
+  JsonWriter w;
+  w.begin_object().field("mode", mode).field("cells", cells);
+  w.key("grid_shape").begin_array().value(grid_n_theta).value(grid_n_d).end_array();
+  w.field("points_in", points_in).field("points_used", points_used);
+  w.field("design_radius_m", design_radius_m).field("axis_fit_rms_m", axis_fit_rms_m);
+  w.key("levels_before");
+  write(w, levels_before);
+  w.key("td_before_mm");
+  write(w, td_before_mm);
+  w.key("levels_after");
+  write(w, levels_after);
+  w.key("residual_mm");
+  write(w, residual_mm);
+  w.field("rounds", rounds).field("regions", regions).field("passes", passes).field("stop_reason", stop_reason);
+  w.key("warnings").begin_array();
+  for (const auto& text : warnings) w.value(text);
+  w.end_array();
+  w.field("unreachable_cells", unreachable_cells).field("spray_time_s", spray_time_s);
+  w.field("required_volume_m3", required_volume_m3).field("deposition_rate_m3ph", deposition_rate_m3ph);
+  w.field("physical_limit_s", physical_limit_s).key("spray_time_ratio");
+  if (spray_time_ratio) w.value(*spray_time_ratio);
+  else w.null();
+  w.field("sprayed_volume_m3", sprayed_volume_m3).field("link_length_m", link_length_m);
+  w.field("speed_capped", speed_capped).key("rounds_detail").begin_array();
+  for (const auto& r : rounds_detail) write(w, r);
+  w.end_array().key("ik");
+  write(w, ik);
+  w.key("total_time_s");
+  if (trajectory) {
+    w.value(trajectory->duration_s).key("trajectory");
+    write_report_trajectory(w, *this);
+  } else {
+    w.null();
+  }
+  w.end_object();
+  return w.str();
+}
+
+}  // namespace shotcrete

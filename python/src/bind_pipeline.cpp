@@ -1,0 +1,108 @@
+#include "bindings.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/pipeline/job_summary.hpp"
+#include "shotcrete/robot/robot.hpp"
+
+using namespace shotcrete;
+
+void bind_pipeline(py::module_& m) {
+  py::class_<TdStatsMm>(m, "TdStatsMm", "A TD over the valid grid cells [mm].")
+      .def_readonly("mean", &TdStatsMm::mean)
+      .def_readonly("min", &TdStatsMm::min)
+      .def_readonly("max", &TdStatsMm::max)
+      .def_readonly("rms", &TdStatsMm::rms)
+      .def_readonly("abs_max", &TdStatsMm::abs_max);
+  py::class_<RoundSummary>(m, "RoundSummary")
+      .def_readonly("round", &RoundSummary::round)
+      .def_readonly("kind", &RoundSummary::kind)
+      .def_readonly("level", &RoundSummary::level)
+      .def_readonly("regions", &RoundSummary::regions)
+      .def_readonly("passes", &RoundSummary::passes)
+      .def_readonly("spray_time_s", &RoundSummary::spray_time_s)
+      .def_readonly("order_method", &RoundSummary::order_method)
+      .def_readonly("link_length_m", &RoundSummary::link_length_m)
+      .def_readonly("levels_before", &RoundSummary::levels_before)
+      .def_readonly("levels_after", &RoundSummary::levels_after);
+  py::class_<IkSummary>(m, "IkSummary", "The arm on the plan, with an FK check of the trajectory samples.")
+      .def_readonly("poses", &IkSummary::poses)
+      .def_readonly("regions", &IkSummary::regions)
+      .def_readonly("replans", &IkSummary::replans)
+      .def_readonly("learned_speed_bounds", &IkSummary::learned_speed_bounds)
+      .def_readonly("solved", &IkSummary::solved)
+      .def_readonly("error", &IkSummary::error)
+      .def_readonly("checked", &IkSummary::checked)
+      .def_readonly("samples_checked", &IkSummary::samples_checked)
+      .def_readonly("worst_position_error_m", &IkSummary::worst_position_error_m)
+      .def_readonly("worst_angle_error_rad", &IkSummary::worst_angle_error_rad)
+      .def_readonly("untracked_regions", &IkSummary::untracked_regions);
+  py::class_<TrajectorySummary>(m, "TrajectorySummary", "The scalars of a timed trajectory.")
+      .def_readonly("samples", &TrajectorySummary::samples)
+      .def_readonly("duration_s", &TrajectorySummary::duration_s)
+      .def_readonly("spray_time_s", &TrajectorySummary::spray_time_s)
+      .def_readonly("transit_time_s", &TrajectorySummary::transit_time_s)
+      .def_readonly("max_velocity_ratio", &TrajectorySummary::max_velocity_ratio)
+      .def_readonly("max_acceleration_ratio", &TrajectorySummary::max_acceleration_ratio)
+      .def_readonly("worst_velocity_joint", &TrajectorySummary::worst_velocity_joint)
+      .def_readonly("worst_acceleration_joint", &TrajectorySummary::worst_acceleration_joint)
+      .def_readonly("max_position_violation_rad", &TrajectorySummary::max_position_violation_rad)
+      .def_readonly("max_position_violation_m", &TrajectorySummary::max_position_violation_m)
+      .def_readonly("untracked_regions", &TrajectorySummary::untracked_regions)
+      .def("to_json", [](const TrajectorySummary& s) { return to_json(s); })
+      .def("to_dict", [](const TrajectorySummary& s) { return json_loads(to_json(s)); });
+  m.def("summarise_trajectory", &summarise_trajectory, py::arg("trajectory"));
+  py::class_<SwarmSummary>(m, "SwarmSummary", "The timing swarm of a plan for the arm.")
+      .def_readonly("used", &SwarmSummary::used)
+      .def_readonly("error", &SwarmSummary::error)
+      .def_readonly("config_timing_duration_s", &SwarmSummary::config_timing_duration_s)
+      .def_readonly("duration_s", &SwarmSummary::duration_s)
+      .def_readonly("regions_tuned", &SwarmSummary::regions_tuned)
+      .def_readonly("regions", &SwarmSummary::regions)
+      .def_readonly("evaluations", &SwarmSummary::evaluations)
+      .def_readonly("params", &SwarmSummary::params);
+  py::class_<JobSummary>(m, "JobSummary",
+                         "The summary of a job planned for the arm: report.json's figures, the ROS node's ~summary.")
+      .def_readonly("mode", &JobSummary::mode)
+      .def_readonly("cells", &JobSummary::cells)
+      .def_property_readonly("grid_shape", [](const JobSummary& s) { return py::make_tuple(s.grid_n_theta, s.grid_n_d); })
+      .def_readonly("points_in", &JobSummary::points_in)
+      .def_readonly("points_used", &JobSummary::points_used)
+      .def_readonly("design_radius_m", &JobSummary::design_radius_m)
+      .def_readonly("axis_fit_rms_m", &JobSummary::axis_fit_rms_m)
+      .def_readonly("levels_before", &JobSummary::levels_before)
+      .def_readonly("td_before_mm", &JobSummary::td_before_mm)
+      .def_readonly("levels_after", &JobSummary::levels_after)
+      .def_readonly("residual_mm", &JobSummary::residual_mm)
+      .def_readonly("rounds", &JobSummary::rounds)
+      .def_readonly("regions", &JobSummary::regions)
+      .def_readonly("passes", &JobSummary::passes)
+      .def_readonly("stop_reason", &JobSummary::stop_reason)
+      .def_readonly("warnings", &JobSummary::warnings)
+      .def_readonly("unreachable_cells", &JobSummary::unreachable_cells)
+      .def_readonly("spray_time_s", &JobSummary::spray_time_s)
+      .def_readonly("required_volume_m3", &JobSummary::required_volume_m3)
+      .def_readonly("deposition_rate_m3ph", &JobSummary::deposition_rate_m3ph)
+      .def_readonly("physical_limit_s", &JobSummary::physical_limit_s)
+      .def_readonly("spray_time_ratio", &JobSummary::spray_time_ratio)
+      .def_readonly("sprayed_volume_m3", &JobSummary::sprayed_volume_m3)
+      .def_readonly("link_length_m", &JobSummary::link_length_m)
+      .def_readonly("speed_capped", &JobSummary::speed_capped)
+      .def_readonly("rounds_detail", &JobSummary::rounds_detail)
+      .def_readonly("ik", &JobSummary::ik)
+      .def_readonly("trajectory", &JobSummary::trajectory)
+      .def_readonly("trajectory_rate_hz", &JobSummary::trajectory_rate_hz)
+      .def_readonly("config_timing_duration_s", &JobSummary::config_timing_duration_s)
+      .def_readonly("swarm", &JobSummary::swarm)
+      .def("to_json", &JobSummary::to_json, "report.json's figures as compact JSON (17 significant digits)")
+      .def("to_dict", [](const JobSummary& s) { return json_loads(s.to_json()); },
+           "json.loads(to_json()): the dict report.json starts with");
+  m.def(
+      "summarise_job",
+      [](const Surface& surface, const ArmPlan& arm_plan, const Robot& robot, const Config& config, long points_in,
+         int check_every) {
+        return summarise_job(surface, arm_plan, robot, config, JobSummaryOptions{points_in, check_every});
+      },
+      py::arg("surface"), py::arg("arm_plan"), py::arg("robot"), py::arg("config"), py::arg("points_in") = 0,
+      py::arg("check_every") = 10,
+      "The summary of a bay planned for the arm (plan_for_arm) on surface; points_in: points of the raw cloud.\n"
+      "The IK check runs FK on every check_every-th trajectory sample.");
+}

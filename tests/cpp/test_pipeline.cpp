@@ -1,0 +1,186 @@
+// Pipeline: the JSON writer and the job summary (summarise_job) of a bay planned for the arm.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "shotcrete/io/json_writer.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/pipeline/job_summary.hpp"
+#include "shotcrete/robot/robot.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+std::string number(double v) {
+  JsonWriter w;
+  w.value(v);
+  return w.str();
+}
+
+// A slice of the wall with one dig pit (radius 0.4 m) in a uniform over-break.
+Surface pit_bay(Config& cfg, double pit_depth_m = 0.15, double overbreak_m = 0.04) {
+  const double R = cfg.profile.design_radius_m, cs = cfg.grid.cell_size_m;
+  const double t0 = 1.2, t1 = 1.6, L = 0.6;
+  const int rows = static_cast<int>(std::round((t1 - t0) * R / cs)), cols = static_cast<int>(std::round(L / cs));
+  const int per = 3;
+  Cloud c;
+  c.xyz.resize(static_cast<Eigen::Index>(rows) * cols * per * per, 3);
+  Eigen::Index k = 0;
+  for (int i = 0; i < rows; ++i)
+    for (int j = 0; j < cols; ++j)
+      for (int a = 0; a < per; ++a)
+        for (int b = 0; b < per; ++b) {
+          const double theta = t0 + (i + (a + 0.5) / per) * cs / R, d = (j + (b + 0.5) / per) * cs;
+          const double q = (std::pow(d - 0.3, 2) + std::pow((theta - 1.4) * R, 2)) / (0.4 * 0.4);
+          const double r = R + overbreak_m + (q < 1 ? pit_depth_m * std::pow(1 - q, 1.5) : 0.0);
+          c.xyz.row(k++) << d, r * std::cos(theta), r * std::sin(theta);
+        }
+  cfg.preprocess.voxel_size_m = 0;
+  cfg.preprocess.outlier_neighbors = 0;
+  return build_surface(c, cfg);
+}
+
+}  // namespace
+
+TEST(JsonWriter, NumbersReadBackAsTheSameDoubles) {
+  EXPECT_EQ(number(0.1), "0.10000000000000001");
+  EXPECT_EQ(number(1.0), "1.0");  // a float stays a float
+  EXPECT_EQ(number(-0.0), "-0.0");
+  EXPECT_EQ(number(1e20), "1e+20");
+  EXPECT_EQ(number(std::numeric_limits<double>::quiet_NaN()), "null");
+  EXPECT_EQ(number(std::numeric_limits<double>::infinity()), "Infinity");
+  EXPECT_EQ(number(-std::numeric_limits<double>::infinity()), "-Infinity");
+  for (const double v : {1.0 / 3.0, 5405.123456789012, 2.5e-300, -7.75e-9})
+    EXPECT_EQ(std::strtod(number(v).c_str(), nullptr), v) << number(v);
+}
+
+TEST(JsonWriter, NestingKeysAndEscapes) {
+  JsonWriter w;
+  w.begin_object().field("a", 1).field("b", true).key("list").begin_array().value(2).value("x").null();
+  w.begin_object().end_object().end_array().field("text", std::string("q\"b\\n\nt\t\x01")).end_object();
+  EXPECT_EQ(w.str(), R"({"a":1,"b":true,"list":[2,"x",null,{}],"text":"q\"b\\n\nt\t\u0001"})");
+  EXPECT_EQ(json_quote("Grün"), "\"Grün\"");  // UTF-8 passes through
+}
+
+TEST(JsonWriter, MisuseIsAnError) {
+  JsonWriter a;
+  EXPECT_THROW(a.end_object(), std::logic_error);
+  JsonWriter b;
+  b.begin_object().key("k");
+  EXPECT_THROW(b.key("again"), std::logic_error);
+  EXPECT_THROW(b.end_object(), std::logic_error);
+  JsonWriter c;
+  c.value(1);
+  EXPECT_THROW(c.value(2), std::logic_error);
+}
+
+TEST(JobSummary, FiguresOfABayPlannedForTheArm) {
+  Config cfg;
+  const Surface surface = pit_bay(cfg);
+  const Robot robot = Robot::load(cfg.robot);
+  const ArmPlan arm = plan_for_arm(surface, cfg, robot);
+  ASSERT_TRUE(arm.trajectory) << arm.timing_error;
+  const JobSummary s = summarise_job(surface, arm, robot, cfg, {1234, 10});
+  const Plan& plan = arm.plan;
+
+  EXPECT_EQ(s.mode, cfg.planner.mode);
+  EXPECT_EQ(s.points_in, 1234);
+  EXPECT_EQ(s.points_used, static_cast<long>(surface.cloud.size()));
+  EXPECT_EQ(s.cells, surface.grid.valid_count());
+  int passes = 0, regions = 0, poses = 0, after = 0;
+  for (const auto& round : plan.rounds)
+    for (const auto& region : round.regions) {
+      ++regions;
+      passes += static_cast<int>(region.passes.size());
+      for (const auto& p : region.passes) poses += static_cast<int>(p.waypoints.size());
+    }
+  EXPECT_GT(passes, 0);
+  EXPECT_EQ(s.passes, passes);
+  EXPECT_EQ(s.regions, regions);
+  EXPECT_EQ(s.rounds, static_cast<int>(plan.rounds.size()));
+  ASSERT_EQ(s.rounds_detail.size(), plan.rounds.size());
+  EXPECT_EQ(s.rounds_detail.front().round, 1);
+  for (const auto& [level, n] : s.levels_after) {
+    EXPECT_LE(level, 0);
+    after += n;
+  }
+  EXPECT_EQ(after, s.cells);
+  // Residual over the valid cells, in mm.
+  double lo = 1e9, hi = -1e9;
+  for (std::size_t c = 0; c < surface.grid.valid.size(); ++c)
+    if (surface.grid.valid[c]) {
+      lo = std::min(lo, plan.td_after_m[static_cast<Eigen::Index>(c)] * 1000.0);
+      hi = std::max(hi, plan.td_after_m[static_cast<Eigen::Index>(c)] * 1000.0);
+    }
+  EXPECT_DOUBLE_EQ(s.residual_mm.min, lo);
+  EXPECT_DOUBLE_EQ(s.residual_mm.max, hi);
+  EXPECT_DOUBLE_EQ(s.residual_mm.abs_max, std::max(std::abs(lo), std::abs(hi)));
+  EXPECT_LE(s.residual_mm.min, s.residual_mm.mean);
+  EXPECT_LE(s.residual_mm.mean, s.residual_mm.max);
+  EXPECT_GE(s.residual_mm.rms, std::abs(s.residual_mm.mean));
+  EXPECT_GT(s.td_before_mm.mean, 40.0);
+  ASSERT_TRUE(s.spray_time_ratio);
+  EXPECT_DOUBLE_EQ(*s.spray_time_ratio, plan.spray_time_s / plan.physical_limit_s);
+  EXPECT_DOUBLE_EQ(s.deposition_rate_m3ph, plan.deposition_rate_m3ps * 3600.0);
+
+  // The arm: every pose counted, the trajectory checked by FK on every 10th sample.
+  EXPECT_EQ(s.ik.poses, poses);
+  EXPECT_TRUE(s.ik.solved && s.ik.checked);
+  EXPECT_EQ(s.ik.samples_checked, static_cast<int>((arm.trajectory->size() + 9) / 10));
+  EXPECT_LT(s.ik.worst_position_error_m, 1e-3);
+  EXPECT_LT(s.ik.worst_angle_error_rad, 0.02);
+  ASSERT_TRUE(s.trajectory);
+  EXPECT_EQ(s.trajectory->samples, arm.trajectory->size());
+  EXPECT_FALSE(s.swarm);  // timing.tune_with_pso is off
+
+  // JSON: report.json's keys in its order.
+  const std::string json = s.to_json();
+  EXPECT_EQ(json.rfind("{\"mode\":", 0), 0u) << json.substr(0, 40);
+  EXPECT_NE(json.find("\"points_in\":1234,"), std::string::npos);
+  EXPECT_NE(json.find("\"passes\":" + std::to_string(passes) + ","), std::string::npos);
+  std::size_t at = 0;
+  for (const char* key : {"\"cells\"", "\"grid_shape\"", "\"levels_before\"", "\"td_before_mm\"", "\"levels_after\"",
+                          "\"residual_mm\"", "\"rounds\"", "\"stop_reason\"", "\"spray_time_ratio\"",
+                          "\"rounds_detail\"", "\"ik\"", "\"total_time_s\"", "\"trajectory\""}) {
+    const std::size_t k = json.find(key, at);
+    ASSERT_NE(k, std::string::npos) << key;
+    at = k;
+  }
+  EXPECT_EQ(json.back(), '}');
+}
+
+TEST(JobSummary, WithoutATrajectoryTheErrorIsReported) {
+  Config cfg;
+  const Surface surface = pit_bay(cfg);
+  const Robot robot = Robot::load(cfg.robot);
+  ArmPlan arm;
+  arm.plan = plan_bay(surface, cfg);
+  arm.timing_error = "region 2 waypoint 7: out of reach";
+  const JobSummary s = summarise_job(surface, arm, robot, cfg);
+  EXPECT_FALSE(s.ik.solved);
+  EXPECT_FALSE(s.ik.checked);
+  EXPECT_FALSE(s.trajectory);
+  const std::string json = s.to_json();
+  EXPECT_NE(json.find("\"solved\":false,\"error\":\"region 2 waypoint 7: out of reach\"}"), std::string::npos);
+  EXPECT_NE(json.find("\"total_time_s\":null}"), std::string::npos) << json.substr(json.size() - 60);
+  EXPECT_EQ(json.find("\"trajectory\""), std::string::npos);
+
+  // A plan of another grid is refused.
+  EXPECT_THROW(summarise_job(surface, ArmPlan{}, robot, cfg), std::invalid_argument);
+}
+
+TEST(JobSummary, NothingToSprayIsSolved) {
+  Config cfg;
+  const Surface surface = pit_bay(cfg, 0.0, 0.0);  // flush
+  const Robot robot = Robot::load(cfg.robot);
+  const ArmPlan arm = plan_for_arm(surface, cfg, robot);
+  ASSERT_TRUE(arm.plan.rounds.empty()) << arm.plan.rounds.size();
+  const JobSummary s = summarise_job(surface, arm, robot, cfg);
+  EXPECT_TRUE(s.ik.solved);
+  EXPECT_EQ(s.ik.regions, 0);
+  EXPECT_EQ(s.passes, 0);
+  EXPECT_DOUBLE_EQ(s.link_length_m, 0.0);
+  EXPECT_EQ(s.to_json().find("\"samples_checked\""), std::string::npos);
+}
