@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "shotcrete/deposition/wall.hpp"
 #include "shotcrete/ordering/ordering.hpp"
 
 namespace shotcrete {
@@ -335,85 +336,6 @@ double level_floor_mm(int level) {
   return -50.0;
 }
 
-// Current state of the bay: the moved cloud and the per-cell view of it on the scan's grid.
-struct BayState {
-  Cloud cloud;                     // surface cloud, moved by every deposit so far
-  std::vector<int> cell_of_point;  // fixed assignment from the scan (-1: outside the grid band)
-  Grid grid;                       // scan grid with TD and mean positions updated
-  std::vector<int> levels;
-
-  void refresh(const DesignProfile& profile) {
-    const int n = grid.size();
-    std::vector<int> count(n, 0);
-    Points sum = Points::Zero(n, 3);
-    Eigen::VectorXd td = Eigen::VectorXd::Zero(n);
-    for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-      const int c = cell_of_point[i];
-      if (c < 0) continue;
-      const Eigen::Vector3d p = cloud.xyz.row(i).transpose();
-      const Eigen::Vector3d cyl = grid.axis.to_cylindrical(p);
-      sum.row(c) += cloud.xyz.row(i);
-      td[c] += cyl[0] - profile.radius_at(cyl[1]);
-      count[c] += 1;
-    }
-    for (int c = 0; c < n; ++c) {
-      if (!grid.valid[c] || count[c] == 0) continue;
-      grid.mean_xyz.row(c) = sum.row(c) / count[c];
-      grid.td_m[c] = td[c] / count[c];
-    }
-    levels = cell_levels(grid);
-  }
-
-  // Normal of the sprayed wall at a cell from the slope of its TD map (central differences):
-  // after a thick layer the scan's normals no longer describe the surface.
-  Eigen::Vector3d cell_normal_from_td(int c, const DesignProfile& profile) const {
-    const int row = grid.row_of(c), col = grid.col_of(c);
-    auto slope = [&](int r0, int c0, int r1, int c1, double step) {
-      const bool ok0 = r0 >= 0 && r0 < grid.n_theta && c0 >= 0 && c0 < grid.n_d && grid.valid[grid.index(r0, c0)];
-      const bool ok1 = r1 >= 0 && r1 < grid.n_theta && c1 >= 0 && c1 < grid.n_d && grid.valid[grid.index(r1, c1)];
-      const double mid = grid.td_m[c];
-      if (ok0 && ok1) return (grid.td_m[grid.index(r1, c1)] - grid.td_m[grid.index(r0, c0)]) / (2 * step);
-      if (ok1) return (grid.td_m[grid.index(r1, c1)] - mid) / step;
-      if (ok0) return (mid - grid.td_m[grid.index(r0, c0)]) / step;
-      return 0.0;
-    };
-    const double theta = grid.theta_center(row);
-    const double r = profile.radius_at(theta) + grid.td_m[c];
-    const double dr_dd = slope(row, col - 1, row, col + 1, grid.cell_size_m);
-    // d/ds along the wall arc at radius r: the theta step of a cell spans r * dtheta of arc.
-    const double dr_ds = slope(row - 1, col, row + 1, col, r * grid.dtheta_rad);
-    const Eigen::Vector3d radial = grid.axis.radial(theta);
-    const Eigen::Vector3d tangent = -std::sin(theta) * grid.axis.ey + std::cos(theta) * grid.axis.ez;
-    // Surface r(d, s): outward normal ~ radial - dr/dd ex - dr/ds t; the stored normals face the axis.
-    return -(radial - dr_dd * grid.axis.ex - dr_ds * tangent).normalized();
-  }
-
-  // Deposit moves each point toward the axis along its ray (d and theta stay, so the point keeps
-  // its cell): a layer t measured along the normal fills t / cos(tilt) radially. Moving along the
-  // scan normals instead makes points in deep pits cross each other and corrupt the cell means.
-  void deposit(const Eigen::VectorXd& thickness_m, const DesignProfile& profile) {
-    std::vector<char> touched(grid.size(), 0);
-    for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-      if (thickness_m[i] <= 0) continue;
-      const Eigen::Vector3d p = cloud.xyz.row(i).transpose();
-      const Eigen::Vector3d q = p - grid.axis.origin_m;
-      const Eigen::Vector3d inward = -(q - q.dot(grid.axis.ex) * grid.axis.ex).normalized();
-      const double cos_tilt = std::max(0.5, std::abs(cloud.normals.row(i).dot(inward.transpose())));
-      cloud.xyz.row(i) += (thickness_m[i] / cos_tilt) * inward.transpose();
-      if (cell_of_point[i] >= 0 && thickness_m[i] > 0.002) touched[cell_of_point[i]] = 1;
-    }
-    refresh(profile);
-    std::vector<Eigen::Vector3d> normal(grid.size());
-    for (int c = 0; c < grid.size(); ++c)
-      if (touched[c]) {
-        normal[c] = cell_normal_from_td(c, profile);
-        grid.mean_normal.row(c) = normal[c].transpose();
-      }
-    for (Eigen::Index i = 0; i < cloud.size(); ++i)
-      if (cell_of_point[i] >= 0 && touched[cell_of_point[i]]) cloud.normals.row(i) = normal[cell_of_point[i]].transpose();
-  }
-};
-
 // Thickness per grid cell left by a path at unit dwell weights, on the current cell surface.
 struct CellSurface {
   std::vector<int> cell_ids;  // valid cells, in index order
@@ -700,20 +622,11 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
 
   Plan plan;
   plan.grid_before = surface.grid;
-  BayState state;
-  state.cloud = surface.cloud;
-  state.grid = surface.grid;
-  state.cell_of_point.assign(surface.cloud.size(), -1);
-  {
-    const Eigen::VectorXd td = point_td(surface.cloud, surface.axis, surface.profile);
-    for (Eigen::Index i = 0; i < surface.cloud.size(); ++i) {
-      if (std::abs(td[i]) > config.profile.max_deviation_m) continue;
-      const Eigen::Vector3d cyl = surface.axis.to_cylindrical(surface.cloud.xyz.row(i).transpose());
-      const int c = surface.grid.cell_at(cyl[1], cyl[2]);
-      if (c >= 0 && surface.grid.valid[c]) state.cell_of_point[i] = c;
-    }
-  }
-  state.refresh(surface.profile);
+  // The bay as it is sprayed: the moved cloud and the per-cell view of it on the scan's grid.
+  SprayedWall wall = unsprayed_wall(surface, config.profile.max_deviation_m);
+  Cloud& cloud = wall.surface.cloud;
+  Grid& grid = wall.surface.grid;
+  std::vector<int>& levels = wall.surface.levels;
   plan.deposited_m = Eigen::VectorXd::Zero(surface.cloud.size());
   std::optional<Eigen::Vector3d> nozzle_at;
   const bool optimal = pc.mode == "optimal";
@@ -747,34 +660,34 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
 
   // Graded mode: cells whose level a round could not lower are set aside (reported), so the
   // rest of the bay still gets finished.
-  std::vector<char> stuck(state.grid.size(), 0);
+  std::vector<char> stuck(grid.size(), 0);
   auto active_levels = [&]() {
-    std::vector<int> lv = state.levels;
-    for (int c = 0; c < state.grid.size(); ++c)
+    std::vector<int> lv = levels;
+    for (int c = 0; c < grid.size(); ++c)
       if (stuck[c]) lv[c] = kNoDataLevel;
     return lv;
   };
   for (int round_no = 0; round_no < pc.max_rounds; ++round_no) {
-    const auto counts_before = level_counts(state.levels);
+    const auto counts_before = level_counts(levels);
     const std::vector<int> graded_levels = active_levels();
     int top = std::numeric_limits<int>::min();
     for (auto [lv, n] : level_counts(graded_levels)) top = std::max(top, lv);
     double max_td = -std::numeric_limits<double>::infinity();
-    for (int c = 0; c < state.grid.size(); ++c)
-      if (state.grid.valid[c]) max_td = std::max(max_td, state.grid.td_m[c]);
+    for (int c = 0; c < grid.size(); ++c)
+      if (grid.valid[c]) max_td = std::max(max_td, grid.td_m[c]);
     const bool flush = optimal ? (top <= 0 && max_td <= pc.finish_tolerance_m) : top <= 0;
     if (flush) break;  // the reason is settled after the loop
     report("round " + std::to_string(round_no + 1), 0.0);
     const auto t_round = Clock::now();
     Round round;
     round.levels_before = counts_before;
-    CellSurface cells(state.grid);
+    CellSurface cells(grid);
     const int n_slots = static_cast<int>(cells.cell_ids.size());
 
     if (!optimal) {
       round.kind = "graded";
       round.level = top;
-      const auto regions = find_regions(state.grid, graded_levels, top, config.regions.min_region_cells);
+      const auto regions = find_regions(grid, graded_levels, top, config.regions.min_region_cells);
       for (std::size_t ri = 0; ri < regions.size(); ++ri) {
         RegionPlan rp;
         rp.region = regions[ri];
@@ -784,7 +697,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
         rp.target_thickness_m = top == 1 ? std::max(rp.region.td_mean_m, rp.region.td_max_m - 0.045)
                                          : rp.region.td_max_m - level_floor_mm(top) / 1000.0 + 0.005;
         rp.spacing_m = spacing;
-        rp.passes = plan_passes(state.grid, rp.region.cells, spacing, pc);
+        rp.passes = plan_passes(grid, rp.region.cells, spacing, pc);
         if (rp.passes.empty()) continue;
         std::vector<Eigen::VectorXd> unit;
         for (const auto& p : rp.passes) {
@@ -828,8 +741,8 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
       Eigen::VectorXd target = Eigen::VectorXd::Zero(n_slots);
       for (int k = 0; k < n_slots; ++k) {
         const int c = cells.cell_ids[k];
-        target[k] = std::max(0.0, state.grid.td_m[c]) * 1000.0;  // mm
-        if (state.grid.td_m[c] > pc.finish_tolerance_m) open_cells.push_back(c);
+        target[k] = std::max(0.0, grid.td_m[c]) * 1000.0;  // mm
+        if (grid.td_m[c] > pc.finish_tolerance_m) open_cells.push_back(c);
       }
       std::vector<RegionPlan> sides;
       std::vector<Segment> segs;
@@ -838,16 +751,16 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
       {
         // Closer lines than the two-pass spacing: the per-segment speeds then shape the layer
         // across the lines too (measured: RMS 6.5 mm instead of 10 mm on the default bay).
-        const auto all = plan_passes(state.grid, open_cells, pc.levelling_spacing_ratio * spacing, pc);
+        const auto all = plan_passes(grid, open_cells, pc.levelling_spacing_ratio * spacing, pc);
         RegionPlan side[2];
         for (const auto& p : all) {
           const Eigen::Vector3d mid = p.waypoints[p.waypoints.size() / 2].position_m;
-          const bool left = pc.pass_direction == "axial" && state.grid.axis.to_cylindrical(mid)[1] > M_PI / 2;
+          const bool left = pc.pass_direction == "axial" && grid.axis.to_cylindrical(mid)[1] > M_PI / 2;
           side[left ? 1 : 0].passes.push_back(p);
         }
         std::reverse(side[1].passes.begin(), side[1].passes.end());  // left wall: springline up
         for (auto& c : open_cells)
-          side[pc.pass_direction == "axial" && state.grid.theta_center(state.grid.row_of(c)) > M_PI / 2 ? 1 : 0]
+          side[pc.pass_direction == "axial" && grid.theta_center(grid.row_of(c)) > M_PI / 2 ? 1 : 0]
               .region.cells.push_back(c);
         for (auto& rp : side) {
           if (rp.passes.empty()) continue;
@@ -941,35 +854,35 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     report("round " + std::to_string(round_no + 1), 0.7);
 
     // Simulate the round on the full cloud, then re-grade.
-    SurfaceIndex index(state.cloud, 0.05);
-    Eigen::VectorXd deposit = Eigen::VectorXd::Zero(state.cloud.size());
+    SurfaceIndex index(cloud, 0.05);
+    Eigen::VectorXd deposit = Eigen::VectorXd::Zero(cloud.size());
     for (const auto& r : round.regions)
       for (const auto& p : r.passes) {
         accumulate_dwells(model, index, p.waypoints, p.dwell_s(), rebound, deposit);
         round.spray_time_s += p.duration_s();
       }
-    state.deposit(deposit, surface.profile);
+    deposit_layer(wall, deposit);
     plan.deposited_m += deposit;
-    round.levels_after = level_counts(state.levels);
-    round.td_after_m = state.grid.td_m;
+    round.levels_after = level_counts(levels);
+    round.td_after_m = grid.td_m;
     plan.spray_time_s += round.spray_time_s;
 
     // Progress: did the sprayed cells leave their level (graded), or the largest TD fall (levelling)?
     double max_after = -std::numeric_limits<double>::infinity();
-    for (int c = 0; c < state.grid.size(); ++c)
-      if (state.grid.valid[c]) max_after = std::max(max_after, state.grid.td_m[c]);
+    for (int c = 0; c < grid.size(); ++c)
+      if (grid.valid[c]) max_after = std::max(max_after, grid.td_m[c]);
     std::vector<int> not_lowered;
     if (!optimal)
       for (const auto& r : round.regions)
         for (int c : r.region.cells)
-          if (state.levels[c] >= top) not_lowered.push_back(c);
+          if (levels[c] >= top) not_lowered.push_back(c);
     plan.timings_s["round_" + std::to_string(round_no + 1)] = seconds_since(t_round);
     plan.rounds.push_back(std::move(round));
     report("round " + std::to_string(plan.rounds.size()), 1.0);
     if (optimal && max_td - max_after <= 0.001) {
       // With the time weight, the last cells off flush are not worth another round.
       int top_now = std::numeric_limits<int>::min();
-      for (auto [lv, n] : level_counts(state.levels)) top_now = std::max(top_now, lv);
+      for (auto [lv, n] : level_counts(levels)) top_now = std::max(top_now, lv);
       plan.stop_reason = top_now <= 0 ? "levelled: another round would lower the largest TD by less than 1 mm"
                                       : "no progress: a levelling round lowered the largest TD by less than 1 mm";
       break;
@@ -988,7 +901,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   }
   if (plan.stop_reason.empty()) {
     int top = std::numeric_limits<int>::min(), top_active = top;
-    for (auto [lv, n] : level_counts(state.levels)) top = std::max(top, lv);
+    for (auto [lv, n] : level_counts(levels)) top = std::max(top, lv);
     for (auto [lv, n] : level_counts(active_levels())) top_active = std::max(top_active, lv);
     if (top <= 0)
       plan.stop_reason = "flush";
@@ -997,10 +910,10 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     else
       plan.stop_reason = "max rounds reached (planner.max_rounds)";
   }
-  for (int c = 0; c < state.grid.size(); ++c)
-    if (state.grid.valid[c] && state.levels[c] > 0) plan.unreachable_cells.push_back(c);
-  plan.td_after_m = state.grid.td_m;
-  plan.sprayed_cloud = state.cloud;
+  for (int c = 0; c < grid.size(); ++c)
+    if (grid.valid[c] && levels[c] > 0) plan.unreachable_cells.push_back(c);
+  plan.td_after_m = grid.td_m;
+  plan.sprayed_cloud = cloud;
   if (speed_cap) plan.timings_s["speed_caps"] = cap_seconds;
   plan.timings_s["total"] = seconds_since(t_start);
   plan.required_volume_m3 = missing_volume_m3(surface.grid);

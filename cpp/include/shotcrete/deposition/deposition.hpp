@@ -125,10 +125,7 @@ PassSamples resample_pass(const std::vector<NozzlePose>& polyline, double speed_
 void accumulate_pass(const SpotModel& model, const SurfaceIndex& surface, const std::vector<NozzlePose>& polyline,
                      double speed_mps, double step_m, double rebound_fraction, Eigen::VectorXd& thickness_m);
 
-/// Moves every point along its (unit, inward) normal by its thickness: the sprayed surface.
-Cloud apply_thickness(const Cloud& cloud, const Eigen::VectorXd& thickness_m);
-/// Lowers the TD of every valid grid cell by the mean thickness of the cloud points in it.
-void apply_thickness_to_grid(Grid& grid, const Cloud& cloud, const Eigen::VectorXd& thickness_m);
+// The sprayed wall (a deposit put on the cloud and its grid): deposit_layer in deposition/wall.hpp.
 
 /// Golden-section pass spacing (thesis 3.5): the overlap in [0, R] (design; widened if the optimum
 /// sits on the bound) of two parallel strokes that
