@@ -376,14 +376,16 @@ OrderingResult solve_best(const OrderingProblem& problem, const OrderingConfig& 
 
 OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConfig& config) {
   validate_ordering_problem(problem);
-  const std::string& m = config.method;
   auto polish = [&](const OrderingResult& r) { return config.local_search ? improve_local(problem, r) : r; };
-  if (m == "exact") return solve_exact(problem);
-  if (m == "nn") return polish(solve_nearest_neighbour(problem));
-  if (m == "aco") return polish(solve_aco(problem, config));
-  if (m == "ga") return polish(solve_ga(problem, config));
-  if (m == "best") return solve_best(problem, config);
-  throw std::invalid_argument("ordering.method must be one of aco, ga, nn, exact, best; got '" + m + "'");
+  switch (config.method) {
+    case OrderingMethod::exact: return solve_exact(problem);
+    case OrderingMethod::nn: return polish(solve_nearest_neighbour(problem));
+    case OrderingMethod::aco: return polish(solve_aco(problem, config));
+    case OrderingMethod::ga: return polish(solve_ga(problem, config));
+    case OrderingMethod::best: return solve_best(problem, config);
+  }
+  throw std::invalid_argument("ordering.method must be one of " + enum_choices<OrderingMethod>() + "; got value " +
+                              std::to_string(static_cast<int>(config.method)));
 }
 
 }  // namespace shotcrete

@@ -177,7 +177,7 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
                               const PlannerConfig& config) {
   if (cells.empty()) return {};
   if (!(spacing_m > 0)) throw std::invalid_argument("plan_passes: spacing_m must be > 0");
-  const bool axial = config.pass_direction == "axial";
+  const bool axial = config.pass_direction == PassDirection::axial;
   const double R = grid.profile.radius_m, cs = grid.cell_size_m;
   // u runs along a pass, w across the passes; positions in metres of wall (s = theta * R, or d).
   const int n_u = axial ? grid.n_d : grid.n_theta, n_w = axial ? grid.n_theta : grid.n_d;
@@ -629,7 +629,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   std::vector<int>& levels = wall.surface.levels;
   plan.deposited_m = Eigen::VectorXd::Zero(surface.cloud.size());
   std::optional<Eigen::Vector3d> nozzle_at;
-  const bool optimal = pc.mode == "optimal";
+  const bool optimal = pc.mode == PlannerMode::optimal;
   plan.timings_s["setup"] = seconds_since(t_start);
   // Per waypoint: the fastest speed the machine allows there, within [min, max] speed (a cap below
   // the slowest speed is reported once per pass and sprayed at the slowest speed).
@@ -667,6 +667,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
       if (stuck[c]) lv[c] = kNoDataLevel;
     return lv;
   };
+  std::optional<StopReason> stop;  // settled after the loop when no round gives a reason
   for (int round_no = 0; round_no < pc.max_rounds; ++round_no) {
     const auto counts_before = level_counts(levels);
     const std::vector<int> graded_levels = active_levels();
@@ -685,7 +686,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     const int n_slots = static_cast<int>(cells.cell_ids.size());
 
     if (!optimal) {
-      round.kind = "graded";
+      round.kind = RoundKind::graded;
       round.level = top;
       const auto regions = find_regions(grid, graded_levels, top, config.regions.min_region_cells);
       for (std::size_t ri = 0; ri < regions.size(); ++ri) {
@@ -731,7 +732,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
         round.regions.push_back(std::move(rp));
       }
     } else {
-      round.kind = "levelling";
+      round.kind = RoundKind::levelling;
       round.level = top;
       // Cells to cover: every cell that still misses more than the tolerance, split into the right
       // and left walls so each side is sprayed bottom-up.
@@ -755,12 +756,12 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
         RegionPlan side[2];
         for (const auto& p : all) {
           const Eigen::Vector3d mid = p.waypoints[p.waypoints.size() / 2].position_m;
-          const bool left = pc.pass_direction == "axial" && grid.axis.to_cylindrical(mid)[1] > M_PI / 2;
+          const bool left = pc.pass_direction == PassDirection::axial && grid.axis.to_cylindrical(mid)[1] > M_PI / 2;
           side[left ? 1 : 0].passes.push_back(p);
         }
         std::reverse(side[1].passes.begin(), side[1].passes.end());  // left wall: springline up
         for (auto& c : open_cells)
-          side[pc.pass_direction == "axial" && grid.theta_center(grid.row_of(c)) > M_PI / 2 ? 1 : 0]
+          side[pc.pass_direction == PassDirection::axial && grid.theta_center(grid.row_of(c)) > M_PI / 2 ? 1 : 0]
               .region.cells.push_back(c);
         for (auto& rp : side) {
           if (rp.passes.empty()) continue;
@@ -845,8 +846,9 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     }
     if (round.regions.empty()) {
       // Optimal mode: every segment was skipped, i.e. no spraying pays off at the time weight.
-      plan.stop_reason = optimal && top <= 0 ? "levelled: no further pass pays off at planner.time_weight_mm2_per_s"
-                                             : "no progress: no pass could be planned over the remaining cells";
+      stop = optimal && top <= 0
+                 ? StopReason{StopKind::levelled, "no further pass pays off at planner.time_weight_mm2_per_s"}
+                 : StopReason{StopKind::no_progress, "no pass could be planned over the remaining cells"};
       break;
     }
     order_regions(round, config.ordering, nozzle_at);
@@ -883,8 +885,9 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
       // With the time weight, the last cells off flush are not worth another round.
       int top_now = std::numeric_limits<int>::min();
       for (auto [lv, n] : level_counts(levels)) top_now = std::max(top_now, lv);
-      plan.stop_reason = top_now <= 0 ? "levelled: another round would lower the largest TD by less than 1 mm"
-                                      : "no progress: a levelling round lowered the largest TD by less than 1 mm";
+      stop = top_now <= 0
+                 ? StopReason{StopKind::levelled, "another round would lower the largest TD by less than 1 mm"}
+                 : StopReason{StopKind::no_progress, "a levelling round lowered the largest TD by less than 1 mm"};
       break;
     }
     if (!optimal) {
@@ -899,16 +902,18 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
       }
     }
   }
-  if (plan.stop_reason.empty()) {
+  if (stop) {
+    plan.stop_reason = *stop;
+  } else {
     int top = std::numeric_limits<int>::min(), top_active = top;
     for (auto [lv, n] : level_counts(levels)) top = std::max(top, lv);
     for (auto [lv, n] : level_counts(active_levels())) top_active = std::max(top_active, lv);
     if (top <= 0)
-      plan.stop_reason = "flush";
+      plan.stop_reason = {StopKind::flush, ""};
     else if (top_active <= 0)
-      plan.stop_reason = "no progress: the cells set aside stay above level 0";
+      plan.stop_reason = {StopKind::no_progress, "the cells set aside stay above level 0"};
     else
-      plan.stop_reason = "max rounds reached (planner.max_rounds)";
+      plan.stop_reason = {StopKind::max_rounds, ""};
   }
   for (int c = 0; c < grid.size(); ++c)
     if (grid.valid[c] && levels[c] > 0) plan.unreachable_cells.push_back(c);

@@ -9,7 +9,7 @@
 
 #include "shotcrete/config.hpp"
 #include "shotcrete/surface/grid.hpp"
-#include "shotcrete/types.hpp"
+#include "shotcrete/types.hpp"  // Cloud, NozzlePose
 
 namespace shotcrete {
 
@@ -68,12 +68,6 @@ struct StrokeFit {
 /// Least-squares fit of (R, beta, q_max, centre offset) to a measured stroke through the closed
 /// form: q_max in closed form (linear), (R, beta, offset) by multi-start NLopt BOBYQA.
 StrokeFit fit_stroke(const StrokeData& data);
-
-/// Nozzle pose: position and unit spray axis (roll about the axis does not matter).
-struct NozzlePose {
-  Eigen::Vector3d position_m{0, 0, 0};
-  Eigen::Vector3d axis{0, 0, 1};
-};
 
 /// Free-form thickness rate (thesis eq. 2-13) at point p with unit normal n [m/s]:
 /// q0(r_proj) (H0/L)^2 cos(gamma) / cos^3(theta) inside the cone and facing the nozzle, else 0.

@@ -1,8 +1,10 @@
 #pragma once
 // Graded region planner (design section 5): rounds of levels -> regions -> passes -> speeds ->
 // order -> simulated deposition, plus an optimising mode that targets the final residual and time.
+#include <array>
 #include <functional>
 #include <map>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -44,8 +46,14 @@ struct RegionPlan {
   Eigen::Vector3d exit_m() const { return passes.back().waypoints.back().position_m; }
 };
 
+/// graded: one level per round (thesis); levelling: every cell still short of flush (optimal mode).
+enum class RoundKind { graded, levelling };
+constexpr std::array<EnumName<RoundKind>, 2> enum_names(RoundKind) {
+  return {{{RoundKind::graded, "graded"}, {RoundKind::levelling, "levelling"}}};
+}
+
 struct Round {
-  std::string kind = "graded";              // graded (one level) or levelling (optimal mode)
+  RoundKind kind = RoundKind::graded;
   int level = 0;                            // the level sprayed in this round
   std::vector<RegionPlan> regions;          // in spraying order
   std::vector<int> order;                   // region order (indices before sorting) from the solver
@@ -55,6 +63,23 @@ struct Round {
   Eigen::VectorXd td_after_m;               // per grid cell after the simulated spraying
   double spray_time_s = 0.0;                // nozzle time while spraying
 };
+
+/// Why the rounds stopped.
+enum class StopKind { flush, no_progress, max_rounds, levelled };
+constexpr std::array<EnumName<StopKind>, 4> enum_names(StopKind) {
+  return {{{StopKind::flush, "flush"},
+           {StopKind::no_progress, "no progress"},
+           {StopKind::max_rounds, "max rounds reached (planner.max_rounds)"},
+           {StopKind::levelled, "levelled"}}};
+}
+
+struct StopReason {
+  StopKind kind = StopKind::flush;
+  std::string detail;  // what made no progress, or why levelling ends; empty for flush / max rounds
+  /// "<kind>" or "<kind>: <detail>", as report.json prints it ("no progress: ...").
+  std::string text() const { return detail.empty() ? std::string(enum_name(kind)) : enum_name(kind) + (": " + detail); }
+};
+inline std::ostream& operator<<(std::ostream& out, const StopReason& r) { return out << r.text(); }
 
 struct Plan {
   std::vector<Round> rounds;
@@ -66,7 +91,7 @@ struct Plan {
   double required_volume_m3 = 0.0;          // concrete missing behind the design line (TD > 0)
   double deposition_rate_m3ps = 0.0;        // concrete that stays on the wall per second of spraying
   double physical_limit_s = 0.0;            // required volume / deposition rate
-  std::string stop_reason;                  // "flush", "no progress: ...", "max rounds"
+  StopReason stop_reason;
   std::vector<int> unreachable_cells;       // cells left above level 0 that no pass could fill
   std::vector<std::string> warnings;        // targets that could not be met, and why
   int speed_capped = 0;                     // passes (graded) / segments (optimal), all rounds, whose
