@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 OUT ?= out/demo
 export CMAKE_CXX_COMPILER_LAUNCHER := ccache
 
-.PHONY: setup demo test test-cpp test-python test-ros screenshot bench clean
+.PHONY: setup demo test test-cpp test-python test-ros screenshot bench regression clean
 
 setup:
 	bash scripts/setup.sh
@@ -31,5 +31,9 @@ screenshot: setup
 bench: setup
 	$(PY) bench/run_benchmarks.py --out bench/results
 
+# The default demo in both planner modes against the recorded report.json numbers (1e-6 relative).
+regression: setup
+	$(PY) bench/check_regression.py
+
 clean:
-	rm -rf build out bench/results ros1_pkg/.ws
+	rm -rf build out ros1_pkg/.ws
