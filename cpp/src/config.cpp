@@ -20,6 +20,9 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
       if (!node.IsSequence() || node.size() != 3)
         throw std::invalid_argument("config key '" + key + "': expected a list of 3 numbers");
       for (int i = 0; i < 3; ++i) out[i] = node[i].as<double>();
+    } else if constexpr (is_named_enum_v<T>) {
+      if (!node.IsScalar()) throw std::invalid_argument("config key '" + key + "': expected one of " + enum_choices<T>());
+      out = parse_enum<T>(node.as<std::string>(), "config key '" + key + "'");
     } else if constexpr (std::is_same_v<T, std::uint64_t>) {
       const long long v = node.as<long long>();
       if (v < 0) throw std::invalid_argument("config key '" + key + "': must be >= 0");
@@ -31,7 +34,7 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
   } catch (const YAML::Exception& e) {
     std::ostringstream msg;
     msg << "config key '" << key << "': cannot read '" << YAML::Dump(node) << "' as "
-        << (std::is_same_v<T, bool> ? "true/false" : std::is_same_v<T, std::string> ? "text" : "a number");
+        << (std::is_same_v<T, bool> ? "true/false" : std::is_same_v<T, std::string> || is_named_enum_v<T> ? "text" : "a number");
     throw std::invalid_argument(msg.str());
   }
 }
@@ -75,16 +78,11 @@ template <class T> void check_range(const std::string& key, T value, double lo, 
     }
   } else if constexpr (std::is_same_v<T, Eigen::Vector3d>) {
     if (!value.allFinite()) throw std::invalid_argument("config key '" + key + "' has a non-finite entry");
+  } else if constexpr (is_named_enum_v<T>) {
+    bool named = false;
+    for (const auto& n : enum_names(value)) named = named || n.value == value;
+    if (!named) throw std::invalid_argument("config key '" + key + "' is not one of " + enum_choices<T>());
   }
-}
-
-void check_choice(const std::string& key, const std::string& value, std::initializer_list<const char*> choices) {
-  std::string list;
-  for (const char* c : choices) {
-    if (value == c) return;
-    list += std::string(list.empty() ? "" : ", ") + c;
-  }
-  throw std::invalid_argument("config key '" + key + "' = '" + value + "': expected one of " + list);
 }
 
 }  // namespace
@@ -109,9 +107,6 @@ void validate(const Config& config) {
     throw std::invalid_argument("config: synth pit ranges must have min <= max");
   if (config.planner.min_speed_mps >= config.planner.max_speed_mps)
     throw std::invalid_argument("config: planner.min_speed_mps must be below planner.max_speed_mps");
-  check_choice("planner.mode", config.planner.mode, {"graded", "optimal"});
-  check_choice("planner.pass_direction", config.planner.pass_direction, {"axial", "circumferential"});
-  check_choice("ordering.method", config.ordering.method, {"aco", "ga", "nn", "exact", "best"});
 }
 
 Config config_from_yaml(const std::string& text) {
@@ -149,8 +144,11 @@ std::string config_to_yaml(const Config& config) {
     fields::visit(static_cast<S*>(nullptr), [&](const char* key, auto member, double, double, const char* doc) {
       const auto& v = section.*member;
       out << YAML::Key << key << YAML::Value;
-      if constexpr (std::is_same_v<std::decay_t<decltype(v)>, Eigen::Vector3d>) {
+      using T = std::decay_t<decltype(v)>;
+      if constexpr (std::is_same_v<T, Eigen::Vector3d>) {
         out << YAML::Flow << YAML::BeginSeq << v[0] << v[1] << v[2] << YAML::EndSeq;
+      } else if constexpr (is_named_enum_v<T>) {
+        out << enum_name(v);
       } else {
         out << v;
       }

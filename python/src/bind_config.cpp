@@ -29,7 +29,16 @@ template <class S> void bind_section(py::module_& m, const char* section_name, p
     d << doc;
     if constexpr (std::is_arithmetic_v<T> && !std::is_same_v<T, bool> && !std::is_same_v<T, std::uint64_t>)
       d << "; range [" << lo << ", " << hi << "]";
-    cls.def_readwrite(key, field, d.str().c_str());
+    if constexpr (is_named_enum_v<T>) {
+      // Enum fields are text at the Python edge, as in YAML: str in, str out ("graded"), an unknown
+      // name raises ValueError listing the allowed ones.
+      const std::string what = std::string(section_name) + "." + key;
+      cls.def_property(
+          key, [field](const S& s) { return std::string(enum_name(s.*field)); },
+          [field, what](S& s, const std::string& name) { s.*field = parse_enum<T>(name, what); }, d.str().c_str());
+    } else {
+      cls.def_readwrite(key, field, d.str().c_str());
+    }
     keys.append(key);
   });
   cls.attr("KEYS") = keys;

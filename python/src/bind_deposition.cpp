@@ -2,6 +2,7 @@
 
 #include "bindings.hpp"
 #include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/deposition/wall.hpp"
 
 using namespace shotcrete;
 
@@ -181,10 +182,19 @@ void bind_deposition(py::module_& m) {
         py::arg("rebound_fraction") = 0.08, py::arg("thickness_m") = py::none(),
         "Deposited thickness [m] per point (float64 (N,)) of a pass along a polyline of poses at speed_mps;\n"
         "adds into thickness_m in place if given.");
-  m.def("apply_thickness", &apply_thickness, py::arg("cloud"), py::arg("thickness_m"),
-        "New Cloud with every point moved along its normal by its thickness.");
-  m.def("apply_thickness_to_grid", &apply_thickness_to_grid, py::arg("grid"), py::arg("cloud"), py::arg("thickness_m"),
-        "Lower the TD of each valid cell of grid (in place) by the mean thickness of its points.");
+  py::class_<SprayedWall>(m, "SprayedWall",
+                          "The wall as it is sprayed: the scan's surface moved by every layer so far, on the scan's cells.")
+      .def_readonly("surface", &SprayedWall::surface, "cloud, grid and levels of the wall as sprayed so far")
+      .def_property_readonly(
+          "cell_of_point",
+          [](const SprayedWall& w) { return py::array_t<int>(w.cell_of_point.size(), w.cell_of_point.data()); },
+          "the scan's cell of every point (-1: outside the grid band), int32 (N,)");
+  m.def("unsprayed_wall", &unsprayed_wall, py::arg("surface"), py::arg("max_deviation_m"),
+        "The wall before spraying: the surface's cloud on its grid (points farther than max_deviation_m\n"
+        "from the design line belong to no cell; use config.profile.max_deviation_m).");
+  m.def("deposit_layer", &deposit_layer, py::arg("wall"), py::arg("thickness_m"),
+        "Put a layer on the wall in place (the planner's deposit): every point moves toward the axis along\n"
+        "its ray by thickness / cos(tilt); cell means, TD, levels and the normals of the sprayed cells follow.");
 
   py::class_<PassSpacing>(m, "PassSpacing", "Golden-section pass spacing (thesis 3.5).")
       .def_readonly("spacing_m", &PassSpacing::spacing_m)

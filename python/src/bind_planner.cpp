@@ -29,7 +29,8 @@ void bind_planner(py::module_& m) {
       .def("entry_m", &RegionPlan::entry_m)
       .def("exit_m", &RegionPlan::exit_m);
   py::class_<Round>(m, "Round")
-      .def_readonly("kind", &Round::kind)
+      .def_property_readonly("kind", [](const Round& r) { return std::string(enum_name(r.kind)); },
+                             "graded (one level, thesis) or levelling (optimal mode)")
       .def_readonly("level", &Round::level)
       .def_readonly("regions", &Round::regions)
       .def_readonly("order", &Round::order)
@@ -49,7 +50,8 @@ void bind_planner(py::module_& m) {
       .def_readonly("required_volume_m3", &Plan::required_volume_m3)
       .def_readonly("deposition_rate_m3ps", &Plan::deposition_rate_m3ps)
       .def_readonly("physical_limit_s", &Plan::physical_limit_s)
-      .def_readonly("stop_reason", &Plan::stop_reason)
+      .def_property_readonly("stop_reason", [](const Plan& p) { return p.stop_reason.text(); },
+                             "flush | no progress: <what> | max rounds reached (planner.max_rounds) | levelled: <why>")
       .def_readonly("unreachable_cells", &Plan::unreachable_cells)
       .def_readonly("warnings", &Plan::warnings)
       .def_readonly("speed_capped", &Plan::speed_capped,

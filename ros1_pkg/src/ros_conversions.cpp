@@ -172,6 +172,11 @@ void assign(T& member, XmlRpc::XmlRpcValue& v, const std::string& name) {
     if (v.getType() != XmlRpc::XmlRpcValue::TypeString)
       throw std::invalid_argument("parameter " + name + ": expected a string, got " + type_name(v.getType()));
     member = static_cast<std::string>(v);
+  } else if constexpr (shotcrete::is_named_enum_v<T>) {  // by name, as in the YAML config
+    if (v.getType() != XmlRpc::XmlRpcValue::TypeString)
+      throw std::invalid_argument("parameter " + name + ": expected one of " + shotcrete::enum_choices<T>() + ", got " +
+                                  type_name(v.getType()));
+    member = shotcrete::parse_enum<T>(static_cast<std::string>(v), "parameter " + name);
   } else if constexpr (std::is_same_v<T, double>) {
     member = as_number(v, name);
   } else if constexpr (std::is_integral_v<T>) {

@@ -33,6 +33,7 @@
 #include "shotcrete/pipeline/job_summary.hpp"
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/deposition/wall.hpp"
 #include "shotcrete/surface/grid.hpp"
 #include "shotcrete/io/io.hpp"
 #include "shotcrete/planning/planner.hpp"
@@ -271,10 +272,10 @@ class ShotcreteNode {
     }
     q_current_ = traj->q.back();
     const Eigen::VectorXd td1 = td0 - deposited;
-    // Levels of the sprayed wall: the deposit moves the points along their normals, then re-grid.
-    Surface sprayed = *surface;
-    sprayed.cloud = shotcrete::apply_thickness(surface->cloud, deposited);
-    shotcrete::regrid(sprayed, config_);
+    // Levels of the sprayed wall: the planner's deposit on the scan's cells.
+    shotcrete::SprayedWall wall = shotcrete::unsprayed_wall(*surface, config_.profile.max_deviation_m);
+    shotcrete::deposit_layer(wall, deposited);
+    const Surface& sprayed = wall.surface;
     publish_levels(sprayed);
     std::ostringstream s;
     s << std::fixed << std::setprecision(3) << "executed " << traj->duration_s << " s of trajectory in "

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """rostest: ~<section>/<key> parameters override the YAML config one value at a time (seen in the
-synthetic bay the node generates), and a misspelt key, a wrong type or an out-of-range value stop
-the node with a message naming the parameter."""
+synthetic bay the node generates), and a misspelt key, a wrong type, an out-of-range value or an
+unknown choice stop the node with a message naming the parameter."""
 import math
 import os
 import subprocess
@@ -44,6 +44,8 @@ class Params(unittest.TestCase):
             ("typo_node", {"synth/lenght_m": 0.5}, "unknown config parameter /typo_node/synth/lenght_m"),
             ("type_node", {"synth/pit_count": "many"}, "/type_node/synth/pit_count: expected an integer"),
             ("range_node", {"synth/length_m": 50.0}, "length_m"),
+            ("mode_node", {"planner/mode": "fastest"},
+             "/mode_node/planner/mode = 'fastest': expected one of graded, optimal"),
         ]
         for name, params, text in cases:
             code, out = self.run_node(name, params)

@@ -12,6 +12,7 @@
 
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/deposition/wall.hpp"
 #include "shotcrete/surface/grid.hpp"
 #include "shotcrete/io/synth.hpp"
 
@@ -469,30 +470,51 @@ TEST(Pass, DwellsEqualResampledPass) {
   EXPECT_THROW(accumulate_pass(m, idx, line, 0.2, 0.01, 0.1, wrong), std::invalid_argument);
 }
 
-TEST(Apply, MovesPointsAlongNormalsAndLowersGridTd) {
-  // Cylinder wall 0.1 m outside a 5.6 m design line; a uniform 20 mm layer lowers the TD of every
-  // cell by 20 mm, and re-gridding the moved cloud agrees.
-  const double R = 5.6, r = 5.7;
-  Cloud c;
+namespace {
+
+// Points of a cylinder wall of radius r (normals toward the axis) over x in [0, x_max) and
+// theta in [1, th_max), 10 mm apart, as a Surface on the design radius R.
+Surface cylinder_wall(double R, double r, double x_max, double th_max) {
+  Surface s;
   std::vector<Eigen::Vector3d> pts;
-  for (double x = 0.005; x < 0.6; x += 0.01)
-    for (double th = 1.0; th < 2.0; th += 0.01 / r) pts.emplace_back(x, r * std::cos(th), r * std::sin(th));
-  c.xyz.resize(pts.size(), 3);
-  c.normals.resize(pts.size(), 3);
+  for (double x = 0.005; x < x_max; x += 0.01)
+    for (double th = 1.0; th < th_max; th += 0.01 / r) pts.emplace_back(x, r * std::cos(th), r * std::sin(th));
+  s.cloud.xyz.resize(pts.size(), 3);
+  s.cloud.normals.resize(pts.size(), 3);
   for (size_t i = 0; i < pts.size(); ++i) {
-    c.xyz.row(i) = pts[i].transpose();
-    c.normals.row(i) = -Eigen::Vector3d(0, pts[i].y(), pts[i].z()).normalized().transpose();
+    s.cloud.xyz.row(i) = pts[i].transpose();
+    s.cloud.normals.row(i) = -Eigen::Vector3d(0, pts[i].y(), pts[i].z()).normalized().transpose();
   }
+  s.profile = DesignProfile{R};
+  s.grid = build_grid(s.cloud, s.axis, s.profile, GridConfig{}, 1.0);
+  s.levels = cell_levels(s.grid);
+  return s;
+}
+
+}  // namespace
+
+TEST(Wall, LayerMovesPointsAlongTheirRaysAndLowersEveryCell) {
+  // Cylinder wall 0.1 m outside a 5.6 m design line; a uniform 20 mm layer moves every point
+  // 20 mm toward the axis (radial normals: no tilt), lowers the TD of every cell by 20 mm, and
+  // re-gridding the moved cloud agrees.
+  const double r = 5.7;
+  const Surface s = cylinder_wall(5.6, r, 0.6, 2.0);
+  const Cloud& c = s.cloud;
+  SprayedWall wall = unsprayed_wall(s, 1.0);
+  const Eigen::VectorXd before = wall.surface.grid.td_m;
   const Eigen::VectorXd t = Eigen::VectorXd::Constant(c.size(), 0.02);
-  const Cloud moved = apply_thickness(c, t);
-  for (Eigen::Index i = 0; i < c.size(); i += 97)
+  deposit_layer(wall, t);
+  const Cloud& moved = wall.surface.cloud;
+  for (Eigen::Index i = 0; i < c.size(); i += 97) {
     EXPECT_NEAR(Eigen::Vector3d(0, moved.xyz(i, 1), moved.xyz(i, 2)).norm(), r - 0.02, 1e-12);
-  TunnelAxis axis;
-  const DesignProfile profile{R};
-  Grid g = build_grid(c, axis, profile, GridConfig{}, 1.0);
-  const Grid after = build_grid(moved, axis, profile, GridConfig{}, 1.0);
-  const Eigen::VectorXd before = g.td_m;
-  apply_thickness_to_grid(g, c, t);
+    EXPECT_NEAR(std::atan2(moved.xyz(i, 2), moved.xyz(i, 1)), std::atan2(c.xyz(i, 2), c.xyz(i, 1)), 1e-12);
+    EXPECT_EQ(moved.xyz(i, 0), c.xyz(i, 0));
+    // The sprayed cells get the normal of their TD map: still radial, at the cell's centre angle.
+    EXPECT_GT(-moved.normals.row(i).dot(Eigen::RowVector3d(0, moved.xyz(i, 1), moved.xyz(i, 2)).normalized()),
+              std::cos(0.005));
+  }
+  const Grid after = build_grid(moved, s.axis, s.profile, GridConfig{}, 1.0);
+  const Grid& g = wall.surface.grid;
   int checked = 0;
   for (int cell = 0; cell < g.size(); ++cell) {
     if (!g.valid[cell]) continue;
@@ -503,7 +525,33 @@ TEST(Apply, MovesPointsAlongNormalsAndLowersGridTd) {
     }
   }
   EXPECT_GT(checked, 100);
-  EXPECT_THROW(apply_thickness(c, Eigen::VectorXd::Zero(2)), std::invalid_argument);
+  EXPECT_EQ(wall.surface.levels, cell_levels(g));
+  EXPECT_THROW(deposit_layer(wall, Eigen::VectorXd::Zero(2)), std::invalid_argument);
+  Surface bare = s;
+  bare.cloud.normals.resize(0, 3);
+  EXPECT_THROW(unsprayed_wall(bare, 1.0), std::invalid_argument);
+}
+
+TEST(Wall, TiltedNormalFillsRadiallyAndKeepsTheCell) {
+  // A layer measured along a normal tilted 45 degrees from the ray fills t / cos(45) along the
+  // ray; beyond 60 degrees the fill is capped at 2 t. The point stays on its ray (d, theta).
+  const double r = 5.7;
+  Surface s = cylinder_wall(5.6, r, 0.3, 1.2);
+  Cloud& c = s.cloud;
+  const Eigen::Vector3d inward0 = c.normals.row(0).transpose(), inward1 = c.normals.row(1).transpose();
+  c.normals.row(0) = (std::cos(kPi / 4) * inward0 + std::sin(kPi / 4) * Eigen::Vector3d::UnitX()).transpose();
+  c.normals.row(1) = (std::cos(1.4) * inward1 + std::sin(1.4) * Eigen::Vector3d::UnitX()).transpose();
+  SprayedWall wall = unsprayed_wall(s, 1.0);
+  const std::vector<int> cells = wall.cell_of_point;
+  Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+  t[0] = t[1] = 0.01;
+  deposit_layer(wall, t);
+  const Points& q = wall.surface.cloud.xyz;
+  EXPECT_NEAR(r - Eigen::Vector3d(0, q(0, 1), q(0, 2)).norm(), 0.01 / std::cos(kPi / 4), 1e-12);
+  EXPECT_NEAR(r - Eigen::Vector3d(0, q(1, 1), q(1, 2)).norm(), 0.02, 1e-12);
+  EXPECT_EQ(q(0, 0), c.xyz(0, 0));
+  EXPECT_EQ(q.bottomRows(c.size() - 2), c.xyz.bottomRows(c.size() - 2));  // no thickness: not moved
+  EXPECT_EQ(wall.cell_of_point, cells);
 }
 
 // ------------------------------------------------------------------ pass spacing

@@ -75,7 +75,7 @@ void expect_valid(const OrderingResult& r, int n) {
 
 OrderingConfig raw(const std::string& method, std::uint64_t seed) {
   OrderingConfig c;
-  c.method = method;
+  c.method = parse_enum<OrderingMethod>(method, "ordering.method");
   c.seed = seed;
   c.local_search = false;
   return c;
@@ -145,11 +145,11 @@ TEST(Ordering, AcoAndGaReachExactOptimumOnSmallInstances) {
       };
       OrderingConfig c = raw("aco", seed);
       aco_raw += hit(solve_ordering(p, c));
-      c.method = "ga";
+      c.method = OrderingMethod::ga;
       ga_raw += hit(solve_ordering(p, c));
       c.local_search = true;
       ga_ls += hit(solve_ordering(p, c));
-      c.method = "aco";
+      c.method = OrderingMethod::aco;
       aco_ls += hit(solve_ordering(p, c));
       ++total;
     }
@@ -252,24 +252,30 @@ TEST(Ordering, BestDispatch) {
   const OrderingResult bb = solve_ordering(big, c);
   EXPECT_EQ(bb.method, "aco+ils");
   EXPECT_EQ(bb.best_per_iteration.size(), 30u);
-  c.method = "aco";
+  c.method = OrderingMethod::aco;
   EXPECT_LE(bb.link_length_m, solve_ordering(big, c).link_length_m + 1e-9);  // the kicks only improve
-  c.method = "best";
+  c.method = OrderingMethod::best;
   const OrderingResult bb2 = solve_ordering(big, c);
   EXPECT_EQ(bb2.order, bb.order);  // deterministic per seed
   EXPECT_EQ(bb2.reversed, bb.reversed);
   expect_valid(bb, 30);
   EXPECT_LE(bb.link_length_m, solve_nearest_neighbour(big).link_length_m + 1e-9);
-  c.method = "nn";
+  c.method = OrderingMethod::nn;
   EXPECT_EQ(solve_ordering(big, c).method, "nn+ls");
-  c.method = "dijkstra";
+  try {
+    parse_enum<OrderingMethod>("dijkstra", "ordering.method");
+    ADD_FAILURE() << "unknown method accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_STREQ(e.what(), "ordering.method = 'dijkstra': expected one of aco, ga, nn, exact, best");
+  }
+  c.method = static_cast<OrderingMethod>(99);  // not a method (a bad cast in C++)
   EXPECT_THROW(solve_ordering(big, c), std::invalid_argument);
 }
 
 TEST(Ordering, DegenerateSizes) {
   for (const char* m : {"aco", "ga", "nn", "exact", "best"}) {
     OrderingConfig c;
-    c.method = m;
+    c.method = parse_enum<OrderingMethod>(m, "ordering.method");
     OrderingProblem p;
     OrderingResult r = solve_ordering(p, c);
     EXPECT_TRUE(r.order.empty()) << m;
@@ -302,7 +308,7 @@ TEST(Ordering, CoincidentAndDuplicateRegions) {
   }
   for (const char* m : {"aco", "ga", "nn", "exact"}) {
     OrderingConfig c;
-    c.method = m;
+    c.method = parse_enum<OrderingMethod>(m, "ordering.method");
     const OrderingResult r = solve_ordering(p, c);
     expect_valid(r, 6);
     EXPECT_EQ(r.link_length_m, 0.0) << m;
@@ -323,7 +329,7 @@ TEST(Ordering, CoincidentAndDuplicateRegions) {
   const double opt = solve_exact(big).link_length_m;
   for (const char* m : {"aco", "ga", "nn"}) {
     OrderingConfig c;
-    c.method = m;
+    c.method = parse_enum<OrderingMethod>(m, "ordering.method");
     const OrderingResult r = solve_ordering(big, c);
     expect_valid(r, 14);
     EXPECT_GE(r.link_length_m, opt - 1e-9) << m;
@@ -342,7 +348,7 @@ TEST(Ordering, BadInputIsRejectedWithItsName) {
   }
   for (const char* m : {"aco", "ga", "nn", "exact"}) {
     OrderingConfig c;
-    c.method = m;
+    c.method = parse_enum<OrderingMethod>(m, "ordering.method");
     EXPECT_THROW(solve_ordering(p, c), std::invalid_argument) << m;
   }
   OrderingProblem q = bay_instance(4, 1);

@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <limits>
+#include <sstream>
 
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/surface/preprocess.hpp"
@@ -41,6 +42,7 @@ Surface analytic_bay(double (*td)(double d, double theta), double t0 = 0.9, doub
 
 double uniform_100mm(double, double) { return 0.100; }
 double uniform_70mm(double, double) { return 0.070; }
+double uniform_300mm(double, double) { return 0.300; }
 double flush(double, double) { return 0.0; }
 
 // One dig pit like those of the synthetic bay (radius 0.5 m, 150 mm deep) in a flush wall.
@@ -69,7 +71,7 @@ TEST(Spline, InterpolatesKnotsAndKeepsLines) {
 }
 
 TEST(Passes, StandoffAndAxisOnACylinder) {
-  for (const char* direction : {"axial", "circumferential"}) {
+  for (const PassDirection direction : {PassDirection::axial, PassDirection::circumferential}) {
     Surface s = analytic_bay(uniform_100mm);
     PlannerConfig pc;
     pc.pass_direction = direction;
@@ -87,13 +89,13 @@ TEST(Passes, StandoffAndAxisOnACylinder) {
         worst_standoff = std::max(worst_standoff, std::abs(wall - std::hypot(q.y(), q.z()) - pc.standoff_m));
         worst_angle = std::max(worst_angle, std::acos(std::min(1.0, w.axis.dot(radial))));
       }
-    EXPECT_LT(worst_standoff, 0.001) << direction;
-    EXPECT_LT(worst_angle * 180 / kPi, 1.0) << direction;
+    EXPECT_LT(worst_standoff, 0.001) << enum_name(direction);
+    EXPECT_LT(worst_angle * 180 / kPi, 1.0) << enum_name(direction);
     // Serpentine: consecutive passes run in opposite directions.
     if (passes.size() >= 2) {
       const Eigen::Vector3d d0 = passes[0].waypoints.back().position_m - passes[0].waypoints.front().position_m;
       const Eigen::Vector3d d1 = passes[1].waypoints.back().position_m - passes[1].waypoints.front().position_m;
-      EXPECT_LT(d0.dot(d1), 0) << direction;
+      EXPECT_LT(d0.dot(d1), 0) << enum_name(direction);
     }
   }
 }
@@ -101,10 +103,10 @@ TEST(Passes, StandoffAndAxisOnACylinder) {
 TEST(Planner, UniformOverbreakEndsFlush) {
   Surface s = analytic_bay(uniform_100mm);
   Config cfg;
-  cfg.planner.mode = "optimal";
+  cfg.planner.mode = PlannerMode::optimal;
   cfg.planner.time_weight_mm2_per_s = 10;  // accuracy first: time barely counts
   Plan plan = plan_bay(s, cfg);
-  EXPECT_TRUE(plan.stop_reason.rfind("flush", 0) == 0 || plan.stop_reason.rfind("levelled", 0) == 0)
+  EXPECT_TRUE(plan.stop_reason.kind == StopKind::flush || plan.stop_reason.kind == StopKind::levelled)
       << plan.stop_reason;
   const Eigen::VectorXd& td = plan.td_after_m;
   double lo = 1, hi = -1;
@@ -124,12 +126,13 @@ TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
   cfg.synth.length_m = 1.2;
   cfg.synth.points_per_cell = 6;
   cfg.synth.pit_count = 6;  // the default pit density on this fifth of the arch
-  cfg.planner.mode = "graded";
+  cfg.planner.mode = PlannerMode::graded;
   for (std::uint64_t seed : {1, 2, 3}) {
     cfg.synth.seed = seed;
     Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
     Plan plan = plan_bay(s, cfg);
-    EXPECT_EQ(plan.stop_reason, "flush") << "seed " << seed;
+    EXPECT_EQ(plan.stop_reason.text(), "flush") << "seed " << seed;
+    for (const auto& r : plan.rounds) EXPECT_EQ(r.kind, RoundKind::graded);
     std::vector<int> prev = s.levels;
     for (const auto& r : plan.rounds) {
       Grid g = s.grid;
@@ -147,7 +150,7 @@ TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
 TEST(Planner, SinglePitIsCoveredAndNothingElseSprayed) {
   Surface s = analytic_bay(pit, 0.9, 1.6, 1.2);
   Config cfg;
-  cfg.planner.mode = "optimal";  // default time weight
+  cfg.planner.mode = PlannerMode::optimal;  // default time weight
   Plan plan = plan_bay(s, cfg);
   ASSERT_FALSE(plan.rounds.empty());
   const double R = cfg.deposition.spot_radius_m;
@@ -166,13 +169,13 @@ TEST(Planner, SinglePitIsCoveredAndNothingElseSprayed) {
 
 TEST(Planner, FlushBayNeedsNoRound) {
   Surface s = analytic_bay(flush);
-  for (const char* mode : {"graded", "optimal"}) {
+  for (const PlannerMode mode : {PlannerMode::graded, PlannerMode::optimal}) {
     Config cfg;
     cfg.planner.mode = mode;
     Plan plan = plan_bay(s, cfg);
-    EXPECT_TRUE(plan.rounds.empty()) << mode;
-    EXPECT_EQ(plan.stop_reason, "flush") << mode;
-    EXPECT_DOUBLE_EQ(plan.spray_time_s, 0.0) << mode;
+    EXPECT_TRUE(plan.rounds.empty()) << enum_name(mode);
+    EXPECT_EQ(plan.stop_reason.text(), "flush") << enum_name(mode);
+    EXPECT_DOUBLE_EQ(plan.spray_time_s, 0.0) << enum_name(mode);
   }
 }
 
@@ -186,8 +189,9 @@ TEST(Planner, HolesInTheScanArePlannedAroundAndReported) {
   for (int c = 0; c < s.grid.size(); ++c) empty += !s.grid.valid[c];
   EXPECT_GT(empty, 10);
   Plan plan = plan_bay(s, Config{});
-  EXPECT_TRUE(plan.stop_reason.rfind("flush", 0) == 0 || plan.stop_reason.rfind("levelled", 0) == 0)
+  EXPECT_TRUE(plan.stop_reason.kind == StopKind::flush || plan.stop_reason.kind == StopKind::levelled)
       << plan.stop_reason;
+  for (const auto& r : plan.rounds) EXPECT_EQ(r.kind, RoundKind::levelling);
   for (int c = 0; c < s.grid.size(); ++c) {
     if (!s.grid.valid[c]) continue;
     EXPECT_LT(std::abs(plan.td_after_m[c]), 0.05) << "cell " << c;
@@ -197,13 +201,13 @@ TEST(Planner, HolesInTheScanArePlannedAroundAndReported) {
 TEST(Planner, SlowestSpeedTooFastIsReported) {
   Surface s = analytic_bay(uniform_100mm);
   Config cfg;
-  cfg.planner.mode = "graded";  // one constant speed per pass: BOBYQA saturates at the slowest
+  cfg.planner.mode = PlannerMode::graded;  // one constant speed per pass: BOBYQA saturates at the slowest
   cfg.planner.min_speed_mps = 0.9;
   cfg.planner.max_rounds = 2;
   Plan plan = plan_bay(s, cfg);
   ASSERT_FALSE(plan.warnings.empty());
   EXPECT_NE(plan.warnings[0].find("slowest speed"), std::string::npos) << plan.warnings[0];
-  EXPECT_NE(plan.stop_reason, "flush");
+  EXPECT_NE(plan.stop_reason.kind, StopKind::flush) << plan.stop_reason;
   EXPECT_FALSE(plan.unreachable_cells.empty());
 }
 
@@ -219,7 +223,7 @@ TEST(Planner, SpeedCapBoundsEveryWaypointAndGap) {
     for (const auto& w : wp) c.push_back(cap_at(w.position_m));
     return c;
   };
-  for (const std::string mode : {"graded", "optimal"}) {
+  for (const PlannerMode mode : {PlannerMode::graded, PlannerMode::optimal}) {
     Config cfg;
     cfg.planner.mode = mode;
     cfg.planner.max_rounds = 3;
@@ -230,17 +234,17 @@ TEST(Planner, SpeedCapBoundsEveryWaypointAndGap) {
         for (const auto& p : rp.passes)
           for (std::size_t k = 0; k < p.waypoints.size(); ++k)
             if (p.waypoints[k].position_m.z() > z_mid) over = std::max(over, p.speed_at(k));
-    ASSERT_GT(over, 0.075) << mode;
+    ASSERT_GT(over, 0.075) << enum_name(mode);
     EXPECT_EQ(free.speed_capped, 0);
     const Plan plan = plan_bay(s, cfg, {}, cap);
-    EXPECT_GT(plan.speed_capped, 0) << mode;
+    EXPECT_GT(plan.speed_capped, 0) << enum_name(mode);
     int gaps = 0;
     for (const auto& r : plan.rounds)
       for (const auto& rp : r.regions)
         for (std::size_t i = 0; i < rp.passes.size(); ++i) {
           const Pass& p = rp.passes[i];
           for (std::size_t k = 0; k < p.waypoints.size(); ++k)
-            ASSERT_LE(p.speed_at(k), cap_at(p.waypoints[k].position_m) + 1e-9) << mode << " pass " << i << " waypoint " << k;
+            ASSERT_LE(p.speed_at(k), cap_at(p.waypoints[k].position_m) + 1e-9) << enum_name(mode) << " pass " << i << " waypoint " << k;
           if (i + 1 < rp.passes.size() && rp.passes[i + 1].line == p.line) {
             const Pass& q = rp.passes[i + 1];
             const Eigen::Vector3d a = p.waypoints.back().position_m, b = q.waypoints.front().position_m;
@@ -251,7 +255,7 @@ TEST(Planner, SpeedCapBoundsEveryWaypointAndGap) {
             ++gaps;
           }
         }
-    if (mode == "optimal") RecordProperty("gaps_checked", gaps);
+    if (mode == PlannerMode::optimal) RecordProperty("gaps_checked", gaps);
   }
 }
 
@@ -263,7 +267,7 @@ TEST(Planner, BadSpeedCapIsAnError) {
     return std::vector<double>(wp.size(), std::numeric_limits<double>::quiet_NaN());
   };
   const SpeedCapFn short_cap = [](const std::vector<NozzlePose>& wp) { return std::vector<double>(wp.size() / 2, 1.0); };
-  for (const std::string mode : {"graded", "optimal"}) {
+  for (const PlannerMode mode : {PlannerMode::graded, PlannerMode::optimal}) {
     cfg.planner.mode = mode;
     try {
       plan_bay(s, cfg, {}, nan_cap);
@@ -279,13 +283,38 @@ TEST(Planner, BadSpeedCapIsAnError) {
     }
     // Slower than the slowest speed: sprayed at the slowest speed, and said so.
     const Plan plan = plan_bay(s, cfg, {}, [](const std::vector<NozzlePose>& wp) { return std::vector<double>(wp.size(), 0.01); });
-    ASSERT_FALSE(plan.warnings.empty()) << mode;
+    ASSERT_FALSE(plan.warnings.empty()) << enum_name(mode);
     bool said = false;
     for (const auto& w : plan.warnings) said = said || w.find("below planner.min_speed_mps") != std::string::npos;
-    EXPECT_TRUE(said) << mode;
+    EXPECT_TRUE(said) << enum_name(mode);
     for (const auto& r : plan.rounds)
       for (const auto& rp : r.regions)
         for (const auto& p : rp.passes)
           for (std::size_t k = 0; k < p.waypoints.size(); ++k) ASSERT_LE(p.speed_at(k), cfg.planner.min_speed_mps * (1 + 1e-5));
   }
+}
+
+TEST(Planner, StopReasonsAndRoundKindsPrintAsInTheReport) {
+  // report.json and plan.json carry these texts: they must not change with the enums behind them.
+  EXPECT_EQ(StopReason{}.text(), "flush");
+  EXPECT_EQ((StopReason{StopKind::no_progress, "the cells set aside stay above level 0"}.text()),
+            "no progress: the cells set aside stay above level 0");
+  EXPECT_EQ((StopReason{StopKind::max_rounds, ""}.text()), "max rounds reached (planner.max_rounds)");
+  EXPECT_EQ((StopReason{StopKind::levelled, "another round would lower the largest TD by less than 1 mm"}.text()),
+            "levelled: another round would lower the largest TD by less than 1 mm");
+  std::ostringstream out;
+  out << StopReason{StopKind::no_progress, "x"};
+  EXPECT_EQ(out.str(), "no progress: x");
+  EXPECT_STREQ(enum_name(RoundKind::graded), "graded");
+  EXPECT_STREQ(enum_name(RoundKind::levelling), "levelling");
+}
+
+TEST(Planner, MaxRoundsIsTheStopReasonWhenRoundsRunOut) {
+  Surface s = analytic_bay(uniform_300mm);  // level 4: one graded round takes it to level 3
+  Config cfg;
+  cfg.planner.mode = PlannerMode::graded;
+  cfg.planner.max_rounds = 1;
+  const Plan plan = plan_bay(s, cfg);
+  EXPECT_EQ(plan.rounds.size(), 1u);
+  EXPECT_EQ(plan.stop_reason.kind, StopKind::max_rounds) << plan.stop_reason;
 }

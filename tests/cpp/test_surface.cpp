@@ -308,3 +308,28 @@ TEST(Config, UnknownKeysAndRangesAreErrors) {
   EXPECT_EQ(c.synth.seed, 7u);
   EXPECT_EQ(config_to_yaml(config_from_yaml(config_to_yaml(c))), config_to_yaml(c));
 }
+
+TEST(Config, EnumFieldsReadAndWriteTheirNames) {
+  // The choices are enums in C++ and the same words as always in YAML (and Python, ROS).
+  const Config c = config_from_yaml("planner: {mode: graded, pass_direction: circumferential}\nordering: {method: ga}");
+  EXPECT_EQ(c.planner.mode, PlannerMode::graded);
+  EXPECT_EQ(c.planner.pass_direction, PassDirection::circumferential);
+  EXPECT_EQ(c.ordering.method, OrderingMethod::ga);
+  const std::string yaml = config_to_yaml(c);
+  for (const char* line : {"mode: graded", "pass_direction: circumferential", "method: ga"})
+    EXPECT_NE(yaml.find(line), std::string::npos) << line;
+  EXPECT_NE(config_to_yaml(Config{}).find("mode: optimal"), std::string::npos);
+  try {
+    config_from_yaml("planner: {mode: fastest}");
+    ADD_FAILURE() << "unknown mode accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_STREQ(e.what(), "config key 'planner.mode' = 'fastest': expected one of graded, optimal");
+  }
+  EXPECT_THROW(config_from_yaml("planner: {pass_direction: [axial]}"), std::invalid_argument);
+  EXPECT_THROW(config_from_yaml("ordering: {method: tabu}"), std::invalid_argument);
+  Config bad;
+  bad.planner.mode = static_cast<PlannerMode>(7);
+  EXPECT_THROW(validate(bad), std::invalid_argument);
+  EXPECT_STREQ(enum_name(OrderingMethod::exact), "exact");
+  EXPECT_EQ(enum_choices<PassDirection>(), "axial, circumferential");
+}

@@ -119,15 +119,35 @@ def test_bindings_dtypes_shapes_and_in_place_update():
     assert idx.dtype == np.int32 and np.all(np.diff(idx) > 0)
     brute = np.flatnonzero(np.linalg.norm(cloud.xyz - [0, 0, 1.0], axis=1) <= 0.05)
     np.testing.assert_array_equal(idx, brute)
-    moved = _core.apply_thickness(cloud, t)
-    assert moved.xyz.shape == cloud.xyz.shape
-    np.testing.assert_allclose(moved.xyz[:, 2], 1.0 - t)
     q = _core.point_rate_mps(model, _core.NozzlePose([0, 0, 0], [0, 0, 1]), [0.05, 0, 1.0], [0, 0, -1])
     assert q == pytest.approx(float(model.rate_at(0.05)))
     default = _core.SpotModel()
     assert (default.radius_m, default.beta, default.peak_rate_mps) == (model.radius_m, model.beta, model.peak_rate_mps)
     r = model.rate_at(np.linspace(0, 0.3, 7))
     assert r.shape == (7,) and r[-1] == 0.0
+
+
+def test_sprayed_wall_takes_the_planners_deposit(small_config, small_cloud):
+    surface = shotcrete.build_surface(small_cloud, small_config)
+    wall = _core.unsprayed_wall(surface, small_config.profile.max_deviation_m)
+    cells = wall.cell_of_point
+    assert cells.dtype == np.int32 and cells.shape == (len(surface.cloud),)
+    valid = np.asarray(surface.grid.valid).reshape(-1)
+    before = np.asarray(wall.surface.grid.td_m).reshape(-1).copy()
+    xyz0 = np.asarray(wall.surface.cloud.xyz).copy()
+    t = np.full(len(surface.cloud), 0.02)
+    _core.deposit_layer(wall, t)  # in place
+    drop = (before - np.asarray(wall.surface.grid.td_m).reshape(-1))[valid]
+    # Along the rays: at least the layer, at most twice it (tilt capped at 60 degrees).
+    assert drop.min() >= 0.02 - 1e-9 and drop.max() <= 0.04 + 1e-9
+    moved = np.asarray(wall.surface.cloud.xyz)
+    np.testing.assert_array_equal(moved[:, 0], xyz0[:, 0])  # d stays: every point keeps its cell
+    r0, r1 = np.hypot(xyz0[:, 1], xyz0[:, 2]), np.hypot(moved[:, 1], moved[:, 2])
+    assert np.all(r0 - r1 >= 0.02 - 1e-9)
+    np.testing.assert_array_equal(wall.cell_of_point, cells)
+    assert list(wall.surface.levels) == list(_core.cell_levels(wall.surface.grid))  # re-graded
+    with pytest.raises(ValueError, match="thicknesses"):
+        _core.deposit_layer(wall, np.zeros(3))
 
 
 def test_stroke_data_and_fit_objects():

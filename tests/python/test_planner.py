@@ -120,3 +120,17 @@ def test_bad_planner_config_names_the_key(small, tmp_path, run_cli):
     yaml.write_text("planner: {mode: fastest}\n")
     r = run_cli("demo", "--out", tmp_path / "o", "--config", yaml)
     assert r.exit_code == 2 and "planner.mode" in r.output
+
+
+def test_enum_fields_are_text_at_the_python_edge(small):
+    cfg, _ = small
+    c = cfg.copy()
+    assert c.planner.mode == "optimal" and isinstance(c.planner.mode, str)
+    c.planner.mode = "graded"
+    c.planner.pass_direction = "circumferential"
+    assert (c.planner.mode, c.planner.pass_direction) == ("graded", "circumferential")
+    assert "mode: graded" in c.to_yaml() and "pass_direction: circumferential" in c.to_yaml()
+    assert shotcrete.Config.from_yaml(c.to_yaml()).planner.mode == "graded"
+    with pytest.raises(ValueError, match="planner.mode = 'fastest': expected one of graded, optimal"):
+        c.planner.mode = "fastest"
+    assert c.planner.mode == "graded"

@@ -3,10 +3,37 @@
 // and exposed unchanged to Python and ROS through the field table in config_fields.hpp.
 // Every value carries its unit in its name or its doc string.
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <string>
 
+#include "shotcrete/types.hpp"
+
 namespace shotcrete {
+
+// Choices of the configuration: named enums (types.hpp), read and written by these names.
+
+/// planner.mode: the thesis' graded rounds, or levelling rounds that optimise residual and time.
+enum class PlannerMode { graded, optimal };
+constexpr std::array<EnumName<PlannerMode>, 2> enum_names(PlannerMode) {
+  return {{{PlannerMode::graded, "graded"}, {PlannerMode::optimal, "optimal"}}};
+}
+
+/// planner.pass_direction: passes along the tunnel, or around it.
+enum class PassDirection { axial, circumferential };
+constexpr std::array<EnumName<PassDirection>, 2> enum_names(PassDirection) {
+  return {{{PassDirection::axial, "axial"}, {PassDirection::circumferential, "circumferential"}}};
+}
+
+/// ordering.method: the region-ordering solver (ordering.hpp).
+enum class OrderingMethod { aco, ga, nn, exact, best };
+constexpr std::array<EnumName<OrderingMethod>, 5> enum_names(OrderingMethod) {
+  return {{{OrderingMethod::aco, "aco"},
+           {OrderingMethod::ga, "ga"},
+           {OrderingMethod::nn, "nn"},
+           {OrderingMethod::exact, "exact"},
+           {OrderingMethod::best, "best"}}};
+}
 
 struct IoConfig {
   double max_extent_m = 1000.0;  // a cloud larger than this is taken for millimetres and refused
@@ -72,8 +99,8 @@ struct DepositionConfig {
 };
 
 struct PlannerConfig {
-  std::string mode = "optimal";    // optimal (levelling rounds: residual + time) or graded (thesis)
-  std::string pass_direction = "axial";  // axial: passes along the tunnel; circumferential: around
+  PlannerMode mode = PlannerMode::optimal;  // optimal (levelling rounds: residual + time) or graded (thesis)
+  PassDirection pass_direction = PassDirection::axial;  // axial: along the tunnel; circumferential: around
   double standoff_m = 1.0;         // nozzle to wall along the offset direction
   bool offset_along_normal = false;  // offset along -normal instead of along -r
   double min_speed_mps = 0.05;
@@ -88,7 +115,7 @@ struct PlannerConfig {
 };
 
 struct OrderingConfig {
-  std::string method = "best";  // aco | ga | nn | exact | best
+  OrderingMethod method = OrderingMethod::best;
   std::uint64_t seed = 1;
   double aco_ants_per_region = 1.5;
   double aco_alpha = 1.0;

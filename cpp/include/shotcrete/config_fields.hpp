@@ -10,7 +10,9 @@ namespace shotcrete::fields {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// f(name, member pointer, min, max, doc); min/max are ignored for bool, string and vector fields.
+// f(name, member pointer, min, max, doc); min/max are ignored for bool, string, vector and enum
+// fields. An enum field is read and written by the names of its enum_names table (types.hpp):
+// YAML, Python and ROS parameters all take text, and an unknown name is an error listing them.
 template <class F> void visit(IoConfig*, F&& f) {
   f("max_extent_m", &IoConfig::max_extent_m, 1.0, 1e6, "largest accepted cloud extent [m]");
   f("unit_scale", &IoConfig::unit_scale, 1e-6, 1e3, "factor applied to input coordinates (0.001 for mm)");

@@ -549,37 +549,6 @@ void accumulate_pass(const SpotModel& model, const SurfaceIndex& surface, const 
   accumulate_dwells(model, surface, s.poses, s.dwell_s, rebound_fraction, thickness_m);
 }
 
-Cloud apply_thickness(const Cloud& cloud, const Eigen::VectorXd& thickness_m) {
-  if (!cloud.has_normals()) throw std::invalid_argument("apply_thickness: the cloud needs normals");
-  if (thickness_m.size() != cloud.size())
-    throw std::invalid_argument("apply_thickness: " + std::to_string(thickness_m.size()) + " thicknesses for " +
-                                std::to_string(cloud.size()) + " points");
-  Cloud out = cloud;
-  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-    const double nn = cloud.normals.row(i).norm();
-    if (nn > 0) out.xyz.row(i) += cloud.normals.row(i) * (thickness_m[i] / nn);
-  }
-  return out;
-}
-
-void apply_thickness_to_grid(Grid& grid, const Cloud& cloud, const Eigen::VectorXd& thickness_m) {
-  if (thickness_m.size() != cloud.size())
-    throw std::invalid_argument("apply_thickness_to_grid: " + std::to_string(thickness_m.size()) + " thicknesses for " +
-                                std::to_string(cloud.size()) + " points");
-  if (grid.td_m.size() != grid.size()) throw std::invalid_argument("apply_thickness_to_grid: grid has no TD");
-  std::vector<double> sum(grid.size(), 0.0);
-  std::vector<int> count(grid.size(), 0);
-  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3d rtd = grid.axis.to_cylindrical(cloud.xyz.row(i).transpose());
-    const int cell = grid.cell_at(rtd[1], rtd[2]);
-    if (cell < 0) continue;
-    sum[cell] += thickness_m[i];
-    ++count[cell];
-  }
-  for (int c = 0; c < grid.size(); ++c)
-    if (grid.valid[c] && count[c] > 0) grid.td_m[c] -= sum[c] / count[c];
-}
-
 // ---------------------------------------------------------------- pass spacing
 
 namespace {

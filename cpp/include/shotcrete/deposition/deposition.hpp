@@ -9,7 +9,7 @@
 
 #include "shotcrete/config.hpp"
 #include "shotcrete/surface/grid.hpp"
-#include "shotcrete/types.hpp"
+#include "shotcrete/types.hpp"  // Cloud, NozzlePose
 
 namespace shotcrete {
 
@@ -69,12 +69,6 @@ struct StrokeFit {
 /// form: q_max in closed form (linear), (R, beta, offset) by multi-start NLopt BOBYQA.
 StrokeFit fit_stroke(const StrokeData& data);
 
-/// Nozzle pose: position and unit spray axis (roll about the axis does not matter).
-struct NozzlePose {
-  Eigen::Vector3d position_m{0, 0, 0};
-  Eigen::Vector3d axis{0, 0, 1};
-};
-
 /// Free-form thickness rate (thesis eq. 2-13) at point p with unit normal n [m/s]:
 /// q0(r_proj) (H0/L)^2 cos(gamma) / cos^3(theta) inside the cone and facing the nozzle, else 0.
 double point_rate_mps(const SpotModel& model, const NozzlePose& nozzle, const Eigen::Vector3d& p,
@@ -125,10 +119,7 @@ PassSamples resample_pass(const std::vector<NozzlePose>& polyline, double speed_
 void accumulate_pass(const SpotModel& model, const SurfaceIndex& surface, const std::vector<NozzlePose>& polyline,
                      double speed_mps, double step_m, double rebound_fraction, Eigen::VectorXd& thickness_m);
 
-/// Moves every point along its (unit, inward) normal by its thickness: the sprayed surface.
-Cloud apply_thickness(const Cloud& cloud, const Eigen::VectorXd& thickness_m);
-/// Lowers the TD of every valid grid cell by the mean thickness of the cloud points in it.
-void apply_thickness_to_grid(Grid& grid, const Cloud& cloud, const Eigen::VectorXd& thickness_m);
+// The sprayed wall (a deposit put on the cloud and its grid): deposit_layer in deposition/wall.hpp.
 
 /// Golden-section pass spacing (thesis 3.5): the overlap in [0, R] (design; widened if the optimum
 /// sits on the bound) of two parallel strokes that

@@ -1,36 +1,23 @@
 #pragma once
 // Graded region planner (design section 5): rounds of levels -> regions -> passes -> speeds ->
 // order -> simulated deposition, plus an optimising mode that targets the final residual and time.
+// plan_bay runs the rounds as one loop (grade -> plan the round -> order -> deposit -> stop test);
+// the graded (thesis) and the levelling (optimal mode) rounds differ only in the steps of
+// src/planning/rounds.hpp.
+#include <array>
 #include <functional>
 #include <map>
+#include <ostream>
 #include <string>
 #include <vector>
 
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/planning/passes.hpp"
 #include "shotcrete/surface/grid.hpp"
 #include "shotcrete/surface/surface.hpp"
 
 namespace shotcrete {
-
-/// One nozzle pass: waypoints (position + spray axis, tunnel frame) along a clamped cubic spline.
-/// Graded mode: one constant speed. Optimal mode: the speed may change per segment
-/// (speed_profile_mps, one value per waypoint, piecewise constant); speed_mps is then the mean.
-struct Pass {
-  std::vector<NozzlePose> waypoints;      // spline samples, about sample_step_m apart
-  double speed_mps = 0.0;
-  double length_m = 0.0;
-  std::vector<double> speed_profile_mps;  // empty: constant speed_mps
-  int line = 0;                           // index of the slicing plane the pass lies in
-
-  double speed_at(std::size_t waypoint) const {
-    return speed_profile_mps.empty() ? speed_mps : speed_profile_mps[waypoint];
-  }
-  /// Nozzle time of the pass [s].
-  double duration_s() const;
-  /// Dwell per waypoint (half of each neighbouring interval / speed), for accumulate_dwells.
-  std::vector<double> dwell_s() const;
-};
 
 struct RegionPlan {
   Region region;                   // cells of the grid (as of the round)
@@ -44,8 +31,14 @@ struct RegionPlan {
   Eigen::Vector3d exit_m() const { return passes.back().waypoints.back().position_m; }
 };
 
+/// graded: one level per round (thesis); levelling: every cell still short of flush (optimal mode).
+enum class RoundKind { graded, levelling };
+constexpr std::array<EnumName<RoundKind>, 2> enum_names(RoundKind) {
+  return {{{RoundKind::graded, "graded"}, {RoundKind::levelling, "levelling"}}};
+}
+
 struct Round {
-  std::string kind = "graded";              // graded (one level) or levelling (optimal mode)
+  RoundKind kind = RoundKind::graded;
   int level = 0;                            // the level sprayed in this round
   std::vector<RegionPlan> regions;          // in spraying order
   std::vector<int> order;                   // region order (indices before sorting) from the solver
@@ -55,6 +48,23 @@ struct Round {
   Eigen::VectorXd td_after_m;               // per grid cell after the simulated spraying
   double spray_time_s = 0.0;                // nozzle time while spraying
 };
+
+/// Why the rounds stopped.
+enum class StopKind { flush, no_progress, max_rounds, levelled };
+constexpr std::array<EnumName<StopKind>, 4> enum_names(StopKind) {
+  return {{{StopKind::flush, "flush"},
+           {StopKind::no_progress, "no progress"},
+           {StopKind::max_rounds, "max rounds reached (planner.max_rounds)"},
+           {StopKind::levelled, "levelled"}}};
+}
+
+struct StopReason {
+  StopKind kind = StopKind::flush;
+  std::string detail;  // what made no progress, or why levelling ends; empty for flush / max rounds
+  /// "<kind>" or "<kind>: <detail>", as report.json prints it ("no progress: ...").
+  std::string text() const { return detail.empty() ? std::string(enum_name(kind)) : enum_name(kind) + (": " + detail); }
+};
+inline std::ostream& operator<<(std::ostream& out, const StopReason& r) { return out << r.text(); }
 
 struct Plan {
   std::vector<Round> rounds;
@@ -66,25 +76,13 @@ struct Plan {
   double required_volume_m3 = 0.0;          // concrete missing behind the design line (TD > 0)
   double deposition_rate_m3ps = 0.0;        // concrete that stays on the wall per second of spraying
   double physical_limit_s = 0.0;            // required volume / deposition rate
-  std::string stop_reason;                  // "flush", "no progress: ...", "max rounds"
+  StopReason stop_reason;
   std::vector<int> unreachable_cells;       // cells left above level 0 that no pass could fill
   std::vector<std::string> warnings;        // targets that could not be met, and why
   int speed_capped = 0;                     // passes (graded) / segments (optimal), all rounds, whose
                                             // speed bound the speed cap lowered below max speed
   std::map<std::string, double> timings_s;  // per stage
 };
-
-/// Pass lines over a set of grid cells (design section 5): envelope box in (d, s), slicing planes
-/// `spacing_m` apart (through the axis for axial passes, across it for circumferential ones),
-/// crossing points from pairs of neighbouring cells on either side of each plane, offset by the
-/// standoff toward the axis (along -r, or along the normal), clamped cubic spline sampled every
-/// sample_step_m. Passes alternate direction (serpentine) and step up the wall from the springline.
-std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
-                              const PlannerConfig& config);
-
-/// Clamped cubic spline through `points` (chord-length parameter; end slopes of the parabola
-/// through the three end knots), sampled about `step_m` apart including both ends.
-std::vector<Eigen::Vector3d> clamped_cubic_spline(const std::vector<Eigen::Vector3d>& points, double step_m);
 
 using ProgressFn = std::function<void(const std::string& stage, double fraction)>;
 

@@ -1,0 +1,50 @@
+#pragma once
+// Pass geometry of the planner (design section 5): slicing planes over a set of grid cells, the
+// crossing points offset by the standoff, and the clamped cubic spline the nozzle follows.
+#include <cstddef>
+#include <vector>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/surface/grid.hpp"
+#include "shotcrete/types.hpp"
+
+namespace shotcrete {
+
+/// One nozzle pass: waypoints (position + spray axis, tunnel frame) along a clamped cubic spline.
+/// Graded mode: one constant speed. Optimal mode: the speed may change per segment
+/// (speed_profile_mps, one value per waypoint, piecewise constant); speed_mps is then the mean.
+struct Pass {
+  std::vector<NozzlePose> waypoints;      // spline samples, about sample_step_m apart
+  double speed_mps = 0.0;
+  double length_m = 0.0;
+  std::vector<double> speed_profile_mps;  // empty: constant speed_mps
+  int line = 0;                           // index of the slicing plane the pass lies in
+
+  double speed_at(std::size_t waypoint) const {
+    return speed_profile_mps.empty() ? speed_mps : speed_profile_mps[waypoint];
+  }
+  /// Nozzle time of the pass [s].
+  double duration_s() const;
+  /// Dwell per waypoint (half of each neighbouring interval / speed), for accumulate_dwells.
+  std::vector<double> dwell_s() const;
+};
+
+/// Length of the polyline through the poses' positions [m].
+double polyline_length(const std::vector<NozzlePose>& poses);
+
+/// The pass run the other way (waypoints and speed profile reversed).
+void reverse_pass(Pass& pass);
+
+/// Pass lines over a set of grid cells (design section 5): envelope box in (d, s), slicing planes
+/// `spacing_m` apart (through the axis for axial passes, across it for circumferential ones),
+/// crossing points from pairs of neighbouring cells on either side of each plane, offset by the
+/// standoff toward the axis (along -r, or along the normal), clamped cubic spline sampled every
+/// sample_step_m. Passes alternate direction (serpentine) and step up the wall from the springline.
+std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
+                              const PlannerConfig& config);
+
+/// Clamped cubic spline through `points` (chord-length parameter; end slopes of the parabola
+/// through the three end knots), sampled about `step_m` apart including both ends.
+std::vector<Eigen::Vector3d> clamped_cubic_spline(const std::vector<Eigen::Vector3d>& points, double step_m);
+
+}  // namespace shotcrete

@@ -1,0 +1,365 @@
+#include "shotcrete/planning/passes.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <stdexcept>
+#include <utility>
+
+namespace shotcrete {
+
+// ---------------------------------------------------------------------------------------------
+// Pass helpers
+
+double Pass::duration_s() const {
+  double t = 0;
+  const auto dw = dwell_s();
+  for (double d : dw) t += d;
+  return t;
+}
+
+std::vector<double> Pass::dwell_s() const {
+  // Each waypoint stands for half of each neighbouring interval (trapezoid rule along the path).
+  const std::size_t n = waypoints.size();
+  std::vector<double> dwell(n, 0.0);
+  for (std::size_t i = 0; i + 1 < n; ++i) {
+    const double len = (waypoints[i + 1].position_m - waypoints[i].position_m).norm();
+    dwell[i] += 0.5 * len / speed_at(i);
+    dwell[i + 1] += 0.5 * len / speed_at(i + 1);
+  }
+  return dwell;
+}
+
+void reverse_pass(Pass& p) {
+  std::reverse(p.waypoints.begin(), p.waypoints.end());
+  std::reverse(p.speed_profile_mps.begin(), p.speed_profile_mps.end());
+}
+
+double polyline_length(const std::vector<NozzlePose>& w) {
+  double len = 0;
+  for (std::size_t i = 0; i + 1 < w.size(); ++i) len += (w[i + 1].position_m - w[i].position_m).norm();
+  return len;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Clamped cubic spline
+
+namespace {
+
+// Clamped cubic spline of a vector-valued function through knots (t_i, y_i); evaluated at `ts`.
+Eigen::MatrixXd spline_eval(const std::vector<double>& t, const Eigen::MatrixXd& y, const Eigen::RowVectorXd& d0,
+                            const Eigen::RowVectorXd& dn, const std::vector<double>& ts) {
+  const int n = static_cast<int>(t.size());
+  const int dim = static_cast<int>(y.cols());
+  Eigen::MatrixXd out(ts.size(), dim);
+  if (n == 2) {
+    for (std::size_t k = 0; k < ts.size(); ++k) {
+      const double u = (ts[k] - t[0]) / (t[1] - t[0]);
+      out.row(k) = (1 - u) * y.row(0) + u * y.row(1);
+    }
+    return out;
+  }
+  std::vector<double> h(n - 1);
+  for (int i = 0; i + 1 < n; ++i) h[i] = t[i + 1] - t[i];
+  // Tridiagonal system for the second derivatives M (Thomas algorithm), clamped ends.
+  std::vector<double> a(n, 0), b(n, 0), c(n, 0);
+  Eigen::MatrixXd r(n, dim);
+  b[0] = 2 * h[0];
+  c[0] = h[0];
+  r.row(0) = 6 * ((y.row(1) - y.row(0)) / h[0] - d0);
+  for (int i = 1; i + 1 < n; ++i) {
+    a[i] = h[i - 1];
+    b[i] = 2 * (h[i - 1] + h[i]);
+    c[i] = h[i];
+    r.row(i) = 6 * ((y.row(i + 1) - y.row(i)) / h[i] - (y.row(i) - y.row(i - 1)) / h[i - 1]);
+  }
+  a[n - 1] = h[n - 2];
+  b[n - 1] = 2 * h[n - 2];
+  r.row(n - 1) = 6 * (dn - (y.row(n - 1) - y.row(n - 2)) / h[n - 2]);
+  for (int i = 1; i < n; ++i) {
+    const double m = a[i] / b[i - 1];
+    b[i] -= m * c[i - 1];
+    r.row(i) -= m * r.row(i - 1);
+  }
+  Eigen::MatrixXd M(n, dim);
+  M.row(n - 1) = r.row(n - 1) / b[n - 1];
+  for (int i = n - 2; i >= 0; --i) M.row(i) = (r.row(i) - c[i] * M.row(i + 1)) / b[i];
+  int seg = 0;
+  for (std::size_t k = 0; k < ts.size(); ++k) {
+    const double x = ts[k];
+    while (seg < n - 2 && x > t[seg + 1]) ++seg;
+    const double hs = h[seg], A = t[seg + 1] - x, B = x - t[seg];
+    out.row(k) = M.row(seg) * A * A * A / (6 * hs) + M.row(seg + 1) * B * B * B / (6 * hs) +
+                 (y.row(seg) / hs - M.row(seg) * hs / 6) * A + (y.row(seg + 1) / hs - M.row(seg + 1) * hs / 6) * B;
+  }
+  return out;
+}
+
+// End derivatives of the clamped spline: slope of the parabola through the first (last) three
+// knots (Bessel's end condition), or of the chord when there are only two.
+std::pair<Eigen::RowVectorXd, Eigen::RowVectorXd> end_slopes(const std::vector<double>& t, const Eigen::MatrixXd& y) {
+  const int n = static_cast<int>(t.size());
+  if (n < 3) {
+    const Eigen::RowVectorXd d = (y.row(1) - y.row(0)) / (t[1] - t[0]);
+    return {d, d};
+  }
+  auto slope_at_first = [](double h0, double h1, const Eigen::RowVectorXd& y0, const Eigen::RowVectorXd& y1,
+                           const Eigen::RowVectorXd& y2) -> Eigen::RowVectorXd {
+    return -(2 * h0 + h1) / (h0 * (h0 + h1)) * y0 + (h0 + h1) / (h0 * h1) * y1 - h0 / (h1 * (h0 + h1)) * y2;
+  };
+  const Eigen::RowVectorXd d0 = slope_at_first(t[1] - t[0], t[2] - t[1], y.row(0), y.row(1), y.row(2));
+  // Mirror the last three knots (parameter running backwards) and flip the sign.
+  const Eigen::RowVectorXd dn =
+      -slope_at_first(t[n - 1] - t[n - 2], t[n - 2] - t[n - 3], y.row(n - 1), y.row(n - 2), y.row(n - 3));
+  return {d0, dn};
+}
+
+std::vector<double> chord_knots(const std::vector<Eigen::Vector3d>& pts) {
+  std::vector<double> t(pts.size(), 0.0);
+  for (std::size_t i = 1; i < pts.size(); ++i) t[i] = t[i - 1] + (pts[i] - pts[i - 1]).norm();
+  return t;
+}
+
+std::vector<double> sample_params(double total, double step) {
+  const int n = std::max(1, static_cast<int>(std::ceil(total / step - 1e-9)));
+  std::vector<double> ts(n + 1);
+  for (int k = 0; k <= n; ++k) ts[k] = total * k / n;
+  return ts;
+}
+
+// Spline through nozzle positions, with the spray axes splined on the same knots and renormalised.
+std::vector<NozzlePose> spline_poses(const std::vector<NozzlePose>& knots, double step_m) {
+  std::vector<Eigen::Vector3d> pts;
+  for (const auto& k : knots) pts.push_back(k.position_m);
+  const auto t = chord_knots(pts);
+  const int n = static_cast<int>(pts.size());
+  Eigen::MatrixXd y(n, 6);
+  for (int i = 0; i < n; ++i) y.row(i) << pts[i].transpose(), knots[i].axis.transpose();
+  const auto [d0, dn] = end_slopes(t, y);
+  const auto ts = sample_params(t.back(), step_m);
+  const Eigen::MatrixXd s = spline_eval(t, y, d0, dn, ts);
+  std::vector<NozzlePose> out(ts.size());
+  for (std::size_t k = 0; k < ts.size(); ++k) {
+    out[k].position_m = s.row(k).head<3>().transpose();
+    out[k].axis = s.row(k).tail<3>().transpose().normalized();
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3d> clamped_cubic_spline(const std::vector<Eigen::Vector3d>& points, double step_m) {
+  if (points.size() < 2) throw std::invalid_argument("spline: need at least 2 points");
+  if (!(step_m > 0)) throw std::invalid_argument("spline: step_m must be > 0");
+  const auto t = chord_knots(points);
+  for (std::size_t i = 1; i < t.size(); ++i)
+    if (!(t[i] > t[i - 1])) throw std::invalid_argument("spline: consecutive points coincide");
+  const int n = static_cast<int>(points.size());
+  Eigen::MatrixXd y(n, 3);
+  for (int i = 0; i < n; ++i) y.row(i) = points[i].transpose();
+  const auto [d0, dn] = end_slopes(t, y);
+  const auto ts = sample_params(t.back(), step_m);
+  const Eigen::MatrixXd s = spline_eval(t, y, d0, dn, ts);
+  std::vector<Eigen::Vector3d> out(ts.size());
+  for (std::size_t k = 0; k < ts.size(); ++k) out[k] = s.row(k).transpose();
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Pass geometry
+
+namespace {
+
+// The unrolled wall as the passes see it: u runs along a pass, w across the passes; positions in
+// metres of wall (s = theta * R, or d).
+struct PassFrame {
+  const Grid& grid;
+  bool axial;
+  double R, cs;
+  int n_u, n_w;
+  double w0;  // lower edge of w index 0
+
+  PassFrame(const Grid& g, bool along_axis)
+      : grid(g),
+        axial(along_axis),
+        R(g.profile.radius_m),
+        cs(g.cell_size_m),
+        n_u(along_axis ? g.n_d : g.n_theta),
+        n_w(along_axis ? g.n_theta : g.n_d),
+        w0(along_axis ? g.theta0_rad * g.profile.radius_m : g.d0_m) {}
+  int cell_of(int iu, int iw) const { return axial ? grid.index(iw, iu) : grid.index(iu, iw); }
+  int u_of(int c) const { return axial ? grid.col_of(c) : grid.row_of(c); }
+  int w_of(int c) const { return axial ? grid.row_of(c) : grid.col_of(c); }
+  double w_center(int iw) const { return w0 + (iw + 0.5) * cs; }
+};
+
+// A pass line's knots before the spline: nozzle poses and the u index each came from.
+struct LineKnots {
+  std::vector<NozzlePose> poses;
+  std::vector<int> u;
+};
+
+// Where the slicing plane at w = wk crosses the wall at u = iu: from the pair of cells that
+// straddle the plane (segment-plane intersection), or the nearest valid cell where one is missing;
+// nothing where there is no data on either side (the spline bridges the gap).
+std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crossing_point(const PassFrame& f, int iu, double wk) {
+  const Grid& grid = f.grid;
+  const int below = static_cast<int>(std::floor((wk - f.w0) / f.cs - 0.5));
+  const int above = below + 1;
+  const bool vb = below >= 0 && below < f.n_w && grid.valid[f.cell_of(iu, below)];
+  const bool va = above >= 0 && above < f.n_w && grid.valid[f.cell_of(iu, above)];
+  const double theta_k = wk / f.R;
+  if (vb && va) {
+    const Eigen::Vector3d p1 = grid.mean_xyz.row(f.cell_of(iu, below)).transpose();
+    const Eigen::Vector3d p2 = grid.mean_xyz.row(f.cell_of(iu, above)).transpose();
+    // Signed distances to the plane: theta = theta_k through the axis, or d = wk across it.
+    auto side = [&](const Eigen::Vector3d& q) {
+      if (!f.axial) return (q - grid.axis.origin_m).dot(grid.axis.ex) - wk;
+      const Eigen::Vector3d tangent = -std::sin(theta_k) * grid.axis.ey + std::cos(theta_k) * grid.axis.ez;
+      return (q - grid.axis.origin_m).dot(tangent);
+    };
+    const double s1 = side(p1), s2 = side(p2);
+    const double u = std::abs(s1 - s2) > 1e-12 ? std::clamp(s1 / (s1 - s2), 0.0, 1.0) : 0.5;
+    const Eigen::Vector3d p = (1 - u) * p1 + u * p2;
+    const Eigen::Vector3d nrm =
+        ((1 - u) * grid.mean_normal.row(f.cell_of(iu, below)) + u * grid.mean_normal.row(f.cell_of(iu, above)))
+            .transpose()
+            .normalized();
+    return std::make_pair(p, nrm);
+  }
+  if (!vb && !va) return std::nullopt;
+  const int c = f.cell_of(iu, vb ? below : above);
+  const Eigen::Vector3d cyl = grid.axis.to_cylindrical(grid.mean_xyz.row(c).transpose());
+  // Move the lone cell's point onto the plane, keeping its radius.
+  const Eigen::Vector3d p =
+      f.axial ? grid.axis.to_cartesian(cyl[0], theta_k, cyl[2]) : grid.axis.to_cartesian(cyl[0], cyl[1], wk);
+  return std::make_pair(p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()));
+}
+
+// The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis.
+NozzlePose standoff_pose(const TunnelAxis& axis, const Eigen::Vector3d& p, const Eigen::Vector3d& nrm,
+                         const PlannerConfig& config) {
+  NozzlePose pose;
+  const Eigen::Vector3d q = p - axis.origin_m;
+  const Eigen::Vector3d radial = (q - q.dot(axis.ex) * axis.ex).normalized();
+  if (config.offset_along_normal && nrm.allFinite() && nrm.norm() > 0.5) {
+    pose.axis = -nrm;
+    pose.position_m = p + config.standoff_m * nrm;
+  } else {
+    pose.axis = radial;
+    pose.position_m = p - config.standoff_m * radial;
+  }
+  return pose;
+}
+
+// The nozzle keeps the standoff on average but does not follow every 5 cm bump of the rough
+// wall: the knots' distance from the axis is smoothed along the pass (binomial weights over
+// +-2 knots). Without it the path wiggles by up to 9 degrees per centimetre and the boom's
+// joint accelerations explode; on a smooth wall nothing changes.
+void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots) {
+  if (knots.size() < 3) return;
+  const std::size_t m = knots.size();
+  std::vector<Eigen::Vector3d> cyl(m);
+  for (std::size_t i = 0; i < m; ++i) cyl[i] = axis.to_cylindrical(knots[i].position_m);
+  const double wts[5] = {1, 4, 6, 4, 1};
+  for (std::size_t i = 0; i < m; ++i) {
+    double sum = 0, wsum = 0;
+    for (int o = -2; o <= 2; ++o) {
+      const long j = static_cast<long>(i) + o;
+      if (j < 0 || j >= static_cast<long>(m)) continue;
+      sum += wts[o + 2] * cyl[j][0];
+      wsum += wts[o + 2];
+    }
+    knots[i].position_m = axis.to_cartesian(sum / wsum, cyl[i][1], cyl[i][2]);
+  }
+}
+
+// At the bay's ends (the arches) run on past the last cell, so the end cells see the whole
+// spot like the others instead of half of it.
+void add_edge_overrun(LineKnots& k, int n_u, double overrun_m) {
+  auto& knots = k.poses;
+  if (k.u.front() == 0) {
+    NozzlePose extra = knots.front();
+    extra.position_m -= overrun_m * (knots[1].position_m - knots[0].position_m).normalized();
+    knots.insert(knots.begin(), extra);
+  }
+  if (k.u.back() == n_u - 1) {
+    const std::size_t m = knots.size();
+    NozzlePose extra = knots.back();
+    extra.position_m += overrun_m * (knots[m - 1].position_m - knots[m - 2].position_m).normalized();
+    knots.push_back(extra);
+  }
+}
+
+// Knots of the pass on the slicing plane w = wk over the cells within half a spacing of it
+// (none when no such cell has data on the plane).
+LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double wk, double spacing_m,
+                     const PlannerConfig& config) {
+  LineKnots k;
+  int u_lo = f.n_u, u_hi = -1;
+  for (int c : cells)
+    if (std::abs(f.w_center(f.w_of(c)) - wk) <= 0.5 * spacing_m + 0.5 * f.cs) {
+      u_lo = std::min(u_lo, f.u_of(c));
+      u_hi = std::max(u_hi, f.u_of(c));
+    }
+  for (int iu = u_lo; iu <= u_hi; ++iu) {
+    const auto crossing = crossing_point(f, iu, wk);
+    if (!crossing) continue;
+    k.poses.push_back(standoff_pose(f.grid.axis, crossing->first, crossing->second, config));
+    k.u.push_back(iu);
+  }
+  if (k.poses.size() == 1) {
+    // A one-cell-long line: a pass over that cell, from edge to edge.
+    const auto& axis = f.grid.axis;
+    const Eigen::Vector3d dir = f.axial ? axis.ex : Eigen::Vector3d(axis.ex.cross(k.poses[0].axis).normalized());
+    NozzlePose a = k.poses[0], b = k.poses[0];
+    a.position_m -= 0.5 * f.cs * dir;
+    b.position_m += 0.5 * f.cs * dir;
+    k.poses = {a, b};
+    k.u = {k.u[0], k.u[0]};
+  }
+  return k;
+}
+
+}  // namespace
+
+std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
+                              const PlannerConfig& config) {
+  if (cells.empty()) return {};
+  if (!(spacing_m > 0)) throw std::invalid_argument("plan_passes: spacing_m must be > 0");
+  const PassFrame f(grid, config.pass_direction == PassDirection::axial);
+  int w_lo = f.n_w, w_hi = -1;
+  double theta_sum = 0;
+  for (int c : cells) {
+    w_lo = std::min(w_lo, f.w_of(c));
+    w_hi = std::max(w_hi, f.w_of(c));
+    theta_sum += grid.theta_center(grid.row_of(c));
+  }
+  const double e0 = f.w0 + w_lo * f.cs, e1 = f.w0 + (w_hi + 1) * f.cs;
+  const int n_lines = std::max(1, static_cast<int>(std::ceil((e1 - e0) / spacing_m - 1e-6)));
+  const double mid = 0.5 * (e0 + e1);
+  // Step up the wall: from the right springline toward the crown on the right side, from the left
+  // springline toward the crown on the left side (theta > pi/2).
+  const bool left_side = theta_sum / cells.size() > M_PI / 2;
+  const bool step_down_w = f.axial && left_side;
+
+  std::vector<Pass> passes;
+  for (int k = 0; k < n_lines; ++k) {
+    const int line = step_down_w ? n_lines - 1 - k : k;
+    const double wk = mid + (line - 0.5 * (n_lines - 1)) * spacing_m;
+    LineKnots knots = line_knots(f, cells, wk, spacing_m, config);
+    if (knots.poses.empty()) continue;
+    smooth_knot_radii(grid.axis, knots.poses);
+    if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m);
+    Pass pass;
+    pass.line = line;
+    pass.waypoints = spline_poses(knots.poses, config.sample_step_m);
+    pass.length_m = polyline_length(pass.waypoints);
+    passes.push_back(std::move(pass));
+  }
+  for (std::size_t i = 0; i < passes.size(); ++i)
+    if (i % 2 == 1) reverse_pass(passes[i]);  // serpentine
+  return passes;
+}
+
+}  // namespace shotcrete

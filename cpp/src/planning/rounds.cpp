@@ -1,0 +1,320 @@
+#include "rounds.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+namespace shotcrete {
+
+int top_level(const std::vector<int>& levels) {
+  int top = std::numeric_limits<int>::min();
+  for (auto [lv, n] : level_counts(levels)) top = std::max(top, lv);
+  return top;
+}
+
+double max_td_m(const Grid& grid) {
+  double max_td = -std::numeric_limits<double>::infinity();
+  for (int c = 0; c < grid.size(); ++c)
+    if (grid.valid[c]) max_td = std::max(max_td, grid.td_m[c]);
+  return max_td;
+}
+
+void RoundContext::report(int round_number, double fraction) const {
+  if (progress) progress("round " + std::to_string(round_number), fraction);
+}
+
+namespace {
+
+std::string round_name(int number) { return "round " + std::to_string(number); }
+
+// ---------------------------------------------------------------------------------------------
+// Graded rounds (thesis): one level per round
+
+// Lower TD bound (mm) of a level: a cell leaves level L once its TD falls below this.
+double level_floor_mm(int level) {
+  if (level >= 2) return 70.0 * level;
+  if (level == 1) return 50.0;
+  return -50.0;
+}
+
+// Passes over one region of the round's level, each at the BOBYQA speed that brings the region's
+// cells down by the target; nothing when no pass line crosses the region.
+std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface& cells, RoundContext& ctx,
+                                        const Region& region, std::size_t ri) {
+  const PlannerConfig& pc = ctx.config.planner;
+  const int top = in.grade.top_level;
+  RegionPlan rp;
+  rp.region = region;
+  // Thesis rule: the largest drop that takes every cell one level down (5 mm margin). For the
+  // last step (level 1 -> 0) aim at the band's centre instead: the mean TD, so cells end near
+  // flush rather than just inside +50 mm.
+  rp.target_thickness_m = top == 1 ? std::max(rp.region.td_mean_m, rp.region.td_max_m - 0.045)
+                                   : rp.region.td_max_m - level_floor_mm(top) / 1000.0 + 0.005;
+  rp.spacing_m = ctx.spacing_m;
+  rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, pc);
+  if (rp.passes.empty()) return std::nullopt;
+  std::vector<Eigen::VectorXd> unit;
+  for (const auto& p : rp.passes) {
+    Pass unit_pass = p;
+    unit_pass.speed_mps = 1.0;
+    unit.push_back(unit_deposit(ctx.model, cells, p.waypoints, unit_pass.dwell_s(), ctx.config.deposition.rebound_fraction));
+  }
+  std::vector<int> slots;
+  for (int c : rp.region.cells) slots.push_back(cells.slot[c]);
+  const std::string where = round_name(in.number) + ", region " + std::to_string(ri);
+  std::vector<double> v_max;
+  for (std::size_t j = 0; j < rp.passes.size(); ++j) {
+    const auto cap = ctx.caps(rp.passes[j], where + ", pass " + std::to_string(j));
+    v_max.push_back(*std::min_element(cap.begin(), cap.end()));
+    // BOBYQA needs lower < upper; a pass capped at the slowest speed keeps a hair of room.
+    v_max.back() = std::max(v_max.back(), pc.min_speed_mps * (1.0 + 1e-6));
+    if (v_max.back() < pc.max_speed_mps) ++ctx.plan.speed_capped;
+  }
+  PassSpeeds speeds;
+  try {
+    speeds = optimise_speeds(unit, slots, rp.target_thickness_m, pc, v_max);
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error(where + ": " + e.what());
+  }
+  for (std::size_t j = 0; j < speeds.speeds_mps.size(); ++j) rp.passes[j].speed_mps = speeds.speeds_mps[j];
+  rp.note = speeds.note;
+  if (!rp.note.empty()) ctx.plan.warnings.push_back(where + ": " + rp.note);
+  return rp;
+}
+
+class GradedRounds : public RoundStages {
+ public:
+  RoundKind kind() const override { return RoundKind::graded; }
+
+  std::vector<int> active_levels(const SprayedWall& wall) const override {
+    std::vector<int> lv = wall.surface.levels;
+    for (std::size_t c = 0; c < set_aside_.size(); ++c)
+      if (set_aside_[c]) lv[c] = kNoDataLevel;
+    return lv;
+  }
+
+  bool finished(const Grade& grade) const override { return grade.top_level <= 0; }
+
+  std::vector<RegionPlan> plan_regions(const RoundInput& in, const CellSurface& cells, RoundContext& ctx) override {
+    const auto regions = find_regions(in.wall.surface.grid, active_levels(in.wall), in.grade.top_level,
+                                      ctx.config.regions.min_region_cells);
+    std::vector<RegionPlan> out;
+    for (std::size_t ri = 0; ri < regions.size(); ++ri) {
+      auto rp = graded_region(in, cells, ctx, regions[ri], ri);
+      if (!rp) continue;
+      ctx.report(in.number, 0.6 * (ri + 1) / regions.size());
+      out.push_back(std::move(*rp));
+    }
+    return out;
+  }
+
+  StopReason nothing_to_spray(const Grade&) const override {
+    return {StopKind::no_progress, "no pass could be planned over the remaining cells"};
+  }
+
+  // Cells whose level the round could not lower are set aside (reported), so the rest of the bay
+  // still gets finished; the graded rounds stop only when nothing is left.
+  std::optional<StopReason> stop_test(const RoundInput& in, const Round& round, RoundContext& ctx) override {
+    const int top = in.grade.top_level;
+    std::vector<int> not_lowered;
+    std::size_t sprayed = 0;
+    for (const auto& r : round.regions) {
+      sprayed += r.region.cells.size();
+      for (int c : r.region.cells)
+        if (in.wall.surface.levels[c] >= top) not_lowered.push_back(c);
+    }
+    if (not_lowered.size() == sprayed) {
+      set_aside_.resize(in.wall.surface.grid.size(), 0);
+      for (int c : not_lowered) set_aside_[c] = 1;
+      ctx.plan.warnings.push_back(round_name(in.number) + ": " + std::to_string(not_lowered.size()) +
+                                  " cells of level " + std::to_string(top) +
+                                  " did not go down a level (too small a region or at the edge of the scan); set aside");
+    }
+    return std::nullopt;
+  }
+
+ private:
+  std::vector<char> set_aside_;  // per cell
+};
+
+// ---------------------------------------------------------------------------------------------
+// Levelling rounds (optimal mode): every cell short of flush, a dwell per segment
+
+// One set of pass lines over every cell still short of flush (even spacing across the crown), then
+// split into the right and left walls so each side is sprayed bottom-up.
+std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<int>& open_cells, RoundContext& ctx) {
+  const PlannerConfig& pc = ctx.config.planner;
+  const Grid& grid = in.wall.surface.grid;
+  const bool axial = pc.pass_direction == PassDirection::axial;
+  // Closer lines than the two-pass spacing: the per-segment speeds then shape the layer
+  // across the lines too (measured: RMS 6.5 mm instead of 10 mm on the default bay).
+  const auto all = plan_passes(grid, open_cells, pc.levelling_spacing_ratio * ctx.spacing_m, pc);
+  RegionPlan side[2];
+  for (const auto& p : all) {
+    const Eigen::Vector3d mid = p.waypoints[p.waypoints.size() / 2].position_m;
+    const bool left = axial && grid.axis.to_cylindrical(mid)[1] > M_PI / 2;
+    side[left ? 1 : 0].passes.push_back(p);
+  }
+  std::reverse(side[1].passes.begin(), side[1].passes.end());  // left wall: springline up
+  for (auto& c : open_cells) side[axial && grid.theta_center(grid.row_of(c)) > M_PI / 2 ? 1 : 0].region.cells.push_back(c);
+  std::vector<RegionPlan> sides;
+  for (auto& rp : side) {
+    if (rp.passes.empty()) continue;
+    rp.region.level = in.grade.top_level;
+    rp.spacing_m = pc.levelling_spacing_ratio * ctx.spacing_m;
+    sides.push_back(std::move(rp));
+  }
+  return sides;
+}
+
+// The sides' passes cut into segments about segment_length_m long, with their unit deposits on
+// the cells and the machine's speed caps.
+void add_segments(const RoundInput& in, const CellSurface& cells, const std::vector<RegionPlan>& sides,
+                  RoundContext& ctx, DwellProblem& problem) {
+  const PlannerConfig& pc = ctx.config.planner;
+  const double rebound = ctx.config.deposition.rebound_fraction;
+  for (std::size_t s = 0; s < sides.size(); ++s)
+    for (std::size_t p = 0; p < sides[s].passes.size(); ++p) {
+      const Pass& pass = sides[s].passes[p];
+      const std::size_t nw = pass.waypoints.size();
+      const auto cap = ctx.caps(pass, round_name(in.number) + ", side " + std::to_string(s) + ", line " +
+                                          std::to_string(pass.line));
+      const std::size_t per = std::max<std::size_t>(1, std::llround(pc.segment_length_m / pc.sample_step_m));
+      for (std::size_t a = 0; a + 1 < nw; a += per) {
+        Segment seg;
+        seg.side = s;
+        seg.pass = p;
+        seg.first = a;
+        seg.last = std::min(nw - 1, a + per);
+        std::vector<NozzlePose> poses(pass.waypoints.begin() + seg.first, pass.waypoints.begin() + seg.last + 1);
+        Pass piece;
+        piece.waypoints = poses;
+        piece.speed_mps = 1.0;
+        seg.length_m = polyline_length(poses);
+        seg.cap_mps = *std::min_element(cap.begin() + seg.first, cap.begin() + seg.last + 1);
+        // thickness in mm per (s/m) of dwell: speed 1 m/s means dwell 1 s per metre.
+        problem.unit_mm.push_back(sparsify(unit_deposit(ctx.model, cells, poses, piece.dwell_s(), rebound) * 1000.0));
+        problem.segments.push_back(seg);
+        if (seg.cap_mps < pc.max_speed_mps) ++ctx.plan.speed_capped;
+      }
+    }
+}
+
+// Least squares, then the arm's speed-change limit; the capped segments become floors of the next
+// solve so the others can compensate; the limiter has the last word.
+std::vector<double> solve_dwells(const DwellProblem& problem, double accel_mps2) {
+  std::vector<double> floor(problem.segments.size(), 0.0);
+  std::vector<double> w;
+  for (int it = 0; it < 3; ++it) {
+    w = optimise_dwell(problem, floor);
+    const auto limited = limit_speed_changes(problem.segments, w, accel_mps2);
+    for (std::size_t j = 0; j < w.size(); ++j)
+      if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
+    w = limited;
+  }
+  return w;
+}
+
+// Rebuild the passes of one side: runs of sprayed segments become passes with a per-waypoint speed.
+RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector<Segment>& segs,
+                        const std::vector<double>& w) {
+  RegionPlan out = side;
+  out.passes.clear();
+  for (std::size_t p = 0; p < side.passes.size(); ++p) {
+    const Pass& pass = side.passes[p];
+    Pass cur;
+    auto flush_cur = [&]() {
+      if (cur.waypoints.size() >= 2) {
+        cur.length_m = polyline_length(cur.waypoints);
+        cur.speed_mps = cur.length_m / cur.duration_s();
+        out.passes.push_back(cur);
+      }
+      cur = Pass();
+    };
+    for (std::size_t j = 0; j < segs.size(); ++j) {
+      if (segs[j].side != s || segs[j].pass != p) continue;
+      if (w[j] <= 0) {
+        flush_cur();
+        continue;
+      }
+      const double v = 1.0 / w[j];
+      const std::size_t from = cur.waypoints.empty() ? segs[j].first : segs[j].first + 1;
+      if (cur.waypoints.empty()) cur.line = pass.line;
+      for (std::size_t a = from; a <= segs[j].last; ++a) {
+        cur.waypoints.push_back(pass.waypoints[a]);
+        cur.speed_profile_mps.push_back(v);
+      }
+    }
+    flush_cur();
+  }
+  return out;
+}
+
+class LevellingRounds : public RoundStages {
+ public:
+  RoundKind kind() const override { return RoundKind::levelling; }
+
+  std::vector<int> active_levels(const SprayedWall& wall) const override { return wall.surface.levels; }
+
+  bool finished(const Grade& grade) const override {
+    return grade.top_level <= 0 && grade.max_td_m <= tolerance_m_;
+  }
+
+  std::vector<RegionPlan> plan_regions(const RoundInput& in, const CellSurface& cells, RoundContext& ctx) override {
+    const PlannerConfig& pc = ctx.config.planner;
+    const Grid& grid = in.wall.surface.grid;
+    // Every cell that still misses more than the tolerance is covered; the target is the TD.
+    DwellProblem problem;
+    problem.target_mm = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(cells.cell_ids.size()));
+    std::vector<int> open_cells;
+    for (std::size_t k = 0; k < cells.cell_ids.size(); ++k) {
+      const int c = cells.cell_ids[k];
+      problem.target_mm[k] = std::max(0.0, grid.td_m[c]) * 1000.0;  // mm
+      if (grid.td_m[c] > pc.finish_tolerance_m) open_cells.push_back(c);
+    }
+    const std::vector<RegionPlan> sides = levelling_sides(in, open_cells, ctx);
+    add_segments(in, cells, sides, ctx, problem);
+    ctx.report(in.number, 0.3);
+    problem.lambda_mm2_per_s = pc.time_weight_mm2_per_s;
+    problem.w_max_s_per_m = 1.0 / pc.min_speed_mps;
+    const std::vector<double> w = solve_dwells(problem, ctx.config.timing.speed_change_accel_mps2);
+    std::vector<RegionPlan> out;
+    for (std::size_t s = 0; s < sides.size(); ++s) {
+      RegionPlan rp = sprayed_runs(sides[s], s, problem.segments, w);
+      if (!rp.passes.empty()) out.push_back(std::move(rp));
+    }
+    return out;
+  }
+
+  // Every segment was skipped: with the bay at level 0, no spraying pays off at the time weight.
+  StopReason nothing_to_spray(const Grade& grade) const override {
+    if (grade.top_level <= 0) return {StopKind::levelled, "no further pass pays off at planner.time_weight_mm2_per_s"};
+    return {StopKind::no_progress, "no pass could be planned over the remaining cells"};
+  }
+
+  // With the time weight, the last cells off flush are not worth another round.
+  std::optional<StopReason> stop_test(const RoundInput& in, const Round&, RoundContext&) override {
+    const bool stalled = in.grade.max_td_m - max_td_m(in.wall.surface.grid) <= 0.001;
+    if (!stalled) return std::nullopt;
+    if (top_level(in.wall.surface.levels) <= 0)
+      return StopReason{StopKind::levelled, "another round would lower the largest TD by less than 1 mm"};
+    return StopReason{StopKind::no_progress, "a levelling round lowered the largest TD by less than 1 mm"};
+  }
+
+  explicit LevellingRounds(double finish_tolerance_m) : tolerance_m_(finish_tolerance_m) {}
+
+ private:
+  double tolerance_m_;
+};
+
+}  // namespace
+
+std::unique_ptr<RoundStages> graded_rounds() { return std::make_unique<GradedRounds>(); }
+std::unique_ptr<RoundStages> levelling_rounds(double finish_tolerance_m) {
+  return std::make_unique<LevellingRounds>(finish_tolerance_m);
+}
+
+}  // namespace shotcrete

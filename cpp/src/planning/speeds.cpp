@@ -1,0 +1,269 @@
+#include "speeds.hpp"
+
+#include <nlopt.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+namespace shotcrete {
+
+// ---------------------------------------------------------------------------------------------
+// Graded rounds
+
+namespace {
+
+using Objective = std::function<double(const std::vector<double>&)>;
+
+// BOBYQA from v within [min_speed, v_max]; v holds the best point on return.
+void bobyqa_speeds(Objective& objective, std::vector<double>& v, const std::vector<double>& step,
+                   const std::vector<double>& v_max, double min_speed_mps) {
+  const int n = static_cast<int>(v.size());
+  nlopt::opt opt(nlopt::LN_BOBYQA, n);
+  opt.set_lower_bounds(std::vector<double>(n, min_speed_mps));
+  opt.set_upper_bounds(v_max);
+  opt.set_min_objective(
+      [](const std::vector<double>& x, std::vector<double>&, void* data) {
+        return (*static_cast<Objective*>(data))(x);
+      },
+      &objective);
+  opt.set_xtol_rel(1e-4);
+  opt.set_maxeval(400 * n);
+  // BOBYQA needs its first step within half the bound gap.
+  opt.set_initial_step(step);
+  double best = 0;
+  try {
+    opt.optimize(v, best);
+  } catch (const nlopt::roundoff_limited&) {
+    // BOBYQA stopped on rounding: v holds its best point, which is what we want.
+  } catch (const std::exception& e) {
+    throw std::runtime_error(std::string("speed optimisation (BOBYQA) failed: ") + e.what());
+  }
+}
+
+// One pass: the 1-D problem is solved exactly by a golden-section search on 1/v.
+double golden_speed(const Objective& objective, double v_max, double min_speed_mps) {
+  double lo = 1.0 / v_max, hi = 1.0 / min_speed_mps;
+  const double g = (std::sqrt(5.0) - 1) / 2;
+  auto f = [&](double w) { return objective({1.0 / w}); };
+  double x1 = hi - g * (hi - lo), x2 = lo + g * (hi - lo);
+  double f1 = f(x1), f2 = f(x2);
+  for (int it = 0; it < 80; ++it) {
+    if (f1 < f2) {
+      hi = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = hi - g * (hi - lo);
+      f1 = f(x1);
+    } else {
+      lo = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = lo + g * (hi - lo);
+      f2 = f(x2);
+    }
+  }
+  return 1.0 / (0.5 * (lo + hi));
+}
+
+}  // namespace
+
+PassSpeeds optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const std::vector<int>& slots,
+                           double target_m, const PlannerConfig& cfg, const std::vector<double>& v_max) {
+  const int n = static_cast<int>(unit_per_pass.size());
+  const int m = static_cast<int>(slots.size());
+  // A (m x n): thickness on region cell i from pass j at 1 m/s; T = A * (1 / v).
+  Eigen::MatrixXd A(m, n);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < m; ++i) A(i, j) = unit_per_pass[j][slots[i]];
+  Objective objective = [&](const std::vector<double>& v) {
+    Eigen::VectorXd w(n);
+    for (int j = 0; j < n; ++j) w[j] = 1.0 / v[j];
+    return ((A * w).array() - target_m).abs().sum() / m;
+  };
+  // Start: one common speed that gives the target on the median cell.
+  std::vector<double> sums(m);
+  for (int i = 0; i < m; ++i) sums[i] = A.row(i).sum();
+  std::nth_element(sums.begin(), sums.begin() + m / 2, sums.end());
+  double v0 = sums[m / 2] > 0 ? sums[m / 2] / target_m : cfg.min_speed_mps;
+  PassSpeeds out;
+  std::vector<double>& v = out.speeds_mps;
+  v.resize(n);
+  std::vector<double> step(n);
+  for (int j = 0; j < n; ++j) {
+    v[j] = std::clamp(v0, cfg.min_speed_mps, v_max[j]);
+    step[j] = std::min(0.25 * v[j], 0.45 * (v_max[j] - cfg.min_speed_mps));
+  }
+  if (n >= 2)
+    bobyqa_speeds(objective, v, step, v_max, cfg.min_speed_mps);
+  else
+    v[0] = golden_speed(objective, v_max[0], cfg.min_speed_mps);
+  for (int j = 0; j < n; ++j) v[j] = std::clamp(v[j], cfg.min_speed_mps, v_max[j]);
+  // Can the slowest passes reach the target at all?
+  Eigen::VectorXd slowest = A * Eigen::VectorXd::Constant(n, 1.0 / cfg.min_speed_mps);
+  if (m > 0 && slowest.maxCoeff() < target_m) {
+    std::ostringstream msg;
+    msg << "target " << std::round(target_m * 1000) << " mm exceeds the " << std::round(slowest.maxCoeff() * 1000)
+        << " mm that passes at the slowest speed " << cfg.min_speed_mps << " m/s leave; the cells need more rounds";
+    out.note = msg.str();
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Levelling rounds
+
+Sparse sparsify(const Eigen::VectorXd& v) {
+  Sparse s;
+  for (Eigen::Index i = 0; i < v.size(); ++i)
+    if (v[i] > 1e-9) {
+      s.idx.push_back(static_cast<int>(i));
+      s.val.push_back(v[i]);
+    }
+  return s;
+}
+
+namespace {
+
+// Coordinate descent state: the dwells w and the residual U w - t, updated together.
+struct DwellSolver {
+  const DwellProblem& p;
+  std::vector<double> w, h, w_min;
+  Eigen::VectorXd res;
+
+  explicit DwellSolver(const DwellProblem& problem)
+      : p(problem), w(problem.unit_mm.size(), 0.0), h(problem.unit_mm.size(), 0.0), res(-problem.target_mm) {
+    for (std::size_t j = 0; j < w.size(); ++j) {
+      for (double v : p.unit_mm[j].val) h[j] += v * v;
+      w_min.push_back(1.0 / p.segments[j].cap_mps);
+    }
+  }
+  void set(std::size_t j, double value) {
+    const double d = value - w[j];
+    if (d == 0) return;
+    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) res[p.unit_mm[j].idx[k]] += d * p.unit_mm[j].val[k];
+    w[j] = value;
+  }
+  double grad(std::size_t j) const {
+    double g = p.lambda_mm2_per_s * p.segments[j].length_m;
+    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) g += p.unit_mm[j].val[k] * res[p.unit_mm[j].idx[k]];
+    return g;
+  }
+  // Change of the objective if w[j] became `value`.
+  double objective_delta(std::size_t j, double value) const {
+    const double d = value - w[j];
+    double delta = p.lambda_mm2_per_s * p.segments[j].length_m * d;
+    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) {
+      const double r = res[p.unit_mm[j].idx[k]];
+      delta += 0.5 * ((r + d * p.unit_mm[j].val[k]) * (r + d * p.unit_mm[j].val[k]) - r * r);
+    }
+    return delta;
+  }
+};
+
+}  // namespace
+
+std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor) {
+  DwellSolver s(problem);
+  const std::size_t n = s.w.size();
+  const double w_max = problem.w_max_s_per_m;
+  for (int sweep = 0; sweep < 300; ++sweep) {
+    double change = 0;
+    for (std::size_t j = 0; j < n; ++j) {
+      if (s.h[j] <= 0) continue;
+      const double next = std::clamp(s.w[j] - s.grad(j) / s.h[j], w_floor[j], w_max);
+      change = std::max(change, std::abs(next - s.w[j]));
+      s.set(j, next);
+    }
+    if (change < 1e-4 * w_max) break;
+  }
+  // The nozzle cannot move faster than max speed while spraying: below w_min, either stop
+  // spraying there or spray at max speed, whichever leaves the smaller objective; then polish.
+  for (int pass = 0; pass < 3; ++pass) {
+    for (std::size_t j = 0; j < n; ++j) {
+      if (s.w[j] <= 0 || s.w[j] >= s.w_min[j] || w_floor[j] > 0) continue;
+      s.set(j, s.objective_delta(j, 0.0) <= s.objective_delta(j, s.w_min[j]) ? 0.0 : s.w_min[j]);
+    }
+    for (std::size_t j = 0; j < n; ++j) {
+      if (s.w[j] <= 0 || s.h[j] <= 0) continue;  // skipped segments stay skipped
+      s.set(j, std::clamp(s.w[j] - s.grad(j) / s.h[j], std::max(s.w_min[j], w_floor[j]), w_max));
+    }
+  }
+  return s.w;
+}
+
+// A cycloidal change from v0 to v1 over a length D peaks at |v1^2 - v0^2| / D. Along every pass
+// line, cap the speeds (forward, then backward) so that this stays within accel_mps2; D is the
+// shorter neighbouring segment (the timing changes speed across segment boundaries) or the
+// spray-off gap between two sprayed segments. The nozzle crosses a gap at speeds between those of
+// the segments on either side, so first both are capped by the slowest speed the machine allows
+// in the gap (cap_mps per segment, +inf: no cap).
+std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::vector<double> w, double accel_mps2) {
+  auto same_line = [&](std::size_t a, std::size_t b) { return segs[a].side == segs[b].side && segs[a].pass == segs[b].pass; };
+  for (std::size_t j = 0; j < segs.size(); ++j) {
+    if (w[j] <= 0 || j + 1 >= segs.size() || w[j + 1] > 0 || !same_line(j, j + 1)) continue;
+    std::size_t k = j + 1;
+    double gap_cap = std::numeric_limits<double>::infinity();
+    for (; k < segs.size() && same_line(j, k) && w[k] <= 0; ++k) gap_cap = std::min(gap_cap, segs[k].cap_mps);
+    if (k >= segs.size() || !same_line(j, k)) continue;  // the line ends: no gap to cross
+    for (std::size_t e : {j, k})
+      if (1.0 / w[e] > gap_cap) w[e] = 1.0 / gap_cap;
+  }
+  auto sweep = [&](bool forward) {
+    const std::size_t n = segs.size();
+    int prev = -1;
+    double gap = 0.0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::size_t j = forward ? k : n - 1 - k;
+      if (prev >= 0 && (segs[j].side != segs[prev].side || segs[j].pass != segs[prev].pass)) prev = -1;
+      if (w[j] <= 0) {
+        if (prev >= 0) gap += segs[j].length_m;
+        continue;
+      }
+      if (prev >= 0) {
+        const double d = gap > 0 ? gap : std::min(segs[j].length_m, segs[prev].length_m);
+        const double v_prev = 1.0 / w[prev], v_cap = std::sqrt(v_prev * v_prev + accel_mps2 * d);
+        if (1.0 / w[j] > v_cap) w[j] = 1.0 / v_cap;
+      }
+      prev = static_cast<int>(j);
+      gap = 0.0;
+    }
+  };
+  sweep(true);
+  sweep(false);
+  return w;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Speed caps
+
+std::vector<double> WaypointCaps::operator()(const Pass& pass, const std::string& where) {
+  const PlannerConfig& pc = config_;
+  std::vector<double> cap(pass.waypoints.size(), pc.max_speed_mps);
+  if (!fn_) return cap;
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::vector<double> c = fn_(pass.waypoints);
+  seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (c.size() != cap.size())
+    throw std::runtime_error("plan_bay: the speed cap returned " + std::to_string(c.size()) + " values for " +
+                             std::to_string(cap.size()) + " waypoints");
+  double lowest = pc.max_speed_mps;
+  for (std::size_t k = 0; k < cap.size(); ++k) {
+    if (std::isnan(c[k])) throw std::runtime_error("plan_bay: the speed cap is NaN at waypoint " + std::to_string(k) + " of " + where);
+    lowest = std::min(lowest, c[k]);
+    cap[k] = std::clamp(c[k], pc.min_speed_mps, pc.max_speed_mps);
+  }
+  if (lowest < pc.min_speed_mps) {
+    std::ostringstream msg;
+    msg << where << ": the machine allows only " << lowest << " m/s on part of the pass, below planner.min_speed_mps "
+        << pc.min_speed_mps << " m/s; sprayed at the slowest speed there";
+    warnings_.push_back(msg.str());
+  }
+  return cap;
+}
+
+}  // namespace shotcrete

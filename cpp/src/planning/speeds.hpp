@@ -1,0 +1,86 @@
+#pragma once
+// Nozzle speeds of the planner's rounds: BOBYQA speeds per pass (graded rounds), least-squares
+// dwell per segment and the arm's speed-change limit (levelling rounds), and the machine's speed
+// caps along a pass.
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "shotcrete/planning/planner.hpp"
+
+namespace shotcrete {
+
+// ---------------------------------------------------------------------------------------------
+// Graded rounds: one speed per pass
+
+struct PassSpeeds {
+  std::vector<double> speeds_mps;  // per pass
+  std::string note;                // why the target cannot be met, if so
+};
+
+/// BOBYQA speeds of the passes of one region: minimise sum |Td - T_c(v)| over the region's cells.
+/// unit_per_pass[j][slot]: thickness on a cell slot from pass j at 1 m/s; slots: the region's cells.
+/// v_max: per pass upper bound (the machine's speed cap, at most max_speed_mps, above min_speed_mps).
+/// One pass is solved exactly by a golden-section search. Throws std::runtime_error if NLopt fails.
+PassSpeeds optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const std::vector<int>& slots,
+                           double target_m, const PlannerConfig& cfg, const std::vector<double>& v_max);
+
+// ---------------------------------------------------------------------------------------------
+// Levelling rounds: one dwell per segment
+
+/// Sparse thickness vector over the cell slots (entries above 1e-9).
+struct Sparse {
+  std::vector<int> idx;
+  std::vector<double> val;
+};
+Sparse sparsify(const Eigen::VectorXd& v);
+
+/// A constant-speed piece of a pass line of the levelling round, one dwell variable.
+struct Segment {
+  std::size_t side = 0, pass = 0;   // which region (wall side) and which of its passes
+  std::size_t first = 0, last = 0;  // waypoint range [first, last]
+  double length_m = 0;
+  double cap_mps = 0;               // fastest speed the machine allows on the segment
+};
+
+/// The least-squares problem of the levelling round:
+/// min 1/2 |U w - t|^2 + lambda L.w,  w in {0} u [w_min, w_max] (w: dwell per unit length [s/m]).
+struct DwellProblem {
+  std::vector<Segment> segments;
+  std::vector<Sparse> unit_mm;   // per segment: thickness [mm] on the cell slots per s/m of dwell
+  Eigen::VectorXd target_mm;     // per cell slot
+  double lambda_mm2_per_s = 0;   // planner.time_weight_mm2_per_s
+  double w_max_s_per_m = 0;      // dwell at the slowest speed
+};
+
+/// Coordinate descent for the dwells; w_min[j] = 1 / cap of segment j (the nozzle cannot spray
+/// faster); w_floor[j] > 0 forces segment j to spray with at least that dwell (from the limiter).
+std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor);
+
+/// The arm cannot change the nozzle speed at will: caps the dwells so that speed changes along
+/// every pass line stay within accel_mps2 (see speeds.cpp).
+std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::vector<double> w, double accel_mps2);
+
+// ---------------------------------------------------------------------------------------------
+// The machine's speed caps
+
+/// Per waypoint of a pass: the fastest speed the machine allows there (the SpeedCapFn), clamped to
+/// [min, max] speed; max speed everywhere without one. A cap below the slowest speed is reported
+/// once per pass in `warnings` (the pass is sprayed at the slowest speed there).
+class WaypointCaps {
+ public:
+  WaypointCaps(SpeedCapFn fn, const PlannerConfig& config, std::vector<std::string>& warnings)
+      : fn_(std::move(fn)), config_(config), warnings_(warnings) {}
+  /// `where` names the pass in warnings and errors ("round 2, region 3, pass 1").
+  std::vector<double> operator()(const Pass& pass, const std::string& where);
+  bool active() const { return static_cast<bool>(fn_); }
+  double seconds() const { return seconds_; }  // time spent in the SpeedCapFn
+
+ private:
+  SpeedCapFn fn_;
+  const PlannerConfig& config_;
+  std::vector<std::string>& warnings_;
+  double seconds_ = 0.0;
+};
+
+}  // namespace shotcrete
