@@ -85,7 +85,7 @@ TEST(JobSummary, FiguresOfABayPlannedForTheArm) {
   const JobSummary s = summarise_job(surface, arm, robot, cfg, {1234, 10});
   const Plan& plan = arm.plan;
 
-  EXPECT_EQ(s.mode, cfg.planner.mode);
+  EXPECT_EQ(s.mode, std::string(enum_name(cfg.planner.mode)));
   EXPECT_EQ(s.points_in, 1234);
   EXPECT_EQ(s.points_used, static_cast<long>(surface.cloud.size()));
   EXPECT_EQ(s.cells, surface.grid.valid_count());

@@ -138,12 +138,14 @@ TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
       Grid g = s.grid;
       g.td_m = r.td_after_m;
       const auto lv = cell_levels(g);
-      for (int c = 0; c < g.size(); ++c)
+      for (int c = 0; c < g.size(); ++c) {
         if (g.valid[c]) EXPECT_LE(lv[c], prev[c]) << "cell " << c;
+      }
       prev = lv;
     }
-    for (int c = 0; c < s.grid.size(); ++c)
+    for (int c = 0; c < s.grid.size(); ++c) {
       if (s.grid.valid[c]) EXPECT_LE(prev[c], 0);
+    }
   }
 }
 

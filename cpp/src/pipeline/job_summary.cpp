@@ -205,7 +205,7 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
                                 " cells, the surface's grid " + std::to_string(grid.valid.size()) +
                                 ": plan the same surface");
   JobSummary s;
-  s.mode = config.planner.mode;
+  s.mode = enum_name(config.planner.mode);
   s.cells = grid.valid_count();
   s.grid_n_theta = grid.n_theta;
   s.grid_n_d = grid.n_d;
@@ -225,14 +225,14 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.rounds = static_cast<int>(plan.rounds.size());
   for (std::size_t i = 0; i < plan.rounds.size(); ++i) {
     const Round& r = plan.rounds[i];
-    RoundSummary rs{static_cast<int>(i) + 1, r.kind, r.level, static_cast<int>(r.regions.size()), count_passes(r),
+    RoundSummary rs{static_cast<int>(i) + 1, enum_name(r.kind), r.level, static_cast<int>(r.regions.size()), count_passes(r),
                     r.spray_time_s, r.order_method, r.link_length_m, r.levels_before, r.levels_after};
     s.regions += rs.regions;
     s.passes += rs.passes;
     s.link_length_m += r.link_length_m;
     s.rounds_detail.push_back(std::move(rs));
   }
-  s.stop_reason = plan.stop_reason;
+  s.stop_reason = plan.stop_reason.text();
   s.warnings = plan.warnings;
   s.unreachable_cells = static_cast<int>(plan.unreachable_cells.size());
   s.spray_time_s = plan.spray_time_s;
