@@ -8,6 +8,7 @@
 #include "shotcrete/pipeline/arm_plan.hpp"
 #include "shotcrete/pipeline/job_summary.hpp"
 #include "shotcrete/robot/robot.hpp"
+#include "bay_fixtures.hpp"
 
 using namespace shotcrete;
 
@@ -21,25 +22,12 @@ std::string number(double v) {
 
 // A slice of the wall with one dig pit (radius 0.4 m) in a uniform over-break.
 Surface pit_bay(Config& cfg, double pit_depth_m = 0.15, double overbreak_m = 0.04) {
-  const double R = cfg.profile.design_radius_m, cs = cfg.grid.cell_size_m;
-  const double t0 = 1.2, t1 = 1.6, L = 0.6;
-  const int rows = static_cast<int>(std::round((t1 - t0) * R / cs)), cols = static_cast<int>(std::round(L / cs));
-  const int per = 3;
-  Cloud c;
-  c.xyz.resize(static_cast<Eigen::Index>(rows) * cols * per * per, 3);
-  Eigen::Index k = 0;
-  for (int i = 0; i < rows; ++i)
-    for (int j = 0; j < cols; ++j)
-      for (int a = 0; a < per; ++a)
-        for (int b = 0; b < per; ++b) {
-          const double theta = t0 + (i + (a + 0.5) / per) * cs / R, d = (j + (b + 0.5) / per) * cs;
-          const double q = (std::pow(d - 0.3, 2) + std::pow((theta - 1.4) * R, 2)) / (0.4 * 0.4);
-          const double r = R + overbreak_m + (q < 1 ? pit_depth_m * std::pow(1 - q, 1.5) : 0.0);
-          c.xyz.row(k++) << d, r * std::cos(theta), r * std::sin(theta);
-        }
-  cfg.preprocess.voxel_size_m = 0;
-  cfg.preprocess.outlier_neighbors = 0;
-  return build_surface(c, cfg);
+  const double R = cfg.profile.design_radius_m;
+  auto td = [=](double d, double theta) {
+    const double q = (std::pow(d - 0.3, 2) + std::pow((theta - 1.4) * R, 2)) / (0.4 * 0.4);
+    return overbreak_m + (q < 1 ? pit_depth_m * std::pow(1 - q, 1.5) : 0.0);
+  };
+  return test::analytic_bay(td, cfg, 1.2, 1.6, 0.6, 3);
 }
 
 }  // namespace

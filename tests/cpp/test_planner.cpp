@@ -8,6 +8,7 @@
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/surface/preprocess.hpp"
 #include "shotcrete/io/synth.hpp"
+#include "bay_fixtures.hpp"
 
 using namespace shotcrete;
 
@@ -15,29 +16,11 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-// A bay slice with a chosen TD function; theta in [t0, t1], d in [0, L].
+// A bay slice with a chosen TD function; theta in [t0, t1], d in [0, L] (default config).
 Surface analytic_bay(double (*td)(double d, double theta), double t0 = 0.9, double t1 = 1.6, double L = 0.8,
                      int per_cell = 3) {
   Config cfg;
-  const double R = cfg.profile.design_radius_m, cs = cfg.grid.cell_size_m;
-  const int rows = static_cast<int>(std::round((t1 - t0) * R / cs)), cols = static_cast<int>(std::round(L / cs));
-  Cloud c;
-  c.xyz.resize(static_cast<Eigen::Index>(rows) * cols * per_cell * per_cell, 3);
-  Eigen::Index k = 0;
-  for (int i = 0; i < rows; ++i)
-    for (int j = 0; j < cols; ++j)
-      for (int a = 0; a < per_cell; ++a)
-        for (int b = 0; b < per_cell; ++b) {
-          const double theta = t0 + (i + (a + 0.5) / per_cell) * cs / R, d = (j + (b + 0.5) / per_cell) * cs;
-          const double t = td(d, theta);
-          if (std::isnan(t)) continue;  // a hole in the scan
-          const double r = R + t;
-          c.xyz.row(k++) << d, r * std::cos(theta), r * std::sin(theta);
-        }
-  c.xyz.conservativeResize(k, 3);
-  cfg.preprocess.voxel_size_m = 0;
-  cfg.preprocess.outlier_neighbors = 0;
-  return build_surface(c, cfg);
+  return test::analytic_bay(td, cfg, t0, t1, L, per_cell);
 }
 
 double uniform_100mm(double, double) { return 0.100; }

@@ -1,4 +1,4 @@
-"""Planner through the Python API and the CLI report contract (ARCHITECTURE section 9)."""
+"""Planner through the Python API and the CLI report contract (docs/architecture.md §10)."""
 import json
 
 import numpy as np

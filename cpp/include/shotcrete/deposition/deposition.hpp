@@ -1,5 +1,5 @@
 #pragma once
-// Deposition model (design section 4): spot model fitted to the measured stroke, closed-form
+// Deposition model (docs/architecture.md §4): spot model fitted to the measured stroke, closed-form
 // stroke profile, free-form thickness rate on a cloud with normals, accumulation along nozzle
 // paths, rebound, and the golden-section pass spacing.
 #include <memory>

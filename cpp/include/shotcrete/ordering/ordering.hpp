@@ -1,5 +1,5 @@
 #pragma once
-// Region ordering (design section 6): link the regions' rasters into one open path. Each region i
+// Region ordering (docs/architecture.md §6): link the regions' rasters into one open path. Each region i
 // is a segment A_i -> B_i sprayed either A->B (reversed = false) or B->A (reversed = true); the
 // cost is the sum of transit lengths from the exit endpoint of one region to the entry endpoint of
 // the next, plus start -> first entry when a start point is given. A generalised TSP with two

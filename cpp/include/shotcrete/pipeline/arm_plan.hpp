@@ -1,5 +1,5 @@
 #pragma once
-// A bay planned for a given arm (design section 7): plan_bay with the speeds the arm can follow
+// A bay planned for a given arm (docs/architecture.md §9): plan_bay with the speeds the arm can follow
 // along each pass, time_plan, and re-plans where the timed passes still break a joint limit.
 #include <Eigen/Core>
 #include <optional>

@@ -1,5 +1,5 @@
 #pragma once
-// Pass geometry of the planner (design section 5): slicing planes over a set of grid cells, the
+// Pass geometry of the planner (docs/architecture.md §5): slicing planes over a set of grid cells, the
 // crossing points offset by the standoff, and the clamped cubic spline the nozzle follows.
 #include <cstddef>
 #include <vector>
@@ -35,7 +35,7 @@ double polyline_length(const std::vector<NozzlePose>& poses);
 /// The pass run the other way (waypoints and speed profile reversed).
 void reverse_pass(Pass& pass);
 
-/// Pass lines over a set of grid cells (design section 5): envelope box in (d, s), slicing planes
+/// Pass lines over a set of grid cells (docs/architecture.md §5): envelope box in (d, s), slicing planes
 /// `spacing_m` apart (through the axis for axial passes, across it for circumferential ones),
 /// crossing points from pairs of neighbouring cells on either side of each plane, offset by the
 /// standoff toward the axis (along -r, or along the normal), clamped cubic spline sampled every

@@ -1,5 +1,5 @@
 #pragma once
-// Graded region planner (design section 5): rounds of levels -> regions -> passes -> speeds ->
+// Graded region planner (docs/architecture.md §5): rounds of levels -> regions -> passes -> speeds ->
 // order -> simulated deposition, plus an optimising mode that targets the final residual and time.
 // plan_bay runs the rounds as one loop (grade -> plan the round -> order -> deposit -> stop test);
 // the graded (thesis) and the levelling (optimal mode) rounds differ only in the steps of

@@ -1,5 +1,5 @@
 #pragma once
-// Joint paths that follow closely spaced nozzle poses exactly (design section 7b): smooth enough in
+// Joint paths that follow closely spaced nozzle poses exactly (docs/architecture.md §7): smooth enough in
 // the path for finite differences, so they give the joint velocities and accelerations of a timed
 // path, and the nozzle speeds at which the arm stays within its joint limits.
 #include <Eigen/Core>

@@ -1,5 +1,5 @@
 #pragma once
-// The 8-DOF spraying manipulator (design section 7): URDF model loaded by kdl_parser, forward
+// The 8-DOF spraying manipulator (docs/architecture.md §7): URDF model loaded by kdl_parser, forward
 // kinematics in the tunnel frame, 5-DOF inverse kinematics (nozzle position + spray axis, roll
 // free) by damped least squares with null-space joint-limit avoidance and seeded random restarts,
 // continuous joint paths along passes, a plain-KDL baseline and a reachability map.

@@ -50,7 +50,7 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
 /// Per-point TD (r - r_design) in metres.
 Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile);
 
-/// Priority level of a TD in millimetres (design section 5).
+/// Priority level of a TD in millimetres (docs/architecture.md §3).
 int level_of_td_mm(double td_mm);
 /// Level per cell (kNoDataLevel where invalid).
 std::vector<int> cell_levels(const Grid& grid);

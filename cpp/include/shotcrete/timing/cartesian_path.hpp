@@ -1,5 +1,5 @@
 #pragma once
-// Cartesian nozzle paths (design section 7b): pieces (polylines or half circles) one after the
+// Cartesian nozzle paths (docs/architecture.md §8): pieces (polylines or half circles) one after the
 // other, and the half-circle turn-around between two passes of a serpentine.
 #include <Eigen/Core>
 #include <cstddef>

@@ -1,5 +1,5 @@
 #pragma once
-// The nozzle path of a region and its speed profile (design section 7b).
+// The nozzle path of a region and its speed profile (docs/architecture.md §8).
 //
 // Region path: lead-in (straight run-up before the first pass, length start_length_m) -> pass ->
 // [extension line] -> half circle (diameter = pass spacing) -> [extension line] -> pass ... ->

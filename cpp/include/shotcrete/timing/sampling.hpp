@@ -1,6 +1,6 @@
 #pragma once
 // Sampling of a timed Cartesian path at a fixed rate, the spray dwell of each sample and the
-// nozzle speed / acceleration check (design section 7b).
+// nozzle speed / acceleration check (docs/architecture.md §8).
 #include <vector>
 
 #include "shotcrete/deposition/deposition.hpp"  // NozzlePose

@@ -1,5 +1,5 @@
 #pragma once
-// Speed profiles along a path (design section 7b, seed paper on AIWCPSO for shotcrete arms):
+// Speed profiles along a path (docs/architecture.md §8, seed paper on AIWCPSO for shotcrete arms):
 // cycloidal and quintic speed changes, the paper's start / end profiles and rest-to-rest moves.
 #include <vector>
 

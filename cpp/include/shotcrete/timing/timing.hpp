@@ -1,5 +1,5 @@
 #pragma once
-// Motion timing (design section 7b, seed paper on AIWCPSO for shotcrete arms), all of it: include
+// Motion timing (docs/architecture.md §8, seed paper on AIWCPSO for shotcrete arms), all of it: include
 // the piece you need instead where you can.
 //   speed_profile.hpp   cycloidal / quintic speed changes, the paper's start and end profiles
 //   cartesian_path.hpp  path pieces, the path, the half-circle turn-around

@@ -1,5 +1,5 @@
 #pragma once
-// Joint-space timing (design section 7b): joint quintics between rest configurations and the timed
+// Joint-space timing (docs/architecture.md §8): joint quintics between rest configurations and the timed
 // joint trajectory of regions sprayed in order.
 #include <Eigen/Core>
 #include <string>

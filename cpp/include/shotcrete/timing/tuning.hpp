@@ -1,5 +1,5 @@
 #pragma once
-// Tuning of the timing parameters by the swarm (design section 7b): a joint-space model of a
+// Tuning of the timing parameters by the swarm (docs/architecture.md §8): a joint-space model of a
 // region's timing that needs no IK per candidate, and the per-region AIWCPSO over TimingParams.
 #include <Eigen/Core>
 #include <vector>
