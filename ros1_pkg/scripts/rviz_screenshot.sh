@@ -34,7 +34,8 @@ xvfb-run -a -s "-screen 0 1280x900x24" bash -c '
   if ! summary=$(/usr/bin/python3 "$PKG_DIR/scripts/wait_for_message.py" /shotcrete_node/summary 120 2>>"$ROS_HOME/demo.log" | tail -n 1); then
     echo "[screenshot] no plan summary; demo log:"; tail -40 "$ROS_HOME/demo.log"; exit 1
   fi
-  echo "[screenshot] plan: $summary"
+  # The summary is the job summary JSON: show the verdict, not the whole document.
+  echo "[screenshot] plan: $(printf "%s" "$summary" | /usr/bin/python3 -c "import json, sys; s = json.load(sys.stdin); print(\"cells\", s[\"cells\"], \"levels after\", s[\"levels_after\"], \"residual rms mm\", round(s[\"residual_mm\"][\"rms\"], 2), \"passes\", s[\"passes\"])" 2>/dev/null || printf "%.200s" "$summary")"
   sleep "$SHOT_DELAY_S"
   import -window root "$SHOT_OUT"
 '

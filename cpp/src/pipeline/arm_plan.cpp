@@ -1,7 +1,6 @@
 // Bay planning for a given arm: caps, plan, time, learn, re-plan (see arm_plan.hpp).
 #include "shotcrete/pipeline/arm_plan.hpp"
 
-#include <array>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -44,6 +43,14 @@ std::vector<double> region_worst_ratio(const TimedTrajectory& tr, std::size_t re
     w = std::max(w, std::isfinite(r) ? r : std::numeric_limits<double>::infinity());
   }
   return worst;
+}
+// Exact geometry of a pass (every waypoint's position and axis): the key of the arm's cap cache.
+std::vector<double> geometry_key(const std::vector<NozzlePose>& wp) {
+  std::vector<double> key;
+  key.reserve(wp.size() * 6);
+  for (const auto& p : wp) key.insert(key.end(), {p.position_m.x(), p.position_m.y(), p.position_m.z(),
+                                                   p.axis.x(), p.axis.y(), p.axis.z()});
+  return key;
 }
 }  // namespace
 
@@ -91,19 +98,58 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
   return added;
 }
 
+namespace {
+// timing.tune_with_pso: the swarm's per-region timing replaces the config's when the whole
+// trajectory comes out shorter and no worse on the joint limits.
+void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regions, const Config& config,
+                        const Robot& robot, const ProgressFn& progress) {
+  if (progress) progress("timing swarm", 0.0);
+  try {
+    out.tuning = tune_timing(&robot, regions, robot.neutral(), config.timing, config.robot);
+    const TimedTrajectory& cur = *out.trajectory;
+    auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
+    std::vector<TimingParams> params = out.tuning->params;
+    TimedTrajectory tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
+    // The swarm judges the leads and turns on its model; elsewhere the arm reaches the passes in
+    // slightly other postures than the re-plans saw. Regions that came out worse keep the
+    // config's parameters, and that mix is timed once more.
+    const auto before = region_worst_ratio(cur, regions.size(), robot);
+    const auto after = region_worst_ratio(tuned, regions.size(), robot);
+    bool mixed = false;
+    std::vector<char> used = out.tuning->feasible;
+    for (std::size_t r = 0; r < regions.size(); ++r)
+      if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), used[r] = 0, mixed = true;
+    if (mixed) {
+      if (progress) progress("timing swarm", 0.9);
+      tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
+    }
+    if (tuned.duration_s < cur.duration_s && no_worse(tuned.max_velocity_ratio, cur.max_velocity_ratio) &&
+        no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
+      out.trajectory = std::move(tuned);
+      out.tuning->params = params;
+      out.tuning->feasible = used;  // regions timed with the swarm's parameters
+      out.tuned_timing_used = true;
+    }
+  } catch (const std::exception& e) {
+    // The config's timing stands; the reason is kept.
+    out.tuning_error = e.what();
+  }
+  if (progress) progress("timing swarm", 1.0);
+}
+
+}  // namespace
+
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
   ArmPlan out;
   // The arm's caps depend on a pass's geometry only: the lines of a round repeat across re-plans,
-  // so they are computed once (keyed by their size and end points).
-  using Key = std::array<double, 7>;
-  auto cache = std::make_shared<std::map<Key, std::vector<double>>>();
+  // so they are computed once per distinct pass, keyed by every waypoint's position and axis.
+  auto cache = std::make_shared<std::map<std::vector<double>, std::vector<double>>>();
   const SpeedCapFn arm = arm_speed_caps(robot, config);
   const SpeedCapFn cap = [&, cache](const std::vector<NozzlePose>& wp) {
     if (wp.empty()) return std::vector<double>{};
-    const Eigen::Vector3d a = wp.front().position_m, b = wp.back().position_m;
-    const Key key{static_cast<double>(wp.size()), a.x(), a.y(), a.z(), b.x(), b.y(), b.z()};
+    std::vector<double> key = geometry_key(wp);
     auto it = cache->find(key);
-    if (it == cache->end()) it = cache->emplace(key, arm(wp)).first;
+    if (it == cache->end()) it = cache->emplace(std::move(key), arm(wp)).first;
     std::vector<double> c = it->second;
     if (!out.learned.points_m.empty())
       for (std::size_t k = 0; k < wp.size(); ++k) c[k] = std::min(c[k], out.learned.at(wp[k].position_m));
@@ -134,40 +180,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   }
   if (!out.trajectory) return out;
   out.config_duration_s = out.trajectory->duration_s;
-  if (config.timing.tune_with_pso) {
-    if (progress) progress("timing swarm", 0.0);
-    try {
-      out.tuning = tune_timing(&robot, regions, robot.neutral(), config.timing, config.robot);
-      const TimedTrajectory& cur = *out.trajectory;
-      auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
-      std::vector<TimingParams> params = out.tuning->params;
-      TimedTrajectory tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
-      // The swarm judges the leads and turns on its model; elsewhere the arm reaches the passes in
-      // slightly other postures than the re-plans saw. Regions that came out worse keep the
-      // config's parameters, and that mix is timed once more.
-      const auto before = region_worst_ratio(cur, regions.size(), robot);
-      const auto after = region_worst_ratio(tuned, regions.size(), robot);
-      bool mixed = false;
-      std::vector<char> used = out.tuning->feasible;
-      for (std::size_t r = 0; r < regions.size(); ++r)
-        if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), used[r] = 0, mixed = true;
-      if (mixed) {
-        if (progress) progress("timing swarm", 0.9);
-        tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
-      }
-      if (tuned.duration_s < cur.duration_s && no_worse(tuned.max_velocity_ratio, cur.max_velocity_ratio) &&
-          no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
-        out.trajectory = std::move(tuned);
-        out.tuning->params = params;
-        out.tuning->feasible = used;  // regions timed with the swarm's parameters
-        out.tuned_timing_used = true;
-      }
-    } catch (const std::exception& e) {
-      // The config's timing stands; the reason is kept.
-      out.tuning_error = e.what();
-    }
-    if (progress) progress("timing swarm", 1.0);
-  }
+  if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, progress);
   return out;
 }
 
