@@ -36,4 +36,4 @@ regression: setup
 	$(PY) bench/check_regression.py
 
 clean:
-	rm -rf build out ros1_pkg/.ws
+	rm -rf build out bench/results ros1_pkg/.ws
