@@ -35,6 +35,14 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("worst_position_error_m", &IkSummary::worst_position_error_m)
       .def_readonly("worst_angle_error_rad", &IkSummary::worst_angle_error_rad)
       .def_readonly("untracked_regions", &IkSummary::untracked_regions);
+  py::class_<CycleTimeBreakdown>(m, "CycleTimeBreakdown", "Where a trajectory's time goes [s]; the parts add up to it.")
+      .def_readonly("spraying_s", &CycleTimeBreakdown::spraying_s)
+      .def_readonly("turn_arounds_s", &CycleTimeBreakdown::turn_arounds_s)
+      .def_readonly("leads_s", &CycleTimeBreakdown::leads_s)
+      .def_readonly("transits_s", &CycleTimeBreakdown::transits_s)
+      .def_readonly("stop_and_go_s", &CycleTimeBreakdown::stop_and_go_s)
+      .def_readonly("other_s", &CycleTimeBreakdown::other_s)
+      .def("total_s", &CycleTimeBreakdown::total_s);
   py::class_<TrajectorySummary>(m, "TrajectorySummary", "The scalars of a timed trajectory.")
       .def_readonly("samples", &TrajectorySummary::samples)
       .def_readonly("duration_s", &TrajectorySummary::duration_s)
@@ -42,6 +50,9 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("transit_time_s", &TrajectorySummary::transit_time_s)
       .def_readonly("max_velocity_ratio", &TrajectorySummary::max_velocity_ratio)
       .def_readonly("max_acceleration_ratio", &TrajectorySummary::max_acceleration_ratio)
+      .def_readonly("cycle_time", &TrajectorySummary::cycle_time)
+      .def_readonly("max_nozzle_speed_ratio", &TrajectorySummary::max_nozzle_speed_ratio)
+      .def_readonly("max_nozzle_accel_ratio", &TrajectorySummary::max_nozzle_accel_ratio)
       .def_readonly("worst_velocity_joint", &TrajectorySummary::worst_velocity_joint)
       .def_readonly("worst_acceleration_joint", &TrajectorySummary::worst_acceleration_joint)
       .def_readonly("max_position_violation_rad", &TrajectorySummary::max_position_violation_rad)
@@ -49,7 +60,12 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("untracked_regions", &TrajectorySummary::untracked_regions)
       .def("to_json", [](const TrajectorySummary& s) { return to_json(s); })
       .def("to_dict", [](const TrajectorySummary& s) { return json_loads(to_json(s)); });
-  m.def("summarise_trajectory", &summarise_trajectory, py::arg("trajectory"));
+  m.def(
+      "summarise_trajectory",
+      [](const TimedTrajectory& t, const TimingConfig& timing) {
+        return summarise_trajectory(t, NozzleLimits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2});
+      },
+      py::arg("trajectory"), py::arg("timing"), "The trajectory's scalars; nozzle ratios against timing.nozzle_max_*.");
   py::class_<SwarmSummary>(m, "SwarmSummary", "The timing swarm of a plan for the arm.")
       .def_readonly("used", &SwarmSummary::used)
       .def_readonly("error", &SwarmSummary::error)
@@ -82,6 +98,8 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("required_volume_m3", &JobSummary::required_volume_m3)
       .def_readonly("deposition_rate_m3ph", &JobSummary::deposition_rate_m3ph)
       .def_readonly("physical_limit_s", &JobSummary::physical_limit_s)
+      .def_readonly("cycle_time_s", &JobSummary::cycle_time_s)
+      .def_readonly("cycle_time_ratio", &JobSummary::cycle_time_ratio)
       .def_readonly("spray_time_ratio", &JobSummary::spray_time_ratio)
       .def_readonly("sprayed_volume_m3", &JobSummary::sprayed_volume_m3)
       .def_readonly("link_length_m", &JobSummary::link_length_m)

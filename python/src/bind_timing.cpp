@@ -283,6 +283,9 @@ void bind_timing(py::module_& m) {
   m.def("spray_dwells", &spray_dwells, py::arg("t_s"), py::arg("spraying"));
   m.def("quintic_min_duration", &quintic_min_duration, py::arg("q0"), py::arg("q1"), py::arg("velocity_limits"),
         py::arg("acceleration_limits"), "Shortest rest-to-rest joint quintic within the limits [s].");
+  m.def("quintic_nozzle_duration", &quintic_nozzle_duration, py::arg("robot"), py::arg("q0"), py::arg("q1"),
+        py::arg("max_speed_mps"), py::arg("max_accel_mps2"),
+        "Shortest rest-to-rest joint quintic within the joint limits and the nozzle's speed / acceleration limits [s].");
 
   py::class_<TimedTrajectory>(m, "TimedTrajectory", "Timed joint trajectory with nozzle poses and spraying flags.")
       .def_property_readonly("t_s", [](const TimedTrajectory& t) { return to_array(t.t_s); })
@@ -299,6 +302,7 @@ void bind_timing(py::module_& m) {
       .def_readonly("duration_s", &TimedTrajectory::duration_s)
       .def_readonly("spray_time_s", &TimedTrajectory::spray_time_s)
       .def_readonly("transit_time_s", &TimedTrajectory::transit_time_s)
+      .def_readonly("cycle_time", &TimedTrajectory::cycle_time, "duration_s by what the arm does (CycleTimeBreakdown)")
       .def_readonly("max_velocity_ratio", &TimedTrajectory::max_velocity_ratio)
       .def_readonly("max_acceleration_ratio", &TimedTrajectory::max_acceleration_ratio)
       .def_readonly("worst_velocity_joint", &TimedTrajectory::worst_velocity_joint)
@@ -311,8 +315,15 @@ void bind_timing(py::module_& m) {
       .def("joint_table", &TimedTrajectory::joint_table, "(N, 1 + 3 dof): t, q, qd, qdd")
       .def("joint_table_header", &TimedTrajectory::joint_table_header)
       .def("to_csv", &TimedTrajectory::to_csv)
-      .def("summary", [](const TimedTrajectory& t) { return json_loads(to_json(summarise_trajectory(t))); },
-           "The scalars (summarise_trajectory) as a dict.")
+      .def(
+          "summary",
+          [](const TimedTrajectory& t, const TimingConfig& timing) {
+            return json_loads(to_json(
+                summarise_trajectory(t, NozzleLimits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2})));
+          },
+          py::arg("timing") = TimingConfig{},
+          "The scalars (summarise_trajectory) as a dict; nozzle ratios against timing.nozzle_max_* (default: the "
+          "default config's limits).")
       .def("__len__", &TimedTrajectory::size);
 
   m.def(

@@ -122,6 +122,13 @@ TEST(JobSummary, FiguresOfABayPlannedForTheArm) {
   ASSERT_TRUE(s.trajectory);
   EXPECT_EQ(s.trajectory->samples, arm.trajectory->size());
   EXPECT_FALSE(s.swarm);  // timing.tune_with_pso is off
+  // Cycle time: the whole trajectory, its parts adding up to it, over the physical limit.
+  ASSERT_TRUE(s.cycle_time_s && s.cycle_time_ratio);
+  EXPECT_EQ(*s.cycle_time_s, arm.trajectory->duration_s);
+  EXPECT_NEAR(s.trajectory->cycle_time.total_s(), *s.cycle_time_s, 1e-9 * *s.cycle_time_s);
+  EXPECT_DOUBLE_EQ(*s.cycle_time_ratio, *s.cycle_time_s / plan.physical_limit_s);
+  EXPECT_GT(s.trajectory->max_nozzle_speed_ratio, 0.0);
+  EXPECT_GT(s.trajectory->max_nozzle_accel_ratio, 0.0);
 
   // JSON: report.json's keys in its order.
   const std::string json = s.to_json();
@@ -131,7 +138,8 @@ TEST(JobSummary, FiguresOfABayPlannedForTheArm) {
   std::size_t at = 0;
   for (const char* key : {"\"cells\"", "\"grid_shape\"", "\"levels_before\"", "\"td_before_mm\"", "\"levels_after\"",
                           "\"residual_mm\"", "\"rounds\"", "\"stop_reason\"", "\"spray_time_ratio\"",
-                          "\"rounds_detail\"", "\"ik\"", "\"total_time_s\"", "\"trajectory\""}) {
+                          "\"rounds_detail\"", "\"ik\"", "\"total_time_s\"", "\"cycle_time_s\"",
+                          "\"cycle_time_breakdown_s\"", "\"cycle_time_ratio\"", "\"trajectory\""}) {
     const std::size_t k = json.find(key, at);
     ASSERT_NE(k, std::string::npos) << key;
     at = k;
@@ -152,7 +160,12 @@ TEST(JobSummary, WithoutATrajectoryTheErrorIsReported) {
   EXPECT_FALSE(s.trajectory);
   const std::string json = s.to_json();
   EXPECT_NE(json.find("\"solved\":false,\"error\":\"region 2 waypoint 7: out of reach\"}"), std::string::npos);
-  EXPECT_NE(json.find("\"total_time_s\":null}"), std::string::npos) << json.substr(json.size() - 60);
+  EXPECT_NE(json.find("\"total_time_s\":null,\"cycle_time_s\":null,\"cycle_time_breakdown_s\":null,"
+                      "\"cycle_time_ratio\":null}"),
+            std::string::npos)
+      << json.substr(json.size() - 120);
+  EXPECT_FALSE(s.cycle_time_s);
+  EXPECT_FALSE(s.cycle_time_ratio);
   EXPECT_EQ(json.find("\"trajectory\""), std::string::npos);
 
   // A plan of another grid is refused.

@@ -62,6 +62,42 @@ TEST(Grid, AnalyticCylinderTdPerCell) {
   EXPECT_EQ(checked, g.size());
 }
 
+namespace {
+// A grid of n_theta x n_d cells at design radius R with TD td_m everywhere (all valid).
+Grid uniform_td_grid(int n_theta, int n_d, double cell_m, double R, double td_m) {
+  Grid g;
+  g.profile.radius_m = R;
+  g.cell_size_m = cell_m;
+  g.dtheta_rad = cell_m / R;
+  g.n_theta = n_theta;
+  g.n_d = n_d;
+  g.valid.assign(static_cast<std::size_t>(g.size()), true);
+  g.td_m = Eigen::VectorXd::Constant(g.size(), td_m);
+  return g;
+}
+}  // namespace
+
+TEST(Grid, MissingVolumeIsTheRingBehindTheDesignLine) {
+  // A full circle of cells (n_theta dtheta = 2 pi) with a uniform TD t: the ring between R and
+  // R + t, pi ((R + t)^2 - R^2) per metre of tunnel, 1 + t / (2 R) times the flat cell volume.
+  const double kPi = 3.14159265358979323846;
+  const int n_theta = 120, n_d = 7;
+  const double cell = 0.05, t = 0.1, R = n_theta * cell / (2.0 * kPi);
+  const Grid ring = uniform_td_grid(n_theta, n_d, cell, R, t);
+  const double ring_volume = kPi * ((R + t) * (R + t) - R * R) * n_d * cell;
+  EXPECT_NEAR(missing_volume_m3(ring), ring_volume, 1e-12 * ring_volume);
+  const double flat = t * cell * cell * n_theta * n_d;
+  EXPECT_NEAR(missing_volume_m3(ring) / flat, 1.0 + t / (2.0 * R), 1e-12);
+  // One cell with TD > 0 among cells at or inside the design line and an invalid one.
+  Grid one = uniform_td_grid(4, 3, cell, 5.6, -0.02);
+  one.td_m[5] = 0.08;
+  one.td_m[6] = 0.0;
+  one.td_m[7] = 0.3;
+  one.valid[7] = false;
+  const double sector = 0.5 * ((5.6 + 0.08) * (5.6 + 0.08) - 5.6 * 5.6) * (cell / 5.6) * cell;
+  EXPECT_NEAR(missing_volume_m3(one), sector, 1e-15);
+}
+
 TEST(Grid, EmptyCellsAreFlaggedNotFilled) {
   Cloud c = lattice_cylinder(5.6, td_linear);
   Cloud holed;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "shotcrete/pipeline/arm_plan.hpp"
@@ -39,6 +40,92 @@ TEST(Joint, QuinticMinDurationHitsTheBindingLimit) {
   EXPECT_NEAR(qd.norm() + qdd.norm(), 0.0, 1e-12);
 }
 
+namespace {
+// Worst nozzle speed and acceleration of the quintic q0 -> q1 of duration T (FK on 4000 time steps,
+// central differences): a second method beside quintic_nozzle_duration's.
+std::pair<double, double> quintic_nozzle_peaks(const Robot& robot, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1,
+                                               double T) {
+  const int n = 4000;
+  const double h = T / n;
+  std::vector<Eigen::Vector3d> p;
+  Eigen::VectorXd q, qd, qdd;
+  for (int k = 0; k <= n; ++k) {
+    quintic_joint(q0, q1, T, k * h, q, qd, qdd);
+    p.push_back(robot.fk(q).translation());
+  }
+  double v = 0.0, a = 0.0;
+  for (std::size_t k = 1; k + 1 < p.size(); ++k) {
+    v = std::max(v, (p[k + 1] - p[k - 1]).norm() / (2.0 * h));
+    a = std::max(a, (p[k + 1] - 2.0 * p[k] + p[k - 1]).norm() / (h * h));
+  }
+  return {v, a};
+}
+}  // namespace
+
+TEST(Joint, QuinticNozzleDurationStretchesFarMovesOnly) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig tc;  // 1 m/s, 2 m/s^2
+  const Eigen::VectorXd lo = robot.lower_limits(), hi = robot.upper_limits();
+  const Eigen::VectorXd q0 = lo + 0.2 * (hi - lo), q1 = lo + 0.8 * (hi - lo);
+  const double t_joint = quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits());
+  const auto [v_joint, a_joint] = quintic_nozzle_peaks(robot, q0, q1, t_joint);
+  ASSERT_GT(std::max(v_joint / tc.nozzle_max_speed_mps, a_joint / tc.nozzle_max_accel_mps2), 1.2)
+      << "the far move keeps the nozzle within its limits at the joint-minimal duration: no test";
+  const double T = quintic_nozzle_duration(robot, q0, q1, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2);
+  const auto [v, a] = quintic_nozzle_peaks(robot, q0, q1, T);
+  EXPECT_LE(v, tc.nozzle_max_speed_mps);
+  EXPECT_LE(a, tc.nozzle_max_accel_mps2);
+  // No longer than needed: one limit is reached within the margin.
+  EXPECT_GT(std::max(v / tc.nozzle_max_speed_mps, a / tc.nozzle_max_accel_mps2), 0.97);
+  // A short move stays at the joint-minimal duration.
+  const Eigen::VectorXd q2 = q0 + 0.01 * (hi - lo);
+  const double t_short = quintic_min_duration(q0, q2, robot.velocity_limits(), robot.acceleration_limits());
+  const auto [v_short, a_short] = quintic_nozzle_peaks(robot, q0, q2, t_short);
+  ASSERT_LT(std::max(v_short / tc.nozzle_max_speed_mps, a_short / tc.nozzle_max_accel_mps2), 0.9);
+  EXPECT_EQ(quintic_nozzle_duration(robot, q0, q2, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2), t_short);
+  EXPECT_EQ(quintic_nozzle_duration(robot, q0, q0, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2), 0.0);
+  EXPECT_THROW(quintic_nozzle_duration(robot, q0, q1, 0.0, 2.0), std::invalid_argument);
+}
+
+TEST(RobotTiming, CycleTimeBreakdownAddsUpAndMatchesTheSamples) {
+  // Two regions: a transit to each, turn-arounds and leads in the first, a stop-and-go move in the
+  // second. The exact breakdown adds up to the duration; the per-sample attribution (each interval
+  // to the kind of the sample ending it) is a second method that differs by at most a sample
+  // interval at each piece boundary.
+  const auto first = axial_region(3, 1.0, 0.2, 0.0, 1.2, {0.2, 0.25, 0.15});
+  auto second = axial_region(2, 1.0, 0.3, 0.3, 1.6, {0.2});
+  std::reverse(second[1].waypoints.begin(), second[1].waypoints.end());  // same heading: stop and go
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig tc;
+  const TimedTrajectory tr = time_plan(robot, {first, second}, robot.neutral(), tc, RobotConfig{});
+  const CycleTimeBreakdown& b = tr.cycle_time;
+  EXPECT_NEAR(b.total_s(), tr.duration_s, 1e-9 * tr.duration_s);
+  EXPECT_NEAR(tr.t_s.back(), tr.duration_s, 1e-9 * tr.duration_s);
+  EXPECT_EQ(b.spraying_s, tr.spray_time_s);
+  EXPECT_GT(b.turn_arounds_s, 0.0);
+  EXPECT_GT(b.leads_s, 0.0);
+  EXPECT_GT(b.transits_s, 0.0);
+  EXPECT_GT(b.stop_and_go_s, 0.0);
+  EXPECT_EQ(b.other_s, 0.0);
+  // Per sample: joint moves between regions exactly, spraying and the rest up to the boundaries.
+  double spraying = 0.0, transits = 0.0, joint_moves_inside = 0.0, rest = 0.0;
+  int boundaries = 0;
+  for (std::size_t i = 1; i < tr.size(); ++i) {
+    const double dt = tr.t_s[i] - tr.t_s[i - 1];
+    const bool joint_move = tr.kind[i] == static_cast<char>(SegmentKind::Transit);
+    if (tr.spraying[i]) spraying += dt;
+    else if (joint_move && tr.region_index[i] < 0) transits += dt;
+    else if (joint_move) joint_moves_inside += dt;
+    else rest += dt;
+    boundaries += tr.kind[i] != tr.kind[i - 1] || tr.spraying[i] != tr.spraying[i - 1];
+  }
+  const double slack = boundaries / tc.trajectory_rate_hz;
+  EXPECT_NEAR(transits, b.transits_s, 1e-9);
+  EXPECT_NEAR(spraying, b.spraying_s, slack);
+  EXPECT_GT(b.stop_and_go_s, joint_moves_inside);  // the stop-and-go runs besides the joint move
+  EXPECT_NEAR(rest + joint_moves_inside, b.turn_arounds_s + b.leads_s + b.stop_and_go_s, slack);
+}
+
 TEST(RobotTiming, StopAndGoMovesHappenInJointSpace) {
   // Two axial passes both heading +x on neighbouring lines: stop-and-go between them. The move
   // from the run-out's end to the run-in's start is a joint quintic at the limits (kind Transit
@@ -57,7 +144,8 @@ TEST(RobotTiming, StopAndGoMovesHappenInJointSpace) {
   // At rest at both ends; its duration is the minimal quintic between them.
   const Eigen::VectorXd& q0 = tr.q[first - 1];
   const Eigen::VectorXd& q1 = tr.q[last];
-  const double T = quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits());
+  const double T = quintic_nozzle_duration(robot, q0, q1, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2);
+  EXPECT_GE(T, quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits()));
   EXPECT_NEAR(tr.t_s[last] - tr.t_s[first - 1], T, 1e-9);
   for (std::size_t i = first; i <= last; ++i) {
     Eigen::VectorXd q, qd, qdd;

@@ -186,7 +186,8 @@ TEST(RobotTiming, JointModelAgreesWithTimePlan) {
   int moves = 0;
   for (std::size_t i = 0; i < tr.size(); ++i) moves += tr.kind[i] == static_cast<char>(SegmentKind::Transit) && tr.region_index[i] == 0;
   ASSERT_GT(moves, 0) << "no stop-and-go move";
-  const double transit = quintic_min_duration(robot.neutral(), ev.q_first, robot.velocity_limits(), robot.acceleration_limits());
+  const double transit =
+      quintic_nozzle_duration(robot, robot.neutral(), ev.q_first, tc.nozzle_max_speed_mps, tc.nozzle_max_accel_mps2);
   EXPECT_NEAR(ev.duration_s + transit, tr.duration_s, 1e-3 * tr.duration_s);  // measured: 1e-5
   // Worst ratios off the joint moves (the model skips them).
   double vel = 0.0, acc = 0.0;

@@ -11,7 +11,8 @@ synth: {theta_min_rad: 1.0, theta_max_rad: 1.6, length_m: 1.2, points_per_cell: 
 """
 
 REPORT_KEYS = {"cells", "levels_before", "levels_after", "residual_mm", "rounds", "passes", "spray_time_s",
-               "total_time_s", "required_volume_m3", "physical_limit_s", "spray_time_ratio", "timings_s", "ik"}
+               "total_time_s", "required_volume_m3", "physical_limit_s", "spray_time_ratio", "timings_s", "ik",
+               "cycle_time_s", "cycle_time_breakdown_s", "cycle_time_ratio"}
 
 
 @pytest.fixture(scope="module")
@@ -102,6 +103,7 @@ def test_cli_demo_report_contract(tmp_path, run_cli):
     assert len(first["positions_m"][0]) == 3 and first["speed_mps"] > 0
     traj = np.load(out / "trajectory.npz")
     assert traj["q"].shape[1] == 8 and len(traj["t_s"]) == len(traj["q"])
+    _check_cycle_time(report, traj, config)
     html = (out / "report.html").read_text()
     for src in [s.split('"')[0] for s in html.split('src="')[1:]]:
         assert (out / src).is_file(), src
@@ -134,3 +136,25 @@ def test_enum_fields_are_text_at_the_python_edge(small):
     with pytest.raises(ValueError, match="planner.mode = 'fastest': expected one of graded, optimal"):
         c.planner.mode = "fastest"
     assert c.planner.mode == "graded"
+
+
+def _check_cycle_time(report, traj, config):
+    """Cycle time = the trajectory's duration, its parts add up to it, and the nozzle ratios agree
+    with an independent finite-difference computation (numpy.gradient) on trajectory.npz."""
+    t = traj["t_s"]
+    assert report["cycle_time_s"] == report["total_time_s"] == pytest.approx(t[-1] - t[0], rel=1e-9)
+    parts = report["cycle_time_breakdown_s"]
+    assert set(parts) == {"spraying", "turn_arounds", "leads", "transits", "stop_and_go", "other"}
+    assert sum(parts.values()) == pytest.approx(report["cycle_time_s"], rel=1e-12)
+    assert parts["spraying"] == pytest.approx(report["trajectory"]["spray_time_s"], rel=1e-12)
+    assert report["cycle_time_ratio"] == pytest.approx(report["cycle_time_s"] / report["physical_limit_s"], rel=1e-12)
+    step = np.diff(t) > 1e-9  # numpy.gradient needs distinct times
+    keep = np.concatenate([[True], step])
+    p, tk = traj["nozzle_position_m"][keep], t[keep]
+    v = np.gradient(p, tk, axis=0, edge_order=2)
+    a = np.gradient(v, tk, axis=0, edge_order=2)
+    speed = np.linalg.norm(v, axis=1).max() / config.timing.nozzle_max_speed_mps
+    accel = np.linalg.norm(a, axis=1).max() / config.timing.nozzle_max_accel_mps2
+    tr = report["trajectory"]
+    assert tr["max_nozzle_speed_ratio"] == pytest.approx(speed, rel=0.05)
+    assert tr["max_nozzle_accel_ratio"] == pytest.approx(accel, rel=0.25)  # a gradient of a gradient is coarser

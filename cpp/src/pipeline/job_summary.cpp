@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "shotcrete/io/json_writer.hpp"
+#include "shotcrete/robot/joint_tracking.hpp"  // finite_differences
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/surface/grid.hpp"
 
@@ -149,6 +150,28 @@ void write(JsonWriter& w, const SwarmSummary& s) {
   w.end_array().end_object();
 }
 
+void write(JsonWriter& w, const CycleTimeBreakdown& b) {
+  w.begin_object().field("spraying", b.spraying_s).field("turn_arounds", b.turn_arounds_s).field("leads", b.leads_s);
+  w.field("transits", b.transits_s).field("stop_and_go", b.stop_and_go_s).field("other", b.other_s).end_object();
+}
+
+void write_optional(JsonWriter& w, const std::optional<double>& v) {
+  if (v) w.value(*v);
+  else w.null();
+}
+
+// Worst nozzle speed and acceleration over the limits, from the sampled nozzle positions.
+void nozzle_ratios(const TimedTrajectory& t, const NozzleLimits& limits, TrajectorySummary& s) {
+  std::vector<Eigen::VectorXd> p, v, a;
+  p.reserve(t.size());
+  for (const auto& pose : t.nozzle) p.emplace_back(pose.position_m);
+  finite_differences(t.t_s, p, v, a);
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    s.max_nozzle_speed_ratio = std::max(s.max_nozzle_speed_ratio, v[i].norm() / limits.max_speed_mps);
+    s.max_nozzle_accel_ratio = std::max(s.max_nozzle_accel_ratio, a[i].norm() / limits.max_accel_mps2);
+  }
+}
+
 // The report's trajectory section: the trajectory's scalars it has always carried, the sample
 // rate and the duration with the config's timing, and the swarm.
 void write_report_trajectory(JsonWriter& w, const JobSummary& s) {
@@ -156,6 +179,7 @@ void write_report_trajectory(JsonWriter& w, const JobSummary& s) {
   w.begin_object().field("duration_s", t.duration_s).field("spray_time_s", t.spray_time_s);
   w.field("transit_time_s", t.transit_time_s).field("samples", t.samples).field("rate_hz", s.trajectory_rate_hz);
   w.field("max_velocity_ratio", t.max_velocity_ratio).field("max_acceleration_ratio", t.max_acceleration_ratio);
+  w.field("max_nozzle_speed_ratio", t.max_nozzle_speed_ratio).field("max_nozzle_accel_ratio", t.max_nozzle_accel_ratio);
   w.field("max_position_violation_rad", t.max_position_violation_rad);
   w.field("max_position_violation_m", t.max_position_violation_m);
   w.field("config_timing_duration_s", s.config_timing_duration_s);
@@ -168,12 +192,18 @@ void write_report_trajectory(JsonWriter& w, const JobSummary& s) {
 
 }  // namespace
 
-TrajectorySummary summarise_trajectory(const TimedTrajectory& t) {
+TrajectorySummary summarise_trajectory(const TimedTrajectory& t, const NozzleLimits& nozzle_limits) {
+  if (!(nozzle_limits.max_speed_mps > 0.0) || !(nozzle_limits.max_accel_mps2 > 0.0))
+    throw std::invalid_argument("summarise_trajectory: the nozzle limits must be > 0 (speed " +
+                                std::to_string(nozzle_limits.max_speed_mps) + " m/s, acceleration " +
+                                std::to_string(nozzle_limits.max_accel_mps2) + " m/s^2)");
   TrajectorySummary s;
   s.samples = t.size();
   s.duration_s = t.duration_s;
   s.spray_time_s = t.spray_time_s;
   s.transit_time_s = t.transit_time_s;
+  s.cycle_time = t.cycle_time;
+  nozzle_ratios(t, nozzle_limits, s);
   s.max_velocity_ratio = t.max_velocity_ratio;
   s.max_acceleration_ratio = t.max_acceleration_ratio;
   s.worst_velocity_joint = t.worst_velocity_joint;
@@ -187,8 +217,10 @@ TrajectorySummary summarise_trajectory(const TimedTrajectory& t) {
 std::string to_json(const TrajectorySummary& t) {
   JsonWriter w;
   w.begin_object().field("samples", t.samples).field("duration_s", t.duration_s);
-  w.field("spray_time_s", t.spray_time_s).field("transit_time_s", t.transit_time_s);
+  w.field("spray_time_s", t.spray_time_s).field("transit_time_s", t.transit_time_s).key("cycle_time_breakdown_s");
+  write(w, t.cycle_time);
   w.field("max_velocity_ratio", t.max_velocity_ratio).field("max_acceleration_ratio", t.max_acceleration_ratio);
+  w.field("max_nozzle_speed_ratio", t.max_nozzle_speed_ratio).field("max_nozzle_accel_ratio", t.max_nozzle_accel_ratio);
   w.field("worst_velocity_joint", t.worst_velocity_joint).field("worst_acceleration_joint", t.worst_acceleration_joint);
   w.field("max_position_violation_rad", t.max_position_violation_rad);
   w.field("max_position_violation_m", t.max_position_violation_m).field("untracked_regions", t.untracked_regions);
@@ -247,7 +279,10 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.trajectory_rate_hz = config.timing.trajectory_rate_hz;
   s.config_timing_duration_s = arm_plan.config_duration_s;
   if (arm_plan.trajectory) {
-    s.trajectory = summarise_trajectory(*arm_plan.trajectory);
+    s.trajectory = summarise_trajectory(*arm_plan.trajectory,
+                                        NozzleLimits{config.timing.nozzle_max_speed_mps, config.timing.nozzle_max_accel_mps2});
+    s.cycle_time_s = s.trajectory->duration_s;
+    if (plan.physical_limit_s > 0) s.cycle_time_ratio = *s.cycle_time_s / plan.physical_limit_s;
     if (arm_plan.tuning || !arm_plan.tuning_error.empty()) s.swarm = summarise_swarm(arm_plan);
   }
   return s;
@@ -274,19 +309,24 @@ std::string JobSummary::to_json() const {
   w.field("unreachable_cells", unreachable_cells).field("spray_time_s", spray_time_s);
   w.field("required_volume_m3", required_volume_m3).field("deposition_rate_m3ph", deposition_rate_m3ph);
   w.field("physical_limit_s", physical_limit_s).key("spray_time_ratio");
-  if (spray_time_ratio) w.value(*spray_time_ratio);
-  else w.null();
+  write_optional(w, spray_time_ratio);
   w.field("sprayed_volume_m3", sprayed_volume_m3).field("link_length_m", link_length_m);
   w.field("speed_capped", speed_capped).key("rounds_detail").begin_array();
   for (const auto& r : rounds_detail) write(w, r);
   w.end_array().key("ik");
   write(w, ik);
   w.key("total_time_s");
+  write_optional(w, cycle_time_s);
+  w.key("cycle_time_s");
+  write_optional(w, cycle_time_s);
+  w.key("cycle_time_breakdown_s");
+  if (trajectory) write(w, trajectory->cycle_time);
+  else w.null();
+  w.key("cycle_time_ratio");
+  write_optional(w, cycle_time_ratio);
   if (trajectory) {
-    w.value(trajectory->duration_s).key("trajectory");
+    w.key("trajectory");
     write_report_trajectory(w, *this);
-  } else {
-    w.null();
   }
   w.end_object();
   return w.str();

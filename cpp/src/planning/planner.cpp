@@ -21,14 +21,6 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-// Volume of concrete missing from the cells (TD > 0), m^3, on the design-line cell area.
-double missing_volume_m3(const Grid& g) {
-  double v = 0;
-  for (int c = 0; c < g.size(); ++c)
-    if (g.valid[c] && g.td_m[c] > 0) v += g.td_m[c] * g.cell_size_m * g.cell_size_m;
-  return v;
-}
-
 // Order: the shortest transit through the round's regions, from where the nozzle is.
 void order_regions(Round& round, const OrderingConfig& ocfg, const std::optional<Eigen::Vector3d>& start) {
   if (round.regions.empty()) return;

@@ -23,6 +23,17 @@ Eigen::Vector3d Grid::design_point(int cell) const {
 
 int Grid::valid_count() const { return static_cast<int>(std::count(valid.begin(), valid.end(), true)); }
 
+double missing_volume_m3(const Grid& g) {
+  double v = 0.0;
+  for (int c = 0; c < g.size(); ++c) {
+    const double t = g.td_m[c];
+    if (!g.valid[static_cast<std::size_t>(c)] || !(t > 0.0)) continue;
+    const double r = g.profile.radius_at(g.theta_center(g.row_of(c)));
+    v += g.dtheta_rad * g.cell_size_m * (r * t + 0.5 * t * t);
+  }
+  return v;
+}
+
 Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile) {
   Eigen::VectorXd td(cloud.size());
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {

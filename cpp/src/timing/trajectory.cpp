@@ -52,6 +52,41 @@ void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double 
   qdd = dq * (shape_ddg(SpeedShape::Quintic, x) / (T * T));
 }
 
+double quintic_nozzle_duration(const Robot& robot, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1,
+                               double max_speed_mps, double max_accel_mps2) {
+  if (!(max_speed_mps > 0.0) || !(max_accel_mps2 > 0.0))
+    throw std::invalid_argument("quintic_nozzle_duration: the nozzle limits must be > 0 (speed " + num(max_speed_mps) +
+                                " m/s, acceleration " + num(max_accel_mps2) + " m/s^2)");
+  const double t_joint = quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits());
+  if (!(t_joint > 0.0)) return t_joint;
+  // Nozzle positions of the quintic at T = 1 s; central differences give its speed and acceleration.
+  constexpr int n = kQuinticNozzleSteps;
+  const double h = 1.0 / n;
+  std::vector<Eigen::Vector3d> p(n + 1);
+  Eigen::VectorXd q, qd, qdd;
+  for (int k = 0; k <= n; ++k) {
+    quintic_joint(q0, q1, 1.0, k * h, q, qd, qdd);
+    p[static_cast<std::size_t>(k)] = robot.fk(q).translation();
+  }
+  double v1 = 0.0, a1 = 0.0;
+  for (std::size_t k = 1; k < p.size() - 1; ++k) {
+    v1 = std::max(v1, (p[k + 1] - p[k - 1]).norm() / (2.0 * h));
+    a1 = std::max(a1, (p[k + 1] - 2.0 * p[k] + p[k - 1]).norm() / (h * h));
+  }
+  return std::max({t_joint, kQuinticNozzleMargin * v1 / max_speed_mps,
+                   std::sqrt(kQuinticNozzleMargin * a1 / max_accel_mps2)});
+}
+
+CycleTimeBreakdown& CycleTimeBreakdown::operator+=(const CycleTimeBreakdown& o) {
+  spraying_s += o.spraying_s;
+  turn_arounds_s += o.turn_arounds_s;
+  leads_s += o.leads_s;
+  transits_s += o.transits_s;
+  stop_and_go_s += o.stop_and_go_s;
+  other_s += o.other_s;
+  return *this;
+}
+
 Eigen::MatrixXd TimedTrajectory::joint_table() const {
   const Eigen::Index n = static_cast<Eigen::Index>(t_s.size());
   const Eigen::Index dof = q.empty() ? 0 : q.front().size();
@@ -113,14 +148,34 @@ NozzlePose pose_of(const Eigen::Isometry3d& T) {
   return p;
 }
 
-// Exact time spent on spraying pieces (from the profile, not from the samples).
-double spraying_time(const CartesianPath& path, const SpeedProfile& prof) {
-  double t = 0.0;
-  for (std::size_t i = 0; i < path.pieces().size(); ++i)
-    if (path.pieces()[i].spraying)
-      t += prof.time_at_distance(path.piece_start_m(i) + path.pieces()[i].length_m()) -
-           prof.time_at_distance(path.piece_start_m(i));
-  return t;
+// The bucket of a path piece's time (CycleTimeBreakdown).
+double& bucket_of(const PathPiece& piece, CycleTimeBreakdown& b) {
+  if (piece.spraying) return b.spraying_s;
+  switch (piece.kind) {
+    case SegmentKind::Turn: return b.turn_arounds_s;
+    case SegmentKind::Lead: return b.leads_s;
+    case SegmentKind::Link:
+      return piece.motion == PieceMotion::StopAtEnd || piece.motion == PieceMotion::RestToRest ||
+                     piece.motion == PieceMotion::StartFromRest
+                 ? b.stop_and_go_s
+                 : b.turn_arounds_s;
+    default: return b.other_s;
+  }
+}
+
+// Exact time of the path's pieces by bucket (from the profile, not from the samples); without
+// the rest-to-rest pieces when time_plan replaces them by joint moves. The path ends at the
+// profile's duration (as stretch_windows), so the parts add up to the timed windows.
+CycleTimeBreakdown piece_times(const CartesianPath& path, const SpeedProfile& prof, bool rest_to_rest_in_joint_space) {
+  CycleTimeBreakdown b;
+  const std::size_t n = path.pieces().size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const PathPiece& piece = path.pieces()[i];
+    if (rest_to_rest_in_joint_space && piece.motion == PieceMotion::RestToRest) continue;
+    const double end_s = i + 1 == n ? prof.duration_s() : prof.time_at_distance(path.piece_start_m(i + 1));
+    bucket_of(piece, b) += end_s - (i == 0 ? 0.0 : prof.time_at_distance(path.piece_start_m(i)));
+  }
+  return b;
 }
 
 void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const NozzlePose& pose, char spray, int pass,
@@ -269,13 +324,16 @@ std::vector<Eigen::VectorXd> first_stretch_joints(const TimingContext& ctx, cons
   return jq;
 }
 
-// Joint quintic from rest at q0 to rest at q1, appended from time t0 (not included) as samples
-// of kind Transit (region index `region`, slot -1). Returns its duration.
-double append_joint_move(const Robot& robot, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double t0,
-                         double rate_hz, int region, RegionTiming& out) {
-  const double T = quintic_min_duration(q0, q1, robot.velocity_limits(), robot.acceleration_limits());
+// Joint quintic from rest at q0 to rest at q1 within the joint and nozzle limits, appended from
+// time t0 (not included) as samples of kind Transit (region index `region`, slot -1). Returns its
+// duration.
+double append_joint_move(const TimingContext& ctx, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double t0,
+                         int region, RegionTiming& out) {
+  const Robot& robot = ctx.robot;
+  const double T =
+      quintic_nozzle_duration(robot, q0, q1, ctx.timing.nozzle_max_speed_mps, ctx.timing.nozzle_max_accel_mps2);
   if (!(T > 0.0)) return T;
-  for (double t : time_grid(T, rate_hz)) {
+  for (double t : time_grid(T, ctx.timing.trajectory_rate_hz)) {
     if (t == 0.0) continue;
     Eigen::VectorXd q, qd, qdd;
     quintic_joint(q0, q1, T, t, q, qd, qdd);
@@ -320,10 +378,11 @@ RegionTiming time_region(const TimingContext& ctx, const RegionJob& job, const E
     out.tracked = out.tracked && tracked;
     // Joint quintic from the previous rest configuration: the transit between regions (c == 0)
     // or the stop-and-go move inside the region.
-    const double T = append_joint_move(ctx.robot, q_prev, jq.front(), t0, rate, c == 0 ? -1 : r, out);
+    const double T = append_joint_move(ctx, q_prev, jq.front(), t0, c == 0 ? -1 : r, out);
     if (T > 0.0) {
       t0 += T;
       tr.transit_time_s += T;
+      (c == 0 ? tr.cycle_time.transits_s : tr.cycle_time.stop_and_go_s) += T;
     }
     for (std::size_t k = 1; k < cs.t_s.size(); ++k) {
       push_sample(tr, t0 + cs.t_s[k] - wa, jq[k], cs.nozzle[k], cs.spraying[k], cs.pass_index[k], r, cs.kind[k]);
@@ -334,7 +393,8 @@ RegionTiming time_region(const TimingContext& ctx, const RegionJob& job, const E
     q_prev = jq.back();
   }
   tr.duration_s = t0;
-  tr.spray_time_s = spraying_time(path, rs.profile);
+  tr.cycle_time += piece_times(path, rs.profile, true);
+  tr.spray_time_s = tr.cycle_time.spraying_s;
   return out;
 }
 
@@ -439,6 +499,7 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     t0 += part.duration_s;
     tr.transit_time_s += part.transit_time_s;
     tr.spray_time_s += part.spray_time_s;
+    tr.cycle_time += part.cycle_time;
     if (!best.tracked) ++tr.untracked_regions;
     if (!part.q.empty()) q_prev = part.q.back();
     pass_offset += static_cast<int>(regions[r].size());
@@ -463,7 +524,8 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
   tr.kind = cs.kind;
   tr.duration_s = profile.duration_s();
   tr.untracked_regions = tracked ? 0 : 1;
-  tr.spray_time_s = spraying_time(path, profile);
+  tr.cycle_time = piece_times(path, profile, false);
+  tr.spray_time_s = tr.cycle_time.spraying_s;
   finish_trajectory(robot, tr);
   return tr;
 }

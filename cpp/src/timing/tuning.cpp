@@ -11,7 +11,7 @@
 #include "detail.hpp"
 #include "shotcrete/robot/joint_tracking.hpp"
 #include "shotcrete/robot/robot.hpp"
-#include "shotcrete/timing/trajectory.hpp"  // quintic_min_duration
+#include "shotcrete/timing/trajectory.hpp"  // quintic_nozzle_duration
 
 namespace shotcrete {
 
@@ -60,7 +60,9 @@ RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& 
     st.q = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
     tracked_ = tracked_ && tracked;
     finite_differences(st.s, st.q, st.dq, st.ddq, true);
-    if (c > 0) move_s_.push_back(quintic_min_duration(q_prev, st.q.front(), vel_limit_, acc_limit_));
+    if (c > 0)
+      move_s_.push_back(quintic_nozzle_duration(robot, q_prev, st.q.front(), timing.nozzle_max_speed_mps,
+                                                timing.nozzle_max_accel_mps2));
     q_prev = st.q.back();
     stretches_.push_back(std::move(st));
   }
@@ -207,8 +209,8 @@ struct RegionCost {
     double time = 0.0, worst = 0.0;
     if (model) {
       const auto ev = model->evaluate(p, ctx.limits);
-      time = ev.duration_s + quintic_min_duration(q_prev, ev.q_first, ctx.robot->velocity_limits(),
-                                                  ctx.robot->acceleration_limits());
+      time = ev.duration_s + quintic_nozzle_duration(*ctx.robot, q_prev, ev.q_first, ctx.timing.nozzle_max_speed_mps,
+                                                     ctx.timing.nozzle_max_accel_mps2);
       // Only what the parameters shape (see Evaluation): an excess elsewhere would make every
       // particle infeasible alike; plan_for_arm and time_plan deal with it.
       const double jm = ctx.joint_share;

@@ -54,14 +54,20 @@ struct IkSummary {
 struct TrajectorySummary {
   std::size_t samples = 0;
   double duration_s = 0.0, spray_time_s = 0.0, transit_time_s = 0.0;
+  CycleTimeBreakdown cycle_time;  // duration_s by what the arm does (TimedTrajectory::cycle_time)
   double max_velocity_ratio = 0.0, max_acceleration_ratio = 0.0;
+  // Worst nozzle speed / limit and |acceleration| / limit over every sample (spraying or not),
+  // from central finite differences of the sampled nozzle positions (independent of the timing).
+  double max_nozzle_speed_ratio = 0.0, max_nozzle_accel_ratio = 0.0;
   int worst_velocity_joint = -1, worst_acceleration_joint = -1;
   double max_position_violation_rad = 0.0;  // revolute joints, outside their position limits
   double max_position_violation_m = 0.0;    // prismatic joints
   int untracked_regions = 0;
 };
-TrajectorySummary summarise_trajectory(const TimedTrajectory& trajectory);
-/// {samples, duration_s, ..., max_position_violation_rad, max_position_violation_m, untracked_regions}: every field.
+/// The trajectory's scalars; the nozzle ratios against nozzle_limits (timing.nozzle_max_*).
+TrajectorySummary summarise_trajectory(const TimedTrajectory& trajectory, const NozzleLimits& nozzle_limits);
+/// {samples, duration_s, ..., max_position_violation_rad, max_position_violation_m, untracked_regions}: every field
+/// (cycle_time as cycle_time_breakdown_s).
 std::string to_json(const TrajectorySummary& summary);
 
 /// The timing swarm of a plan for the arm (timing.tune_with_pso).
@@ -95,12 +101,15 @@ struct JobSummary {
   std::vector<RoundSummary> rounds_detail;
   IkSummary ik;
   std::optional<TrajectorySummary> trajectory;  // none when the timing failed (ik.error)
+  // The whole executed trajectory (= its duration; breakdown in trajectory->cycle_time) and its
+  // ratio to physical_limit_s: none without a trajectory (or a zero limit for the ratio).
+  std::optional<double> cycle_time_s, cycle_time_ratio;
   double trajectory_rate_hz = 0.0;               // timing.trajectory_rate_hz
   double config_timing_duration_s = 0.0;         // trajectory duration with the config's timing
   std::optional<SwarmSummary> swarm;             // with a trajectory, when the swarm ran or failed
 
-  /// The JSON object report.json starts with (same keys, same order); total_time_s is the
-  /// trajectory's duration (null without one). Compact, one line.
+  /// The JSON object report.json starts with (same keys, same order); total_time_s and cycle_time_s
+  /// are the trajectory's duration, cycle_time_breakdown_s its parts (null without one). Compact, one line.
   std::string to_json() const;
 };
 

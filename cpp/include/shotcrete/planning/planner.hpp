@@ -73,7 +73,7 @@ struct Plan {
   Eigen::VectorXd deposited_m;              // per point of the surface cloud, all rounds
   Cloud sprayed_cloud;                      // surface cloud moved by the deposit
   double spray_time_s = 0.0;
-  double required_volume_m3 = 0.0;          // concrete missing behind the design line (TD > 0)
+  double required_volume_m3 = 0.0;          // concrete missing behind the design line (TD > 0), ring sectors (missing_volume_m3)
   double deposition_rate_m3ps = 0.0;        // concrete that stays on the wall per second of spraying
   double physical_limit_s = 0.0;            // required volume / deposition rate
   StopReason stop_reason;

@@ -47,6 +47,11 @@ struct Grid {
 Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
                 const GridConfig& config, double max_deviation_m);
 
+/// Concrete missing behind the design line [m^3]: a valid cell with TD t > 0 holds the ring sector
+/// between the design radius r at its theta and r + t, dtheta * dd * (r t + t^2 / 2) (the flat
+/// cell volume t * dd * r dtheta times 1 + t / (2 r)); cells with t <= 0 or invalid hold none.
+double missing_volume_m3(const Grid& grid);
+
 /// Per-point TD (r - r_design) in metres.
 Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile);
 

@@ -25,6 +25,34 @@ double quintic_min_duration(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1
 void quintic_joint(const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double duration_s, double t_s,
                    Eigen::VectorXd& q, Eigen::VectorXd& qd, Eigen::VectorXd& qdd);
 
+/// The same quintic stretched until the nozzle (tool tip, FK) also stays within max_speed_mps and
+/// max_accel_mps2. The nozzle's geometric path does not depend on the duration, so its speed scales
+/// as 1 / T and its acceleration as 1 / T^2: the peaks at T = 1 s, by finite differences of FK
+/// positions on kQuinticNozzleSteps steps of the quintic, give the shortest T directly (times
+/// kQuinticNozzleMargin, for the finite-difference error). Never shorter than quintic_min_duration.
+double quintic_nozzle_duration(const Robot& robot, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1,
+                               double max_speed_mps, double max_accel_mps2);
+constexpr int kQuinticNozzleSteps = 200;
+constexpr double kQuinticNozzleMargin = 1.01;
+
+/// Where the time of a trajectory goes, from the path pieces and joint moves it was built from
+/// (exact, not from the samples: a Link piece can be part of a turn-around or of a stop-and-go
+/// move, which the per-sample kind does not tell). The parts add up to the duration.
+struct CycleTimeBreakdown {
+  double spraying_s = 0.0;      // pieces with the nozzle on, whatever their kind
+  double turn_arounds_s = 0.0;  // nozzle off on a turn-around between serpentine neighbours (its arc,
+                                // straight runs and joining curves) or a spray-off gap along a pass line
+  double leads_s = 0.0;         // nozzle off on the lead-in / lead-out runs of a region or pass (Lead)
+  double transits_s = 0.0;      // joint quintics between regions (and from the start configuration)
+  double stop_and_go_s = 0.0;   // inside a region between passes that are no serpentine neighbours:
+                                // the run-out to rest, the joint quintic, the run-in from rest
+  double other_s = 0.0;         // anything else (a Pass or Transit piece with the nozzle off)
+  double total_s() const {
+    return spraying_s + turn_arounds_s + leads_s + transits_s + stop_and_go_s + other_s;
+  }
+  CycleTimeBreakdown& operator+=(const CycleTimeBreakdown& o);
+};
+
 struct TimedTrajectory {
   std::vector<double> t_s;
   std::vector<Eigen::VectorXd> q, qd, qdd;
@@ -36,6 +64,7 @@ struct TimedTrajectory {
   double duration_s = 0.0;
   double spray_time_s = 0.0;     // time with spraying on (exact, from the profiles)
   double transit_time_s = 0.0;   // joint-space moves: between regions and stop-and-go inside them
+  CycleTimeBreakdown cycle_time;  // duration_s by what the arm does
   // Limit check of the finite-difference velocities / accelerations (worst |value| / limit).
   double max_velocity_ratio = 0.0;
   double max_acceleration_ratio = 0.0;
@@ -58,7 +87,9 @@ struct TimedTrajectory {
 /// q_start: transit (joint quintic, minimum duration) -> region (IK per sample, warm-started)
 /// -> transit -> ... Velocities / accelerations by finite differences of the sampled joint path.
 /// Inside a region the stop-and-go moves (between passes that are no serpentine neighbours) are
-/// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Where the
+/// joint quintics too (kind Transit with the region's index; counted in transit_time_s). Every joint
+/// quintic also keeps the nozzle within timing.nozzle_max_speed_mps / nozzle_max_accel_mps2
+/// (quintic_nozzle_duration). Where the
 /// turns, runs or leads of a region break a joint acceleration limit, the region is re-timed (up to
 /// 5 more times) with the accelerations of the offending lead or gap scaled down by its own excess
 /// (the others keep theirs); the passes keep their planned speeds. params: empty = the config's

@@ -50,7 +50,7 @@ class RegionJointModel {
   double max_lead_m_;
   bool tracked_ = true;
   std::vector<Stretch> stretches_;  // stretch k + 1 follows the joint move k
-  std::vector<double> move_s_;      // minimal quintic duration of each joint move
+  std::vector<double> move_s_;      // quintic_nozzle_duration of each joint move
   Eigen::VectorXd vel_limit_, acc_limit_;
   // Stretch containing s, -1 inside a joint move.
   int stretch_at(double s) const;
