@@ -168,6 +168,9 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     }
     if (progress) progress("timing swarm", 1.0);
   }
+  if (progress) progress("executed deposit", 0.0);
+  out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
+  if (progress) progress("executed deposit", 1.0);
   return out;
 }
 
