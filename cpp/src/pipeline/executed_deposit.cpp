@@ -192,39 +192,56 @@ std::vector<int> sample_rounds(const TimedTrajectory& tr, const std::vector<int>
   return out;
 }
 
-// Concrete on the valid cells of the wall: per cell the mean thickness of its points times the
-// cell's area (its design-line area scaled to its radius and tilted by its normal) [m^3].
+// Concrete on the valid cells of the wall [m^3]: every point of a cell stands for an equal share
+// of the cell's footprint on the cylinder through it (the design-line area scaled to the cell's
+// radius), tilted by the point's own normal against the radial direction (the surface it samples
+// is that much larger; the deposit's thickness is measured along that normal).
 double on_wall_m3(const SprayedWall& wall, const Eigen::VectorXd& thickness_m) {
   const Grid& g = wall.surface.grid;
+  const Cloud& cloud = wall.surface.cloud;
   std::vector<double> sum(static_cast<std::size_t>(g.size()), 0.0);
   std::vector<int> count(static_cast<std::size_t>(g.size()), 0);
   for (Eigen::Index i = 0; i < thickness_m.size(); ++i) {
     const int c = wall.cell_of_point[static_cast<std::size_t>(i)];
-    if (c < 0) continue;
-    sum[static_cast<std::size_t>(c)] += thickness_m[i];
+    if (c < 0 || !g.valid[static_cast<std::size_t>(c)]) continue;
+    const Eigen::Vector3d radial = g.axis.radial(g.theta_center(g.row_of(c)));
+    const double cos_tilt = std::max(0.5, std::abs(cloud.normals.row(i).dot(radial.transpose())));
+    sum[static_cast<std::size_t>(c)] += thickness_m[i] / cos_tilt;
     ++count[static_cast<std::size_t>(c)];
   }
   double volume = 0.0;
   for (int c = 0; c < g.size(); ++c) {
     const auto k = static_cast<std::size_t>(c);
-    if (!g.valid[k] || count[k] == 0) continue;
-    const double theta = g.theta_center(g.row_of(c)), radius = g.profile.radius_at(theta);
-    const double cos_tilt = std::max(0.5, -g.mean_normal.row(c).transpose().dot(g.axis.radial(theta)));
-    const double area = g.cell_size_m * g.cell_size_m * (radius + g.td_m[c]) / radius / cos_tilt;
-    volume += area * sum[k] / count[k];
+    if (count[k] == 0) continue;
+    const double radius = g.profile.radius_at(g.theta_center(g.row_of(c)));
+    volume += g.cell_size_m * g.cell_size_m * (radius + g.td_m[c]) / radius * sum[k] / count[k];
   }
   return volume;
 }
 
-// Share of the spot's volume whose rays meet the design surface off every valid cell: the disc at
-// H0 split into rings of equal volume (1 - (1 - r^2/R^2)^beta = (k + 1/2) / rings) and directions.
+// Cell a ray from c (relative to the axis origin) along u meets on the cylinder of radius R about
+// the axis; -1 when it meets none of the grid's cells.
+int cell_on_cylinder(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector3d& u, double R) {
+  const TunnelAxis& ax = grid.axis;
+  const Eigen::Vector3d c_perp = c - c.dot(ax.ex) * ax.ex, u_perp = u - u.dot(ax.ex) * ax.ex;
+  const double A = u_perp.squaredNorm(), B = 2.0 * c_perp.dot(u_perp), C = c_perp.squaredNorm() - R * R;
+  const double disc = B * B - 4.0 * A * C;
+  if (!(A > 1e-12) || disc < 0.0) return -1;
+  const double t = (-B + std::sqrt(disc)) / (2.0 * A);
+  if (!(t > 0.0)) return -1;
+  const Eigen::Vector3d cyl = ax.to_cylindrical(ax.origin_m + c + t * u);
+  return grid.cell_at(cyl[1], cyl[2]);
+}
+
+// Share of the spot's volume whose rays meet the wall off every valid cell: the disc at H0 split
+// into rings of equal volume (1 - (1 - r^2/R^2)^beta = (k + 1/2) / rings) and directions; each ray
+// meets the design surface, then the cylinder through the TD of the cell it met there.
 double miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose& nozzle) {
   constexpr int kRings = 8, kDirections = 16;
   const Eigen::Vector3d a = nozzle.axis.normalized();
   const Eigen::Vector3d e1 = a.unitOrthogonal(), e2 = a.cross(e1);
-  const TunnelAxis& ax = grid.axis;
-  const Eigen::Vector3d c = nozzle.position_m - ax.origin_m;
-  const Eigen::Vector3d c_perp = c - c.dot(ax.ex) * ax.ex;
+  const Eigen::Vector3d c = nozzle.position_m - grid.axis.origin_m;
+  const double R = grid.profile.radius_m;
   int missed = 0;
   for (int k = 0; k < kRings; ++k) {
     const double f = (k + 0.5) / kRings;
@@ -232,15 +249,9 @@ double miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose&
     for (int j = 0; j < kDirections; ++j) {
       const double phi = 2.0 * M_PI * (j + 0.5 * (k % 2)) / kDirections;
       const Eigen::Vector3d u = (model.reference_standoff_m * a + rho * (std::cos(phi) * e1 + std::sin(phi) * e2)).normalized();
-      const Eigen::Vector3d u_perp = u - u.dot(ax.ex) * ax.ex;
-      const double A = u_perp.squaredNorm(), B = 2.0 * c_perp.dot(u_perp);
-      const double R = grid.profile.radius_m, C = c_perp.squaredNorm() - R * R, disc = B * B - 4.0 * A * C;
-      const double t = A > 1e-12 && disc >= 0.0 ? (-B + std::sqrt(disc)) / (2.0 * A) : -1.0;
-      int cell = -1;
-      if (t > 0.0) {
-        const Eigen::Vector3d cyl = ax.to_cylindrical(nozzle.position_m + t * u);
-        cell = grid.cell_at(cyl[1], cyl[2]);
-      }
+      int cell = cell_on_cylinder(grid, c, u, R);
+      if (cell >= 0 && grid.valid[static_cast<std::size_t>(cell)])
+        cell = cell_on_cylinder(grid, c, u, R + grid.td_m[cell]);
       if (cell < 0 || !grid.valid[static_cast<std::size_t>(cell)]) ++missed;
     }
   }
@@ -259,12 +270,15 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
   ExecutedDeposit out{Eigen::VectorXd::Zero(surface.cloud.size()), {}, {}, {},
                       unsprayed_wall(surface, config.profile.max_deviation_m), flow_schedule(tr.t_s, tr.spraying, config.flow), {}};
   const std::vector<double> dwell = flow_dwells(out.flow, tr.t_s);
+  double missed = 0.0;  // full-flow seconds whose spray lands off the scanned cells
   for (std::size_t k = 0; k < regions_per_round.size(); ++k) {
     std::vector<NozzlePose> poses;
     std::vector<double> dwells;
     for (std::size_t i = 0; i < tr.size(); ++i)
       if (round_of[i] == static_cast<int>(k) && dwell[i] > 0.0) poses.push_back(tr.nozzle[i]), dwells.push_back(dwell[i]);
     Eigen::VectorXd deposit = Eigen::VectorXd::Zero(out.wall.surface.cloud.size());
+    for (std::size_t j = 0; j < poses.size(); ++j)
+      missed += dwells[j] * miss_fraction(model, out.wall.surface.grid, poses[j]);
     if (!poses.empty()) {
       const SurfaceIndex index(out.wall.surface.cloud, 0.05);  // the wall as moved so far, as plan_bay
       accumulate_dwells(model, index, poses, dwells, rebound, deposit);
@@ -276,13 +290,7 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
     out.round_td_after_m.push_back(out.wall.surface.grid.td_m);
   }
   out.td_after_m = out.wall.surface.grid.td_m;
-  double on_time = 0.0, missed = 0.0;
-  for (std::size_t i = 0; i < tr.size(); ++i) {
-    if (!(dwell[i] > 0.0)) continue;
-    on_time += dwell[i];
-    missed += dwell[i] * miss_fraction(model, surface.grid, tr.nozzle[i]);
-  }
-  out.volumes.sprayed_m3 = rate * on_time;
+  out.volumes.sprayed_m3 = rate * out.flow.on_time_s();
   out.volumes.rebound_m3 = rebound * out.volumes.sprayed_m3;
   out.volumes.outside_m3 = rate * (1.0 - rebound) * missed;
   out.bridged_volume_m3 = rate * out.flow.bridged_s;
