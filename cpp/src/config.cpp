@@ -105,6 +105,10 @@ void validate(const Config& config) {
     throw std::invalid_argument("config: synth.theta_min_rad must be below synth.theta_max_rad");
   if (s.pit_depth_min_m > s.pit_depth_max_m || s.pit_radius_min_m > s.pit_radius_max_m)
     throw std::invalid_argument("config: synth pit ranges must have min <= max");
+  const auto& fl = config.flow;
+  if (fl.ramp_s > fl.min_on_s || fl.ramp_s > fl.min_off_s)
+    throw std::invalid_argument("config: flow.ramp_s = " + std::to_string(fl.ramp_s) +
+                                " must not exceed flow.min_on_s or flow.min_off_s (ramps would overlap)");
   if (config.planner.min_speed_mps >= config.planner.max_speed_mps)
     throw std::invalid_argument("config: planner.min_speed_mps must be below planner.max_speed_mps");
 }

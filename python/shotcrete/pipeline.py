@@ -38,7 +38,7 @@ def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progr
 
     progress("report", 0.0)
     t_report = time.perf_counter()
-    figures = figures_step(out / "figures", surface, arm_plan.plan, summary)
+    figures = figures_step(out / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
     files = files_step(out, surface, arm_plan)
     timings["report"] = time.perf_counter() - t_report
     timings["total"] = time.perf_counter() - t0
@@ -70,9 +70,10 @@ def plan_step(surface, config, robot, progress: Progress, timings: dict):
     return arm_plan
 
 
-def figures_step(figs_dir: Path, surface, plan, summary) -> list[tuple[str, Path]]:
+def figures_step(figs_dir: Path, surface, plan, summary, executed=None) -> list[tuple[str, Path]]:
     """The report's figures as (caption, file): TD and levels before, each round's passes, TD and
-    levels after it, cells per level per round, speeds, the residual."""
+    levels after it (the planner's estimate), cells per level per round, speeds, the residual (of
+    the executed deposit when there is one: ``executed``, an ExecutedDeposit) and the planner's."""
     grid = surface.grid
     valid = np.asarray(grid.valid).reshape(-1)
     td_before = np.asarray(grid.td_m).reshape(-1)
@@ -101,9 +102,17 @@ def figures_step(figs_dir: Path, surface, plan, summary) -> list[tuple[str, Path
     figures.append(("Cells per level, per round", plots.level_counts_chart(counts, labels, figs_dir / "level_counts.png")))
     if plan.rounds:
         figures.append(("Nozzle speed per pass", plots.speeds_chart(plan, figs_dir / "speeds.png")))
-    figures.append(("Residual after spraying (TD, mm)",
-                    plots.td_map_flat(grid, np.asarray(plan.td_after_m), figs_dir / "td_after.png",
-                                      "Residual TD after spraying", 50.0)))
+    if executed is not None:
+        figures.append(("Residual after spraying, executed along the trajectory with the pump's flow (TD, mm)",
+                        plots.td_map_flat(grid, np.asarray(executed.td_after_m), figs_dir / "td_after.png",
+                                          "Residual TD after spraying (executed)", 50.0)))
+        figures.append(("Residual the planner estimated (TD, mm)",
+                        plots.td_map_flat(grid, np.asarray(plan.td_after_m), figs_dir / "td_after_planned.png",
+                                          "Residual TD after spraying (planned)", 50.0)))
+    else:
+        figures.append(("Residual after spraying, the planner's estimate: no trajectory (TD, mm)",
+                        plots.td_map_flat(grid, np.asarray(plan.td_after_m), figs_dir / "td_after.png",
+                                          "Residual TD after spraying (planned)", 50.0)))
     return figures
 
 
@@ -121,8 +130,8 @@ def _pass_tracks(plan_round, surface):
 
 
 def files_step(out: Path, surface, arm_plan) -> dict:
-    """plan.json, trajectory.npz (when timed), surface.ply and sprayed.ply; returns report.json's
-    ``files`` entry."""
+    """plan.json, trajectory.npz (when timed), surface.ply and sprayed.ply (the executed deposit's
+    wall when timed); returns report.json's ``files`` entry."""
     plan, trajectory = arm_plan.plan, arm_plan.trajectory
     (out / "plan.json").write_text(json.dumps(plan_to_dict(plan)) + "\n")
     files = {"plan": "plan.json", "surface_cloud": "surface.ply", "sprayed_cloud": "sprayed.ply"}
@@ -133,8 +142,9 @@ def files_step(out: Path, surface, arm_plan) -> dict:
                             region_index=trajectory.region_index)
         files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle
     write_cloud(out / "surface.ply", surface.cloud, _core.point_td(surface.cloud, surface.axis, surface.profile))
-    write_cloud(out / "sprayed.ply", plan.sprayed_cloud,
-                _core.point_td(plan.sprayed_cloud, surface.axis, surface.profile))
+    # The wall as the trajectory sprays it; the planner's estimate without a trajectory.
+    sprayed = arm_plan.executed.sprayed_cloud if arm_plan.executed is not None else plan.sprayed_cloud
+    write_cloud(out / "sprayed.ply", sprayed, _core.point_td(sprayed, surface.axis, surface.profile))
     return files
 
 

@@ -5,7 +5,59 @@
 
 using namespace shotcrete;
 
+namespace {
+void bind_executed(py::module_& m) {
+  py::class_<FlowSchedule>(m, "FlowSchedule", "The pump's flow: spells on, centred linear ramps.")
+      .def_readonly("on_s", &FlowSchedule::on_s)
+      .def_readonly("off_s", &FlowSchedule::off_s)
+      .def_readonly("ramp_s", &FlowSchedule::ramp_s)
+      .def_readonly("commanded_on_s", &FlowSchedule::commanded_on_s)
+      .def_readonly("bridged_s", &FlowSchedule::bridged_s)
+      .def_readonly("extended_s", &FlowSchedule::extended_s)
+      .def_readonly("commanded_switches", &FlowSchedule::commanded_switches)
+      .def("switches", &FlowSchedule::switches)
+      .def("shortest_on_s", &FlowSchedule::shortest_on_s)
+      .def("shortest_off_s", &FlowSchedule::shortest_off_s)
+      .def("on_time_s", &FlowSchedule::on_time_s)
+      .def("flow_at", &FlowSchedule::flow_at, py::arg("t_s"))
+      .def("integral_to", &FlowSchedule::integral_to, py::arg("t_s"));
+  m.def(
+      "flow_schedule",
+      [](const std::vector<double>& t_s, const py::array_t<double, py::array::forcecast>& spraying, const FlowConfig& flow) {
+        std::vector<char> flags(static_cast<std::size_t>(spraying.size()));
+        for (py::ssize_t i = 0; i < spraying.size(); ++i) flags[static_cast<std::size_t>(i)] = spraying.data()[i] != 0.0;
+        return flow_schedule(t_s, flags, flow);
+      },
+      py::arg("t_s"), py::arg("spraying"), py::arg("flow"),
+        "The pump's schedule for the spraying flags of samples at t_s (FlowConfig); ValueError on bad input.");
+  m.def("flow_dwells", &flow_dwells, py::arg("schedule"), py::arg("t_s"),
+        "Full-flow dwell of every sample: the schedule's flow over the sample's share of time.");
+  py::class_<DepositVolumes>(m, "DepositVolumes", "Volumes of the executed deposit [m^3].")
+      .def_readonly("sprayed_m3", &DepositVolumes::sprayed_m3)
+      .def_readonly("rebound_m3", &DepositVolumes::rebound_m3)
+      .def_readonly("on_wall_m3", &DepositVolumes::on_wall_m3)
+      .def_readonly("outside_m3", &DepositVolumes::outside_m3)
+      .def("balance_error", &DepositVolumes::balance_error);
+  py::class_<ExecutedDeposit>(m, "ExecutedDeposit", "The deposit laid along the timed trajectory with the pump's flow.")
+      .def_readonly("deposited_m", &ExecutedDeposit::deposited_m)
+      .def_readonly("td_after_m", &ExecutedDeposit::td_after_m)
+      .def_readonly("round_deposited_m", &ExecutedDeposit::round_deposited_m)
+      .def_readonly("round_td_after_m", &ExecutedDeposit::round_td_after_m)
+      .def_property_readonly("sprayed_cloud", [](const ExecutedDeposit& e) { return e.wall.surface.cloud; })
+      .def_property_readonly("levels", [](const ExecutedDeposit& e) { return e.wall.surface.levels; })
+      .def_readonly("flow", &ExecutedDeposit::flow)
+      .def_readonly("volumes", &ExecutedDeposit::volumes)
+      .def_readonly("bridged_volume_m3", &ExecutedDeposit::bridged_volume_m3)
+      .def_readonly("extended_volume_m3", &ExecutedDeposit::extended_volume_m3);
+  m.def("execute_deposit",
+        py::overload_cast<const Surface&, const Plan&, const TimedTrajectory&, const Config&>(&execute_deposit),
+        py::arg("surface"), py::arg("plan"), py::arg("trajectory"), py::arg("config"),
+        "The deposit the trajectory lays on the surface, round by round on the moved wall.");
+}
+}  // namespace
+
 void bind_pipeline(py::module_& m) {
+  bind_executed(m);
   py::class_<TdStatsMm>(m, "TdStatsMm", "A TD over the valid grid cells [mm].")
       .def_readonly("mean", &TdStatsMm::mean)
       .def_readonly("min", &TdStatsMm::min)
@@ -88,6 +140,20 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("td_before_mm", &JobSummary::td_before_mm)
       .def_readonly("levels_after", &JobSummary::levels_after)
       .def_readonly("residual_mm", &JobSummary::residual_mm)
+      .def_readonly("deposit_source", &JobSummary::deposit_source)
+      .def_readonly("planned_levels_after", &JobSummary::planned_levels_after)
+      .def_readonly("planned_residual_mm", &JobSummary::planned_residual_mm)
+      .def_property_readonly("planned_vs_executed_mm",
+                             [](const JobSummary& s) -> py::object {
+                               if (!s.planned_vs_executed_mm) return py::none();
+                               const auto& d = *s.planned_vs_executed_mm;
+                               py::dict out;
+                               out["rms"] = d.rms, out["max_abs"] = d.max_abs, out["mean"] = d.mean;
+                               return out;
+                             })
+      .def_property_readonly("executed", [](const JobSummary& s) -> py::object {
+        return json_loads(s.to_json())["executed"];
+      })
       .def_readonly("rounds", &JobSummary::rounds)
       .def_readonly("regions", &JobSummary::regions)
       .def_readonly("passes", &JobSummary::passes)

@@ -451,7 +451,10 @@ void bind_timing(py::module_& m) {
       .def_readonly("config_duration_s", &ArmPlan::config_duration_s,
                     "trajectory duration with the config's timing parameters [s]")
       .def_readonly("tuned_timing_used", &ArmPlan::tuned_timing_used)
-      .def_readonly("tuning_error", &ArmPlan::tuning_error);
+      .def_readonly("tuning_error", &ArmPlan::tuning_error)
+      .def_property_readonly("executed",
+                             [](const ArmPlan& a) -> py::object { return a.executed ? py::cast(*a.executed) : py::none(); },
+                             "ExecutedDeposit of the trajectory kept, or None without a trajectory");
   m.def(
       "plan_for_arm",
       [](const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {

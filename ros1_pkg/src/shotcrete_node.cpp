@@ -30,6 +30,7 @@
 
 #include "ros_conversions.hpp"
 #include "shotcrete/pipeline/arm_plan.hpp"
+#include "shotcrete/pipeline/executed_deposit.hpp"
 #include "shotcrete/pipeline/job_summary.hpp"
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition/deposition.hpp"
@@ -172,6 +173,7 @@ class ShotcreteNode {
     const auto t0 = Clock::now();
     auto plan = std::make_shared<Plan>();
     std::shared_ptr<shotcrete::TimedTrajectory> trajectory;
+    std::shared_ptr<shotcrete::ExecutedDeposit> executed;
     shotcrete::JobSummary job;
     try {
       // Planned for the arm (speeds its joints can follow), timed, re-planned where needed.
@@ -187,6 +189,7 @@ class ShotcreteNode {
       *plan = std::move(arm.plan);
       // The plan stays usable (markers, summary) without a trajectory; only ~execute needs it.
       if (arm.trajectory) trajectory = std::make_shared<shotcrete::TimedTrajectory>(std::move(*arm.trajectory));
+      if (arm.executed) executed = std::make_shared<shotcrete::ExecutedDeposit>(std::move(*arm.executed));
     } catch (const std::exception& e) {
       summary = std::string("planning failed: ") + e.what();
       return false;
@@ -201,6 +204,7 @@ class ShotcreteNode {
       std::lock_guard<std::mutex> lock(state_mutex_);
       plan_ = plan;
       trajectory_ = trajectory;
+      executed_ = executed;
     }
     publish_passes(*surface, *plan);
     std_msgs::String msg;
@@ -209,7 +213,9 @@ class ShotcreteNode {
     return true;
   }
 
-  /// Streams the timed trajectory as /joint_states and deposits concrete on the cloud as it goes.
+  /// Streams the timed trajectory as /joint_states and deposits concrete on the cloud as it goes
+  /// (the pump's flow of the executed deposit, on the scan); the final wall and its levels are the
+  /// core's executed deposit (execute_deposit, round by round on the moved wall), as in ~summary.
   bool execute(std::string& summary) {
     std::unique_lock<std::mutex> work(work_mutex_, std::try_to_lock);
     if (!work.owns_lock()) {
@@ -219,17 +225,19 @@ class ShotcreteNode {
     std::shared_ptr<const Surface> surface;
     std::shared_ptr<const shotcrete::TimedTrajectory> traj;
     std::shared_ptr<const Plan> plan;
+    std::shared_ptr<const shotcrete::ExecutedDeposit> executed;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface = surface_;
       traj = trajectory_;
+      executed = executed_;
       plan = plan_;
       if (!plan_) {
         summary = "no plan: call " + pnh_.resolveName("plan") + " first";
         return false;
       }
     }
-    if (!traj || traj->size() < 2) {
+    if (!traj || traj->size() < 2 || !executed) {
       summary = "the plan has no timed trajectory (see the plan summary)";
       return false;
     }
@@ -240,7 +248,7 @@ class ShotcreteNode {
     } reset{executing_};
     const auto model = spot_model();
     const shotcrete::SurfaceIndex index(surface->cloud);
-    const std::vector<double> dwell = shotcrete::spray_dwells(traj->t_s, traj->spraying);
+    const std::vector<double> dwell = shotcrete::flow_dwells(executed->flow, traj->t_s);
     Eigen::VectorXd deposited = Eigen::VectorXd::Zero(surface->cloud.size());
     const Eigen::VectorXd td0 = shotcrete::point_td(surface->cloud, surface->axis, surface->profile);
 
@@ -263,7 +271,10 @@ class ShotcreteNode {
       publish_joints(interpolate(*traj, t, k), ros::Time::now());
       ++published;
       const bool done = t >= duration;
-      if (done || wall - last_cloud_wall >= 1.0 / cloud_rate_hz_) {
+      if (done) {  // the core's executed deposit, round by round on the moved wall
+        const Cloud& sprayed = executed->wall.surface.cloud;
+        publish_cloud(sprayed.xyz, shotcrete::point_td(sprayed, surface->axis, surface->profile));
+      } else if (wall - last_cloud_wall >= 1.0 / cloud_rate_hz_) {
         publish_cloud(surface->cloud.xyz, td0 - deposited);
         last_cloud_wall = wall;
       }
@@ -271,19 +282,18 @@ class ShotcreteNode {
       rate.sleep();
     }
     q_current_ = traj->q.back();
-    const Eigen::VectorXd td1 = td0 - deposited;
-    // Levels of the sprayed wall: the planner's deposit on the scan's cells.
-    shotcrete::SprayedWall wall = shotcrete::unsprayed_wall(*surface, config_.profile.max_deviation_m);
-    shotcrete::deposit_layer(wall, deposited);
-    const Surface& sprayed = wall.surface;
+    const Eigen::VectorXd td1 = shotcrete::point_td(executed->wall.surface.cloud, surface->axis, surface->profile);
+    // Levels of the sprayed wall: the executed deposit's (the summary's levels_after).
+    const Surface& sprayed = executed->wall.surface;
     publish_levels(sprayed);
     std::ostringstream s;
     s << std::fixed << std::setprecision(3) << "executed " << traj->duration_s << " s of trajectory in "
       << seconds_since(t0) << " s wall (time scale " << time_scale << "), " << published
       << " joint states; mean TD " << td0.mean() * 1000 << " -> " << td1.mean() * 1000 << " mm";
-    if (plan->deposited_m.size() == td0.size())  // the planner's own simulation, for comparison
-      s << " (plan predicted " << (td0 - plan->deposited_m).mean() * 1000 << " mm)";
-    s << ", deposited max " << deposited.maxCoeff() * 1000 << " mm, levels_after="
+    if (plan->sprayed_cloud.size() == surface->cloud.size())  // the planner's own simulation, for comparison
+      s << " (plan predicted "
+        << shotcrete::point_td(plan->sprayed_cloud, surface->axis, surface->profile).mean() * 1000 << " mm)";
+    s << ", deposited max " << executed->deposited_m.maxCoeff() * 1000 << " mm, levels_after="
       << levels_text(shotcrete::level_counts(sprayed.levels));
     summary = s.str();
     return ros::ok();
@@ -379,7 +389,7 @@ class ShotcreteNode {
     std::vector<shotcrete::NozzlePose> poses;
     std::vector<double> dwells;
     for (std::size_t i = from; i < to && i < traj.size(); ++i) {
-      if (!traj.spraying[i] || dwell[i] <= 0) continue;
+      if (dwell[i] <= 0) continue;
       poses.push_back(traj.nozzle[i]);
       dwells.push_back(dwell[i]);
     }
@@ -553,6 +563,7 @@ class ShotcreteNode {
   long points_in_ = 0;  // points of the cloud surface_ was built from
   std::shared_ptr<const Plan> plan_;
   std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
+  std::shared_ptr<const shotcrete::ExecutedDeposit> executed_;  // of trajectory_
 
   ros::Publisher cloud_pub_, levels_pub_, passes_pub_, summary_pub_, joint_pub_, tf_static_pub_;
   ros::Subscriber cloud_sub_;

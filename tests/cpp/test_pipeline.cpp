@@ -90,21 +90,34 @@ TEST(JobSummary, FiguresOfABayPlannedForTheArm) {
   EXPECT_EQ(s.rounds, static_cast<int>(plan.rounds.size()));
   ASSERT_EQ(s.rounds_detail.size(), plan.rounds.size());
   EXPECT_EQ(s.rounds_detail.front().round, 1);
-  for (const auto& [level, n] : s.levels_after) {
+  for (const auto& [level, n] : s.planned_levels_after) {
     EXPECT_LE(level, 0);
     after += n;
   }
   EXPECT_EQ(after, s.cells);
-  // Residual over the valid cells, in mm.
-  double lo = 1e9, hi = -1e9;
-  for (std::size_t c = 0; c < surface.grid.valid.size(); ++c)
-    if (surface.grid.valid[c]) {
-      lo = std::min(lo, plan.td_after_m[static_cast<Eigen::Index>(c)] * 1000.0);
-      hi = std::max(hi, plan.td_after_m[static_cast<Eigen::Index>(c)] * 1000.0);
-    }
-  EXPECT_DOUBLE_EQ(s.residual_mm.min, lo);
-  EXPECT_DOUBLE_EQ(s.residual_mm.max, hi);
-  EXPECT_DOUBLE_EQ(s.residual_mm.abs_max, std::max(std::abs(lo), std::abs(hi)));
+  after = 0;
+  for (const auto& [level, n] : s.levels_after) after += n;
+  EXPECT_EQ(after, s.cells);
+  // Residual over the valid cells, in mm: the executed deposit's, and the planner's estimate.
+  ASSERT_TRUE(arm.executed);
+  EXPECT_EQ(s.deposit_source, "executed");
+  const Eigen::VectorXd& executed_td = arm.executed->td_after_m;
+  for (const auto* stats : {&s.residual_mm, &s.planned_residual_mm}) {
+    const Eigen::VectorXd& td = stats == &s.residual_mm ? executed_td : plan.td_after_m;
+    double lo = 1e9, hi = -1e9;
+    for (std::size_t c = 0; c < surface.grid.valid.size(); ++c)
+      if (surface.grid.valid[c]) {
+        lo = std::min(lo, td[static_cast<Eigen::Index>(c)] * 1000.0);
+        hi = std::max(hi, td[static_cast<Eigen::Index>(c)] * 1000.0);
+      }
+    EXPECT_DOUBLE_EQ(stats->min, lo);
+    EXPECT_DOUBLE_EQ(stats->max, hi);
+    EXPECT_DOUBLE_EQ(stats->abs_max, std::max(std::abs(lo), std::abs(hi)));
+  }
+  ASSERT_TRUE(s.planned_vs_executed_mm && s.executed);
+  EXPECT_GE(s.planned_vs_executed_mm->rms, std::abs(s.planned_vs_executed_mm->mean));
+  EXPECT_LT(std::abs(s.executed->balance_error), 0.01);
+  EXPECT_GE(s.executed->shortest_on_s, cfg.flow.min_on_s - 1e-9);
   EXPECT_LE(s.residual_mm.min, s.residual_mm.mean);
   EXPECT_LE(s.residual_mm.mean, s.residual_mm.max);
   EXPECT_GE(s.residual_mm.rms, std::abs(s.residual_mm.mean));

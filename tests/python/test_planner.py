@@ -12,7 +12,8 @@ synth: {theta_min_rad: 1.0, theta_max_rad: 1.6, length_m: 1.2, points_per_cell: 
 
 REPORT_KEYS = {"cells", "levels_before", "levels_after", "residual_mm", "rounds", "passes", "spray_time_s",
                "total_time_s", "required_volume_m3", "physical_limit_s", "spray_time_ratio", "timings_s", "ik",
-               "cycle_time_s", "cycle_time_breakdown_s", "cycle_time_ratio"}
+               "cycle_time_s", "cycle_time_breakdown_s", "cycle_time_ratio",
+               "deposit_source", "planned_residual_mm", "planned_levels_after", "planned_vs_executed_mm", "executed"}
 
 
 @pytest.fixture(scope="module")

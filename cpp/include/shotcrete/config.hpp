@@ -98,6 +98,15 @@ struct DepositionConfig {
   double nominal_flow_m3ph = 5.0;     // machine's nominal concrete flow
 };
 
+// The concrete flow the pump delivers (docs/architecture.md §8): the executed deposit follows it.
+// Defaults are assumptions for a small twin-piston wet-mix pump at 5 m^3/h (config/default.yaml
+// says why); set them from the machine. ramp_s must not exceed min_on_s or min_off_s.
+struct FlowConfig {
+  double ramp_s = 2.0;     // linear start/stop ramp of the flow, centred on the commanded switch
+  double min_on_s = 2.0;   // shortest spell with the flow on (shorter ones are extended)
+  double min_off_s = 2.0;  // shortest spell with the flow off (shorter gaps are bridged)
+};
+
 struct PlannerConfig {
   PlannerMode mode = PlannerMode::optimal;  // optimal (levelling rounds: residual + time) or graded (thesis)
   PassDirection pass_direction = PassDirection::axial;  // axial: along the tunnel; circumferential: around
@@ -175,6 +184,7 @@ struct Config {
   RegionConfig regions;
   SynthConfig synth;
   DepositionConfig deposition;
+  FlowConfig flow;
   PlannerConfig planner;
   OrderingConfig ordering;
   RobotConfig robot;

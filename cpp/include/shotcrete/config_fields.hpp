@@ -66,6 +66,11 @@ template <class F> void visit(DepositionConfig*, F&& f) {
   f("rebound_fraction", &DepositionConfig::rebound_fraction, 0.0, 0.9, "share that rebounds");
   f("nominal_flow_m3ph", &DepositionConfig::nominal_flow_m3ph, 0.1, 100.0, "nominal concrete flow [m^3/h]");
 }
+template <class F> void visit(FlowConfig*, F&& f) {
+  f("ramp_s", &FlowConfig::ramp_s, 0.0, 60.0, "linear start/stop ramp of the concrete flow, centred on the commanded switch [s]");
+  f("min_on_s", &FlowConfig::min_on_s, 0.0, 600.0, "shortest flow-on spell; shorter ones are extended [s]");
+  f("min_off_s", &FlowConfig::min_off_s, 0.0, 600.0, "shortest flow-off spell; shorter gaps are bridged (flow stays on) [s]");
+}
 template <class F> void visit(PlannerConfig*, F&& f) {
   f("mode", &PlannerConfig::mode, 0, 0, "graded | optimal");
   f("pass_direction", &PlannerConfig::pass_direction, 0, 0, "axial | circumferential");
@@ -141,6 +146,7 @@ template <class G> void visit_sections(G&& g) {
   g("regions", &Config::regions);
   g("synth", &Config::synth);
   g("deposition", &Config::deposition);
+  g("flow", &Config::flow);
   g("planner", &Config::planner);
   g("ordering", &Config::ordering);
   g("robot", &Config::robot);

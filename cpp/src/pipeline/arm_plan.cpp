@@ -181,6 +181,9 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (!out.trajectory) return out;
   out.config_duration_s = out.trajectory->duration_s;
   if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, progress);
+  if (progress) progress("executed deposit", 0.0);
+  out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
+  if (progress) progress("executed deposit", 1.0);
   return out;
 }
 

@@ -43,6 +43,13 @@ double dot_fma(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return std::fma(a.z(), b.z(), std::fma(a.y(), b.y(), a.x() * b.x()));
 }
 
+std::map<int, int> levels_of_td(const Eigen::VectorXd& td_m, const std::vector<bool>& valid) {
+  std::vector<int> levels(valid.size(), kNoDataLevel);
+  for (std::size_t c = 0; c < valid.size(); ++c)
+    if (valid[c]) levels[c] = level_of_td_mm(td_m[static_cast<Eigen::Index>(c)] * 1000.0);
+  return level_counts(levels);
+}
+
 int count_passes(const Round& round) {
   int n = 0;
   for (const auto& region : round.regions) n += static_cast<int>(region.passes.size());
@@ -107,6 +114,21 @@ void write(JsonWriter& w, const std::map<int, int>& counts) {
 void write(JsonWriter& w, const TdStatsMm& s) {
   w.begin_object().field("mean", s.mean).field("min", s.min).field("max", s.max).field("rms", s.rms);
   w.field("abs_max", s.abs_max).end_object();
+}
+
+void write(JsonWriter& w, const DepositDifferenceMm& d) {
+  w.begin_object().field("rms", d.rms).field("max_abs", d.max_abs).field("mean", d.mean).end_object();
+}
+
+void write(JsonWriter& w, const ExecutedSummary& e) {
+  w.begin_object().field("sprayed_m3", e.sprayed_m3).field("rebound_m3", e.rebound_m3);
+  w.field("on_wall_m3", e.on_wall_m3).field("outside_m3", e.outside_m3).field("balance_error", e.balance_error);
+  w.key("flow").begin_object().field("ramp_s", e.ramp_s).field("switches", e.switches);
+  w.field("commanded_switches", e.commanded_switches).field("shortest_on_s", e.shortest_on_s);
+  w.field("shortest_off_s", e.shortest_off_s).field("flow_on_s", e.flow_on_s).field("commanded_on_s", e.commanded_on_s);
+  w.field("bridged_s", e.bridged_s).field("bridged_volume_m3", e.bridged_volume_m3);
+  w.field("extended_s", e.extended_s).field("extended_volume_m3", e.extended_volume_m3);
+  w.end_object().end_object();
 }
 
 void write(JsonWriter& w, const RoundSummary& r) {
@@ -192,6 +214,27 @@ void write_report_trajectory(JsonWriter& w, const JobSummary& s) {
 
 }  // namespace
 
+ExecutedSummary summarise_executed(const ExecutedDeposit& ex) {
+  ExecutedSummary e;
+  e.sprayed_m3 = ex.volumes.sprayed_m3;
+  e.rebound_m3 = ex.volumes.rebound_m3;
+  e.on_wall_m3 = ex.volumes.on_wall_m3;
+  e.outside_m3 = ex.volumes.outside_m3;
+  e.balance_error = ex.volumes.balance_error();
+  e.switches = ex.flow.switches();
+  e.commanded_switches = ex.flow.commanded_switches;
+  e.shortest_on_s = ex.flow.shortest_on_s();
+  e.shortest_off_s = ex.flow.shortest_off_s();
+  e.flow_on_s = ex.flow.on_time_s();
+  e.commanded_on_s = ex.flow.commanded_on_s;
+  e.bridged_s = ex.flow.bridged_s;
+  e.bridged_volume_m3 = ex.bridged_volume_m3;
+  e.extended_s = ex.flow.extended_s;
+  e.extended_volume_m3 = ex.extended_volume_m3;
+  e.ramp_s = ex.flow.ramp_s;
+  return e;
+}
+
 TrajectorySummary summarise_trajectory(const TimedTrajectory& t, const NozzleLimits& nozzle_limits) {
   if (!(nozzle_limits.max_speed_mps > 0.0) || !(nozzle_limits.max_accel_mps2 > 0.0))
     throw std::invalid_argument("summarise_trajectory: the nozzle limits must be > 0 (speed " +
@@ -248,11 +291,18 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.levels_before = level_counts(surface.levels);
   s.td_before_mm = td_stats_mm(grid.td_m, grid.valid);
 
-  std::vector<int> levels_after(grid.valid.size(), kNoDataLevel);
-  for (std::size_t c = 0; c < grid.valid.size(); ++c)
-    if (grid.valid[c]) levels_after[c] = level_of_td_mm(plan.td_after_m[static_cast<Eigen::Index>(c)] * 1000.0);
-  s.levels_after = level_counts(levels_after);
-  s.residual_mm = td_stats_mm(plan.td_after_m, grid.valid);
+  s.planned_levels_after = levels_of_td(plan.td_after_m, grid.valid);
+  s.planned_residual_mm = td_stats_mm(plan.td_after_m, grid.valid);
+  s.levels_after = s.planned_levels_after;
+  s.residual_mm = s.planned_residual_mm;
+  if (const auto& ex = arm_plan.executed) {
+    s.deposit_source = "executed";
+    s.levels_after = levels_of_td(ex->td_after_m, grid.valid);
+    s.residual_mm = td_stats_mm(ex->td_after_m, grid.valid);
+    // TD planned - TD executed = deposit executed - deposit planned (both from the same scan).
+    s.planned_vs_executed_mm = deposit_difference_mm(plan.td_after_m, ex->td_after_m, grid.valid);
+    s.executed = summarise_executed(*ex);
+  }
 
   s.rounds = static_cast<int>(plan.rounds.size());
   for (std::size_t i = 0; i < plan.rounds.size(); ++i) {
@@ -302,6 +352,13 @@ std::string JobSummary::to_json() const {
   write(w, levels_after);
   w.key("residual_mm");
   write(w, residual_mm);
+  w.field("deposit_source", deposit_source).key("planned_levels_after");
+  write(w, planned_levels_after);
+  w.key("planned_residual_mm");
+  write(w, planned_residual_mm);
+  w.key("planned_vs_executed_mm");
+  if (planned_vs_executed_mm) write(w, *planned_vs_executed_mm);
+  else w.null();
   w.field("rounds", rounds).field("regions", regions).field("passes", passes).field("stop_reason", stop_reason);
   w.key("warnings").begin_array();
   for (const auto& text : warnings) w.value(text);
@@ -311,6 +368,9 @@ std::string JobSummary::to_json() const {
   w.field("physical_limit_s", physical_limit_s).key("spray_time_ratio");
   write_optional(w, spray_time_ratio);
   w.field("sprayed_volume_m3", sprayed_volume_m3).field("link_length_m", link_length_m);
+  w.key("executed");
+  if (executed) write(w, *executed);
+  else w.null();
   w.field("speed_capped", speed_capped).key("rounds_detail").begin_array();
   for (const auto& r : rounds_detail) write(w, r);
   w.end_array().key("ik");

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "shotcrete/pipeline/executed_deposit.hpp"
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/timing/timing.hpp"
 
@@ -35,6 +36,8 @@ struct ArmPlan {
   Plan plan;
   std::optional<TimedTrajectory> trajectory;  // empty when the timing failed: timing_error says why
   std::string timing_error;
+  // The deposit the trajectory lays (execute_deposit with the config's flow); with a trajectory.
+  std::optional<ExecutedDeposit> executed;
   int replans = 0;       // plan_bay runs after the first
   SpeedCapMap learned;   // bounds added by the re-plans
   // timing.tune_with_pso: the swarm's per-region parameters (once used, feasible[r] is false
@@ -55,6 +58,7 @@ struct ArmPlan {
 /// With timing.tune_with_pso the final plan's regions are then tuned by tune_timing and timed
 /// again; that trajectory is kept when it is shorter and each worst joint ratio stays within its
 /// limit or no worse than before (regions that came out worse keep the config's parameters).
+/// Last, the trajectory kept is executed on the surface (execute_deposit): `executed`.
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
 

@@ -80,6 +80,19 @@ struct SwarmSummary {
   std::vector<TimingParams> params;  // per region
 };
 
+/// The executed deposit in figures: volumes [m^3] and the pump's flow schedule.
+struct ExecutedSummary {
+  double sprayed_m3 = 0.0, rebound_m3 = 0.0, on_wall_m3 = 0.0, outside_m3 = 0.0;
+  double balance_error = 0.0;  // (sprayed - rebound - on_wall - outside) / sprayed
+  int switches = 0, commanded_switches = 0;  // flow on + off switches: pump, spraying flags
+  double shortest_on_s = 0.0, shortest_off_s = 0.0;  // of the pump's schedule
+  double flow_on_s = 0.0, commanded_on_s = 0.0;       // flow-on time: pump, flags
+  double bridged_s = 0.0, bridged_volume_m3 = 0.0;    // off-gaps the flow stayed on through
+  double extended_s = 0.0, extended_volume_m3 = 0.0;  // short spells extended to min_on_s
+  double ramp_s = 0.0;
+};
+ExecutedSummary summarise_executed(const ExecutedDeposit& executed);
+
 struct JobSummary {
   std::string mode;  // planner.mode
   int cells = 0;     // valid grid cells
@@ -88,8 +101,15 @@ struct JobSummary {
   double design_radius_m = 0.0, axis_fit_rms_m = 0.0;
   std::map<int, int> levels_before;
   TdStatsMm td_before_mm;
-  std::map<int, int> levels_after;  // of the simulated TD after the last round
+  // Of the executed deposit (the trajectory with the pump's flow) when there is a trajectory,
+  // else of the planner's estimate; deposit_source says which ("executed" | "planned").
+  std::map<int, int> levels_after;
   TdStatsMm residual_mm;
+  std::string deposit_source = "planned";
+  std::map<int, int> planned_levels_after;  // the planner's own estimate
+  TdStatsMm planned_residual_mm;
+  std::optional<DepositDifferenceMm> planned_vs_executed_mm;  // executed - planned deposit per cell
+  std::optional<ExecutedSummary> executed;
   int rounds = 0, regions = 0, passes = 0;
   std::string stop_reason;
   std::vector<std::string> warnings;

@@ -1,0 +1,94 @@
+#pragma once
+// The executed deposit (docs/architecture.md §9): the concrete the arm lays along its timed
+// trajectory, with the pump's flow at every instant (FlowConfig: minimum on/off spells, centred
+// start/stop ramps), integrated round by round on the moved wall exactly as the planner deposits.
+#include <Eigen/Core>
+#include <vector>
+
+#include "shotcrete/config.hpp"
+#include "shotcrete/deposition/wall.hpp"
+#include "shotcrete/planning/planner.hpp"
+#include "shotcrete/surface/surface.hpp"
+#include "shotcrete/timing/trajectory.hpp"
+
+namespace shotcrete {
+
+/// The pump's flow over time: spells [on_s[k], off_s[k]] with the flow on, each ramping linearly
+/// from 0 to full over ramp_s centred on on_s[k] and back over ramp_s centred on off_s[k] (so a
+/// ramp lays the same volume as an ideal step at the switching instant).
+struct FlowSchedule {
+  std::vector<double> on_s, off_s;  // sorted, off_s[k] - on_s[k] >= min_on_s, gaps >= min_off_s
+  double ramp_s = 0.0;
+  double commanded_on_s = 0.0;  // flow-on time the trajectory's spraying flags ask for
+  double bridged_s = 0.0;       // off-gaps shorter than min_off_s the flow stayed on through
+  double extended_s = 0.0;      // flow-on time added to spells shorter than min_on_s
+  int commanded_switches = 0;   // on and off switches the flags ask for
+  /// On and off switches of the schedule.
+  int switches() const { return 2 * static_cast<int>(on_s.size()); }
+  /// Shortest spell with the flow on / off between two spells [s] (0 when there is none).
+  double shortest_on_s() const;
+  double shortest_off_s() const;
+  /// Flow-on time of the schedule (ramps lay as much as steps) [s].
+  double on_time_s() const;
+  /// Flow (share of full, 0..1) at time t.
+  double flow_at(double t_s) const;
+  /// Integral of the flow from -infinity to t [s of full flow].
+  double integral_to(double t_s) const;
+};
+
+/// The schedule the pump runs for the spraying flags of samples at t_s (strictly increasing): the
+/// flags ask for the flow over each flagged sample's share of time (from the midpoint with its
+/// previous sample to the midpoint with its next; the first and last samples reach the ends), as
+/// spray_dwells does; off-gaps shorter than min_off_s are bridged, spells shorter than min_on_s
+/// are extended about their middle (within [t_s.front(), t_s.back()]), until both hold. Throws
+/// std::invalid_argument for unequal sizes, non-increasing times or a config that validate rejects.
+FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow);
+
+/// Full-flow dwell of every sample: the schedule's flow integrated over the sample's share of
+/// time (midpoints with its neighbours; the first and last samples take everything before / after),
+/// so the dwells add up to the schedule's on_time_s.
+std::vector<double> flow_dwells(const FlowSchedule& schedule, const std::vector<double>& t_s);
+
+/// Volumes of the executed deposit [m^3]: sprayed = flow x time x volume rate (rebound included);
+/// rebound = sprayed x rebound_fraction; on_wall = the deposit on the scanned cells (cell mean of
+/// its points' thickness x the cell's area on the design line); outside = what stays on the wall
+/// off the scanned cells: per sample, the spot's rays (a quadrature of the spot disc weighted by
+/// its rate) that meet the design surface outside every valid cell.
+struct DepositVolumes {
+  double sprayed_m3 = 0.0, rebound_m3 = 0.0, on_wall_m3 = 0.0, outside_m3 = 0.0;
+  /// (sprayed - rebound - on_wall - outside) / sprayed; 0 without spraying.
+  double balance_error() const;
+};
+
+struct ExecutedDeposit {
+  Eigen::VectorXd deposited_m;  // per point of the surface cloud, all rounds
+  Eigen::VectorXd td_after_m;   // per grid cell after the last round (NaN where invalid)
+  std::vector<Eigen::VectorXd> round_deposited_m;  // per round, per point of the wall's cloud
+  std::vector<Eigen::VectorXd> round_td_after_m;   // per round, per grid cell
+  SprayedWall wall;             // the wall as sprayed (cloud, grid, levels)
+  FlowSchedule flow;
+  DepositVolumes volumes;
+  double bridged_volume_m3 = 0.0;   // sprayed through the bridged gaps
+  double extended_volume_m3 = 0.0;  // sprayed by extending short spells
+};
+
+/// The deposit of `trajectory` on `surface`: region r of the trajectory (region_index) belongs to
+/// the round whose regions it falls in (regions_per_round[k] regions in round k, in spraying order
+/// over all rounds); samples off a region belong to the round of the region before them. Round by
+/// round, the flow-weighted dwells are accumulated on a SurfaceIndex of the wall as moved so far
+/// (accumulate_dwells) and laid with deposit_layer, as plan_bay does. Throws std::invalid_argument
+/// for a region_index beyond the rounds' regions or a surface without normals.
+ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& regions_per_round,
+                                const TimedTrajectory& trajectory, const Config& config);
+/// Same with the rounds of `plan` (the plan the trajectory was timed from).
+ExecutedDeposit execute_deposit(const Surface& surface, const Plan& plan, const TimedTrajectory& trajectory,
+                                const Config& config);
+
+/// Per-cell comparison of two TD maps over the valid cells [mm] (a - b).
+struct DepositDifferenceMm {
+  double rms = 0.0, max_abs = 0.0, mean = 0.0;
+};
+DepositDifferenceMm deposit_difference_mm(const Eigen::VectorXd& a_m, const Eigen::VectorXd& b_m,
+                                          const std::vector<bool>& valid);
+
+}  // namespace shotcrete

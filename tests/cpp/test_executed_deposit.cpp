@@ -1,0 +1,314 @@
+// The executed deposit: the pump's flow schedule, the deposit along a known trajectory against a
+// brute-force integration written here, the mass balance, and a pass with a speed step against
+// the closed-form stroke.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <stdexcept>
+
+#include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/deposition/wall.hpp"
+#include "shotcrete/pipeline/executed_deposit.hpp"
+#include "shotcrete/timing/sampling.hpp"
+#include "bay_fixtures.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+std::vector<double> times(int n, double dt) {
+  std::vector<double> t(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i) t[static_cast<std::size_t>(i)] = i * dt;
+  return t;
+}
+
+FlowConfig flow(double ramp, double min_on, double min_off) {
+  FlowConfig f;
+  f.ramp_s = ramp, f.min_on_s = min_on, f.min_off_s = min_off;
+  return f;
+}
+
+// The test's own flow: piecewise linear through its kinks (t, value), integrated exactly by the
+// trapezoid rule between the kinks.
+struct KinkFlow {
+  std::vector<double> t, f;
+  KinkFlow(const std::vector<std::pair<double, double>>& spells, double ramp) {
+    t.push_back(-1e9), f.push_back(0.0);
+    for (auto [on, off] : spells) {
+      t.insert(t.end(), {on - ramp / 2, on + ramp / 2, off - ramp / 2, off + ramp / 2});
+      f.insert(f.end(), {0.0, 1.0, 1.0, 0.0});
+    }
+    t.push_back(1e9), f.push_back(0.0);
+  }
+  double value(double x) const {
+    for (std::size_t k = 0; k + 1 < t.size(); ++k)
+      if (x >= t[k] && x <= t[k + 1]) return t[k + 1] > t[k] ? f[k] + (f[k + 1] - f[k]) * (x - t[k]) / (t[k + 1] - t[k]) : f[k + 1];
+    return 0.0;
+  }
+  double integral(double a, double b) const {
+    std::vector<double> xs{a, b};
+    for (double x : t)
+      if (x > a && x < b) xs.push_back(x);
+    std::sort(xs.begin(), xs.end());
+    double s = 0.0;
+    for (std::size_t k = 0; k + 1 < xs.size(); ++k) s += 0.5 * (value(xs[k]) + value(xs[k + 1])) * (xs[k + 1] - xs[k]);
+    return s;
+  }
+  // Dwell of every sample: its share between the midpoints with its neighbours, the ends open.
+  std::vector<double> dwells(const std::vector<double>& ts) const {
+    std::vector<double> d;
+    for (std::size_t i = 0; i < ts.size(); ++i) {
+      const double lo = i == 0 ? -1e8 : 0.5 * (ts[i - 1] + ts[i]), hi = i + 1 == ts.size() ? 1e8 : 0.5 * (ts[i] + ts[i + 1]);
+      d.push_back(integral(lo, hi));
+    }
+    return d;
+  }
+};
+
+}  // namespace
+
+TEST(FlowSchedule, IdealPumpGivesTheSprayDwells) {
+  std::mt19937 rng(3);
+  std::vector<double> t = times(400, 0.02);
+  std::vector<char> spraying(t.size());
+  for (auto& s : spraying) s = static_cast<char>(rng() % 3 != 0);
+  const FlowSchedule s = flow_schedule(t, spraying, flow(0.0, 0.0, 0.0));
+  const std::vector<double> d = flow_dwells(s, t), ref = spray_dwells(t, spraying);
+  for (std::size_t i = 0; i < t.size(); ++i) EXPECT_NEAR(d[i], ref[i], 1e-12) << i;
+  EXPECT_EQ(s.switches(), s.commanded_switches);
+  EXPECT_DOUBLE_EQ(s.bridged_s + s.extended_s, 0.0);
+}
+
+TEST(FlowSchedule, BridgesShortGapsAndExtendsShortSpells) {
+  const std::vector<double> t = times(61, 0.1);  // 0 .. 6 s
+  std::vector<char> spraying(t.size(), 0);
+  for (int i = 5; i <= 14; ++i) spraying[static_cast<std::size_t>(i)] = 1;   // [0.45, 1.45]
+  for (int i = 20; i <= 30; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [1.95, 3.05]
+  spraying[50] = 1;                                                           // [4.95, 5.05]
+  const FlowSchedule s = flow_schedule(t, spraying, flow(0.5, 1.0, 1.0));
+  ASSERT_EQ(s.on_s.size(), 2u);
+  EXPECT_NEAR(s.on_s[0], 0.45, 1e-12);
+  EXPECT_NEAR(s.off_s[0], 3.05, 1e-12);  // the 0.5 s gap bridged
+  EXPECT_NEAR(s.on_s[1], 4.5, 1e-12);    // 0.1 s extended to 1 s about its middle
+  EXPECT_NEAR(s.off_s[1], 5.5, 1e-12);
+  EXPECT_NEAR(s.bridged_s, 0.5, 1e-12);
+  EXPECT_NEAR(s.extended_s, 0.9, 1e-12);
+  EXPECT_NEAR(s.commanded_on_s, 1.0 + 1.1 + 0.1, 1e-12);
+  EXPECT_EQ(s.commanded_switches, 6);
+  EXPECT_EQ(s.switches(), 4);
+  // Ramps centred: half flow at each switch, and each spell lays its length at full flow.
+  EXPECT_NEAR(s.flow_at(0.45), 0.5, 1e-12);
+  EXPECT_NEAR(s.flow_at(5.5), 0.5, 1e-12);
+  EXPECT_NEAR(s.flow_at(0.2), 0.0, 1e-12);
+  EXPECT_NEAR(s.flow_at(0.7), 1.0, 1e-12);
+  const std::vector<double> d = flow_dwells(s, t);
+  double sum = 0.0;
+  for (double x : d) sum += x;
+  EXPECT_NEAR(sum, s.commanded_on_s + s.bridged_s + s.extended_s, 1e-12);
+  const KinkFlow ref({{0.45, 3.05}, {4.5, 5.5}}, 0.5);
+  const std::vector<double> dr = ref.dwells(t);
+  for (std::size_t i = 0; i < t.size(); ++i) EXPECT_NEAR(d[i], dr[i], 1e-12) << i;
+}
+
+TEST(FlowSchedule, NoSpellShorterThanTheMinimums) {
+  std::mt19937 rng(7);
+  for (int trial = 0; trial < 20; ++trial) {
+    const std::vector<double> t = times(2000, 0.02);
+    std::vector<char> spraying(t.size(), 0);
+    char state = 0;
+    for (auto& s : spraying) {
+      if (rng() % 25 == 0) state = static_cast<char>(!state);
+      s = state;
+    }
+    const FlowConfig f = flow(0.3, 1.5, 0.8);
+    const FlowSchedule s = flow_schedule(t, spraying, f);
+    if (s.on_s.empty()) continue;
+    EXPECT_GE(s.shortest_on_s(), f.min_on_s - 1e-9);
+    if (s.on_s.size() > 1) EXPECT_GE(s.shortest_off_s(), f.min_off_s - 1e-9);
+    // Whatever the flags ask for is sprayed: every flagged sample lies in a spell.
+    for (std::size_t i = 0; i < t.size(); ++i) {
+      if (!spraying[i]) continue;
+      bool inside = false;
+      for (std::size_t k = 0; k < s.on_s.size(); ++k) inside = inside || (t[i] >= s.on_s[k] && t[i] <= s.off_s[k]);
+      EXPECT_TRUE(inside) << t[i];
+    }
+    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s, 1e-9);
+    EXPECT_GE(s.bridged_s, 0.0);
+    EXPECT_GE(s.extended_s, -1e-9);
+  }
+}
+
+TEST(FlowSchedule, BadInputIsAnError) {
+  const std::vector<double> t = times(10, 0.1);
+  const std::vector<char> on(10, 1);
+  EXPECT_THROW(flow_schedule(t, on, flow(2.0, 1.0, 3.0)), std::invalid_argument);   // ramp > min_on
+  EXPECT_THROW(flow_schedule(t, on, flow(2.0, 3.0, 1.0)), std::invalid_argument);   // ramp > min_off
+  EXPECT_THROW(flow_schedule(t, on, flow(-0.1, 1.0, 1.0)), std::invalid_argument);  // out of range
+  EXPECT_THROW(flow_schedule(t, on, flow(0.0, 1.0, 1e6)), std::invalid_argument);
+  EXPECT_THROW(flow_schedule(t, std::vector<char>(9, 1), flow(0.0, 0.0, 0.0)), std::invalid_argument);
+  std::vector<double> back = t;
+  back[4] = back[3];
+  EXPECT_THROW(flow_schedule(back, on, flow(0.0, 0.0, 0.0)), std::invalid_argument);
+  try {
+    flow_schedule(t, on, flow(2.0, 1.0, 3.0));
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("flow.ramp_s"), std::string::npos) << e.what();
+  }
+}
+
+namespace {
+
+// A trajectory of straight nozzle moves across the bay at standoff H0 from the design circle:
+// sample i at d(t_i), aiming radially at angle theta; region_index / spraying as given.
+struct Move {
+  double theta, d0, d1, duration_s;
+  int region;
+  bool spraying;
+};
+TimedTrajectory moves_trajectory(const Surface& surface, const std::vector<Move>& moves, double dt, double standoff) {
+  TimedTrajectory tr;
+  const double R = surface.profile.radius_m;
+  double t = 0.0;
+  for (const Move& m : moves) {
+    const int n = static_cast<int>(std::round(m.duration_s / dt));
+    for (int k = 0; k < n; ++k) {
+      const double u = (k + 0.5) / n, d = m.d0 + u * (m.d1 - m.d0);
+      NozzlePose pose;
+      pose.position_m = surface.axis.to_cartesian(R - standoff, m.theta, d);
+      pose.axis = surface.axis.radial(m.theta);
+      tr.t_s.push_back(t), tr.nozzle.push_back(pose), tr.spraying.push_back(m.spraying ? 1 : 0);
+      tr.region_index.push_back(m.region), tr.pass_index.push_back(m.spraying ? 0 : -1), tr.kind.push_back(0);
+      t += dt;
+    }
+  }
+  tr.duration_s = tr.t_s.back();
+  return tr;
+}
+
+// Brute force: sum over samples and every point of point_rate_mps x dwell x (1 - rebound).
+Eigen::VectorXd brute_force(const SpotModel& model, const Cloud& cloud, const TimedTrajectory& tr,
+                            const std::vector<double>& dwell, const std::vector<char>& use, double rebound) {
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(cloud.size());
+  for (std::size_t i = 0; i < tr.size(); ++i) {
+    if (!use[i] || dwell[i] <= 0) continue;
+    for (Eigen::Index p = 0; p < cloud.size(); ++p)
+      out[p] += point_rate_mps(model, tr.nozzle[i], cloud.xyz.row(p).transpose(), cloud.normals.row(p).transpose()) *
+                dwell[i] * (1.0 - rebound);
+  }
+  return out;
+}
+
+}  // namespace
+
+TEST(ExecutedDeposit, MatchesABruteForceIntegrationRoundByRound) {
+  Config cfg;
+  cfg.flow = flow(0.4, 0.6, 0.5);
+  const Surface surface = test::analytic_bay([](double d, double th) { return 0.04 * std::sin(6 * d) * std::cos(4 * th); },
+                                             cfg, 0.9, 1.5, 0.8, 3);
+  // Round 1: region 0, a pass with a 0.3 s gap (bridged) and a transit; round 2: region 1.
+  const std::vector<Move> moves{{1.2, 0.0, 0.4, 1.0, 0, true},  {1.2, 0.4, 0.5, 0.3, 0, false},
+                                {1.2, 0.5, 0.8, 1.0, 0, true},  {1.25, 0.8, 0.8, 1.2, -1, false},
+                                {1.3, 0.8, 0.0, 1.6, 1, true}, {1.3, 0.0, 0.0, 0.5, 1, false}};
+  const TimedTrajectory tr = moves_trajectory(surface, moves, 0.02, 1.0);
+  const ExecutedDeposit ex = execute_deposit(surface, std::vector<int>{1, 1}, tr, cfg);
+  EXPECT_NEAR(ex.flow.bridged_s, 0.3, 1e-9);
+  EXPECT_EQ(ex.flow.switches(), 4);
+
+  // The test's own flow: spells from the flags (midpoints), the 0.3 s gap bridged.
+  const double t_end1 = 0.5 * (tr.t_s[114] + tr.t_s[115]), t_on2 = 0.5 * (tr.t_s[174] + tr.t_s[175]);
+  ASSERT_TRUE(tr.spraying[114] && !tr.spraying[115] && !tr.spraying[174] && tr.spraying[175]);
+  const KinkFlow ref({{0.0, t_end1}, {t_on2, 0.5 * (tr.t_s[254] + tr.t_s[255])}}, cfg.flow.ramp_s);
+  const std::vector<double> dwell = ref.dwells(tr.t_s);
+  const SpotModel model = spot_model_from_config(cfg.deposition);
+  const double rb = cfg.deposition.rebound_fraction;
+  std::vector<char> round1(tr.size(), 0), round2(tr.size(), 0);
+  for (std::size_t i = 0; i < tr.size(); ++i) (i < 175 ? round1 : round2)[i] = 1;  // the transit is round 1's
+  SprayedWall wall = unsprayed_wall(surface, cfg.profile.max_deviation_m);
+  const Eigen::VectorXd d1 = brute_force(model, wall.surface.cloud, tr, dwell, round1, rb);
+  deposit_layer(wall, d1);
+  const Eigen::VectorXd d2 = brute_force(model, wall.surface.cloud, tr, dwell, round2, rb);
+  deposit_layer(wall, d2);
+  const Eigen::VectorXd total = d1 + d2;
+  ASSERT_EQ(ex.deposited_m.size(), total.size());
+  EXPECT_GT(total.maxCoeff(), 0.005);
+  for (Eigen::Index p = 0; p < total.size(); ++p) EXPECT_NEAR(ex.deposited_m[p], total[p], 1e-9 * total.maxCoeff()) << p;
+  for (int c = 0; c < wall.surface.grid.size(); ++c)
+    if (wall.surface.grid.valid[static_cast<std::size_t>(c)]) EXPECT_NEAR(ex.td_after_m[c], wall.surface.grid.td_m[c], 1e-9);
+  ASSERT_EQ(ex.round_td_after_m.size(), 2u);
+}
+
+TEST(ExecutedDeposit, MassBalanceWithinOnePercent) {
+  Config cfg;
+  const Surface surface = test::analytic_bay([](double d, double th) { return 0.03 * std::cos(5 * d) * std::sin(3 * th); },
+                                             cfg, 0.9, 1.7, 1.2, 3);
+  const SpotModel model = spot_model_from_config(cfg.deposition);
+  // Inside the bay, across its edge (d < 0 and d > 1.2), and wholly off it.
+  const std::vector<std::vector<Move>> cases{{{1.3, 0.3, 0.9, 4.0, 0, true}},
+                                             {{1.1, -0.4, 1.6, 8.0, 0, true}, {1.6, 1.6, -0.4, 8.0, 0, true}},
+                                             {{1.3, -1.5, -1.0, 3.0, 0, true}}};
+  for (std::size_t k = 0; k < cases.size(); ++k) {
+    const TimedTrajectory tr = moves_trajectory(surface, cases[k], 0.02, 1.0);
+    const ExecutedDeposit ex = execute_deposit(surface, std::vector<int>{1}, tr, cfg);
+    const DepositVolumes& v = ex.volumes;
+    EXPECT_NEAR(v.sprayed_m3, model.volume_rate_m3ps() * ex.flow.on_time_s(), 1e-12);
+    EXPECT_NEAR(v.rebound_m3, cfg.deposition.rebound_fraction * v.sprayed_m3, 1e-12);
+    EXPECT_LT(std::abs(v.balance_error()), 0.01) << "case " << k << ": sprayed " << v.sprayed_m3 << " rebound "
+                                                 << v.rebound_m3 << " on wall " << v.on_wall_m3 << " outside " << v.outside_m3;
+    if (k == 0) EXPECT_LT(v.outside_m3, 1e-3 * v.sprayed_m3);
+    if (k == 1) EXPECT_GT(v.outside_m3, 0.05 * v.sprayed_m3);
+    if (k == 2) EXPECT_EQ(v.on_wall_m3, 0.0);
+  }
+}
+
+TEST(ExecutedDeposit, SpeedStepFollowsTheClosedFormStroke) {
+  // A wide, nearly flat bay: the design circle of 50 m radius sags 0.4 mm over the spot.
+  Config cfg;
+  cfg.profile.design_radius_m = 50.0;
+  cfg.flow = flow(0.0, 0.0, 0.0);
+  const double mid = 1.5, half = 0.6 / 50.0;
+  const Surface surface = test::analytic_bay([](double, double) { return 0.0; }, cfg, mid - half, mid + half, 3.0, 3);
+  // 0.1 m/s to d = 1.5, then 0.25 m/s after a 0.5 m/s^2 change centred there, sampled at 500 Hz.
+  const double v1 = 0.1, v2 = 0.25, acc = 0.5, dt = 0.002, d_step = 1.5;
+  const double t_change = (v2 - v1) / acc, d_a = d_step - 0.5 * (v1 + v2) * t_change / 2;
+  TimedTrajectory tr;
+  double d = -0.2, v = v1, t = 0.0;
+  const double R = surface.profile.radius_m;
+  while (d < 3.2) {
+    NozzlePose pose;
+    pose.position_m = surface.axis.to_cartesian(R - 1.0, mid, d);
+    pose.axis = surface.axis.radial(mid);
+    tr.t_s.push_back(t), tr.nozzle.push_back(pose), tr.spraying.push_back(1), tr.region_index.push_back(0);
+    tr.pass_index.push_back(0), tr.kind.push_back(0);
+    v = d < d_a ? v1 : std::min(v2, v + acc * dt);
+    d += v * dt, t += dt;
+  }
+  const ExecutedDeposit ex = execute_deposit(surface, std::vector<int>{1}, tr, cfg);
+  const SpotModel model = spot_model_from_config(cfg.deposition);
+  const double keep = 1.0 - cfg.deposition.rebound_fraction;
+  int far1 = 0, far2 = 0, near = 0;
+  for (Eigen::Index p = 0; p < surface.cloud.size(); ++p) {
+    const Eigen::Vector3d cyl = surface.axis.to_cylindrical(surface.cloud.xyz.row(p).transpose());
+    const double x = (cyl[1] - mid) * R, dp = cyl[2];
+    if (std::abs(x) > 0.15) continue;
+    const double s1 = stroke_thickness_m(model, x, v1) * keep, s2 = stroke_thickness_m(model, x, v2) * keep;
+    const double got = ex.deposited_m[p];
+    if (dp > 0.5 && dp < 1.2) {
+      EXPECT_NEAR(got, s1, 0.005 * s1) << "d " << dp << " x " << x;
+      ++far1;
+    }
+    if (dp > 1.8 && dp < 2.7) {
+      EXPECT_NEAR(got, s2, 0.005 * s2) << "d " << dp << " x " << x;
+      ++far2;
+    }
+    if (std::abs(dp - d_step) < 0.2) {
+      EXPECT_LE(got, s1 * 1.005) << dp;
+      EXPECT_GE(got, s2 * 0.995) << dp;
+      ++near;
+    }
+  }
+  EXPECT_GT(far1, 50);
+  EXPECT_GT(far2, 50);
+  EXPECT_GT(near, 20);
+}
