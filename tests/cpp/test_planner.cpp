@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "shotcrete/planning/planner.hpp"
+#include "shotcrete/timing/region_spray.hpp"
 #include "shotcrete/surface/preprocess.hpp"
 #include "shotcrete/io/synth.hpp"
 #include "bay_fixtures.hpp"
@@ -88,6 +89,8 @@ TEST(Planner, UniformOverbreakEndsFlush) {
   Config cfg;
   cfg.planner.mode = PlannerMode::optimal;
   cfg.planner.time_weight_mm2_per_s = 10;  // accuracy first: time barely counts
+  cfg.flow.ramp_s = cfg.flow.min_on_s = cfg.flow.min_off_s = 0.0;  // an ideal pump (the real one: OptimalSpellsFitThePump)
+  cfg.planner.segment_length_m = 0.1;
   Plan plan = plan_bay(s, cfg);
   EXPECT_TRUE(plan.stop_reason.kind == StopKind::flush || plan.stop_reason.kind == StopKind::levelled)
       << plan.stop_reason;
@@ -302,4 +305,35 @@ TEST(Planner, MaxRoundsIsTheStopReasonWhenRoundsRunOut) {
   const Plan plan = plan_bay(s, cfg);
   EXPECT_EQ(plan.rounds.size(), 1u);
   EXPECT_EQ(plan.stop_reason.kind, StopKind::max_rounds) << plan.stop_reason;
+}
+
+// Optimal mode plans spells the pump can follow: along the region_spray of every region, the
+// flow the pump adds (gaps it sprays through, spells it lengthens) is a small share of what the
+// plan asks for, and the pump never switches faster than its minimums.
+TEST(Planner, OptimalSpellsFitThePump) {
+  Config cfg;
+  cfg.synth.theta_min_rad = 0.8;
+  cfg.synth.theta_max_rad = 1.4;
+  cfg.synth.length_m = 1.2;
+  cfg.synth.points_per_cell = 6;
+  cfg.synth.pit_count = 6;
+  cfg.planner.mode = PlannerMode::optimal;
+  for (std::uint64_t seed : {1, 2}) {
+    cfg.synth.seed = seed;
+    Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
+    const Plan plan = plan_bay(s, cfg);
+    double commanded = 0.0, added = 0.0, on = 0.0;
+    for (const auto& round : plan.rounds)
+      for (const auto& region : round.regions) {
+        const RegionSpray spray = region_spray(region.passes, cfg);
+        commanded += spray.flow.commanded_on_s;
+        added += spray.flow.bridged_s + spray.flow.extended_s;
+        on += spray.flow.on_time_s();
+        if (!spray.flow.on_s.empty()) EXPECT_GE(spray.flow.shortest_on_s(), cfg.flow.min_on_s - 1e-9);
+        if (spray.flow.on_s.size() > 1) EXPECT_GE(spray.flow.shortest_off_s(), cfg.flow.min_off_s - 1e-9);
+      }
+    ASSERT_GT(commanded, 0.0) << "seed " << seed;
+    EXPECT_LT(added, 0.02 * commanded) << "seed " << seed << ": the pump adds " << added << " s to " << commanded << " s";
+    EXPECT_NEAR(plan.spray_time_s, on, 1e-6 * on) << "seed " << seed;
+  }
 }

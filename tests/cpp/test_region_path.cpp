@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "shotcrete/timing/region_path.hpp"
+#include "shotcrete/timing/region_spray.hpp"
 #include "shotcrete/timing/sampling.hpp"
 #include "timing_fixtures.hpp"
 
@@ -455,4 +456,52 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
     stop.gap_accel_scale = bad;
     EXPECT_THROW(region_path(three, stop), std::invalid_argument);
   }
+}
+
+// What the planner deposits with: the region's passes timed as time_plan times them, with the
+// pump's flow over the spraying flags.
+TEST(RegionSpray, IdealPumpSpraysExactlyThePassTimes) {
+  Config cfg;
+  cfg.flow.ramp_s = 0.0, cfg.flow.min_on_s = 0.0, cfg.flow.min_off_s = 0.0;
+  const std::vector<Pass> passes = axial_region(3, 1.2, 0.3, 0.0, 1.0, {0.25, 0.4, 0.3});
+  const RegionSpray spray = region_spray(passes, cfg);
+  double pass_time = 0.0;
+  for (const auto& p : passes) pass_time += p.duration_s();
+  const double dt = 1.0 / cfg.timing.trajectory_rate_hz;
+  // The flags ask for the passes' time, up to one sample at each switch.
+  EXPECT_NEAR(spray.flow.commanded_on_s, pass_time, 6 * dt);
+  EXPECT_DOUBLE_EQ(spray.flow.on_time_s(), spray.flow.commanded_on_s);
+  double dwell = 0.0;
+  for (double d : spray.dwell_s) dwell += d;
+  EXPECT_NEAR(dwell, spray.flow.on_time_s(), 1e-9);
+  // Leads at the config's lengths or longer (lead_lengths), turns: the region lasts longer.
+  const auto [lead_in, lead_out] = lead_lengths(passes, TimingParams::from_config(cfg.timing),
+                                                cfg.timing.nozzle_max_accel_mps2, cfg.timing.nozzle_max_accel_mps2);
+  EXPECT_GE(lead_in, cfg.timing.start_length_m);
+  EXPECT_GE(lead_out, cfg.timing.end_length_m);
+  EXPECT_GT(spray.duration_s(), pass_time + (lead_in + lead_out) / 0.4);
+  ASSERT_EQ(spray.nozzle.size(), spray.t_s.size());
+  // Spraying samples lie on the passes: at their radius from the axis.
+  for (std::size_t i = 0; i < spray.t_s.size(); ++i)
+    if (spray.dwell_s[i] > 0) EXPECT_NEAR(spray.nozzle[i].position_m.tail<2>().norm(), 4.6, 1e-6);
+}
+
+TEST(RegionSpray, PumpSpellsAndRampsKeepTheVolume) {
+  Config cfg;  // default pump: 2 s ramps and minimum spells
+  const std::vector<Pass> passes = axial_region(2, 1.5, 0.15, 0.0, 1.0, {0.5});
+  const RegionSpray spray = region_spray(passes, cfg);
+  EXPECT_GE(spray.flow.shortest_on_s(), cfg.flow.min_on_s - 1e-9);
+  double dwell = 0.0;
+  int ramping = 0;
+  const double dt = 1.0 / cfg.timing.trajectory_rate_hz;
+  for (std::size_t i = 0; i + 1 < spray.dwell_s.size(); ++i) {
+    dwell += spray.dwell_s[i];
+    if (i > 0 && spray.dwell_s[i] > 1e-9 && spray.dwell_s[i] < 0.99 * dt) ++ramping;
+  }
+  dwell += spray.dwell_s.back();
+  // Ramps lay what steps lay: the flow-on time is what the flags ask for plus what the pump adds.
+  EXPECT_NEAR(dwell, spray.flow.on_time_s(), 1e-9);
+  EXPECT_NEAR(spray.flow.on_time_s(), spray.flow.commanded_on_s + spray.flow.bridged_s + spray.flow.extended_s, 1e-9);
+  // Each switch ramps over ramp_s: about ramp_s * rate samples at part flow per switch.
+  EXPECT_GE(ramping, spray.flow.switches() * static_cast<int>(0.9 * cfg.flow.ramp_s / dt));
 }

@@ -116,8 +116,8 @@ struct PlannerConfig {
   double max_speed_mps = 1.0;
   int max_rounds = 12;
   double sample_step_m = 0.01;     // integration step of the nozzle along a pass
-  double segment_length_m = 0.1;   // optimal mode: length of a constant-speed piece of a pass
-  double time_weight_mm2_per_s = 2000.0;  // optimal mode: squared residual (mm^2, summed over cells) worth 1 s
+  double segment_length_m = 0.15;  // optimal mode: length of a constant-speed piece of a pass
+  double time_weight_mm2_per_s = 500.0;  // optimal mode: squared residual (mm^2, summed over cells) worth 1 s
   double finish_tolerance_m = 0.02;    // optimal mode: stop when every cell is within this of flush
   double edge_overrun_m = 0.1;     // passes run on this far past the bay's ends (the arches)
   double levelling_spacing_ratio = 0.5;  // optimal mode: pass spacing as a share of the two-pass spacing

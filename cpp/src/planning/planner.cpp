@@ -12,6 +12,7 @@
 #include "rounds.hpp"
 #include "shotcrete/deposition/wall.hpp"
 #include "shotcrete/ordering/ordering.hpp"
+#include "shotcrete/timing/region_spray.hpp"
 
 namespace shotcrete {
 
@@ -47,15 +48,16 @@ void order_regions(Round& round, const OrderingConfig& ocfg, const std::optional
   round.order_method = res.method;
 }
 
-// Deposit: the round's passes sprayed on the full cloud, then the wall re-graded.
-void spray_round(Round& round, SprayedWall& wall, const SpotModel& model, double rebound, Plan& plan) {
+// Deposit: each region sprayed on the full cloud as the trajectory and the pump will spray it
+// (region_spray: timed Cartesian path, flow schedule), then the wall re-graded.
+void spray_round(Round& round, SprayedWall& wall, const SpotModel& model, const Config& config, Plan& plan) {
   const SurfaceIndex index(wall.surface.cloud, 0.05);
   Eigen::VectorXd deposit = Eigen::VectorXd::Zero(wall.surface.cloud.size());
-  for (const auto& r : round.regions)
-    for (const auto& p : r.passes) {
-      accumulate_dwells(model, index, p.waypoints, p.dwell_s(), rebound, deposit);
-      round.spray_time_s += p.duration_s();
-    }
+  for (const auto& r : round.regions) {
+    const RegionSpray spray = region_spray(r.passes, config);
+    accumulate_dwells(model, index, spray.nozzle, spray.dwell_s, config.deposition.rebound_fraction, deposit);
+    round.spray_time_s += spray.flow.on_time_s();
+  }
   deposit_layer(wall, deposit);
   plan.deposited_m += deposit;
   round.levels_after = level_counts(wall.surface.levels);
@@ -125,7 +127,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     order_regions(round, config.ordering, nozzle_at);
     nozzle_at = round.regions.back().exit_m();
     ctx.report(number, 0.7);
-    spray_round(round, wall, model, rebound, plan);
+    spray_round(round, wall, model, config, plan);
     plan.timings_s["round_" + std::to_string(number)] = seconds_since(t_round);
     plan.rounds.push_back(std::move(round));
     ctx.report(number, 1.0);

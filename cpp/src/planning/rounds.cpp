@@ -205,8 +205,7 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
 
 // Least squares, then the arm's speed-change limit; the capped segments become floors of the next
 // solve so the others can compensate; the limiter has the last word.
-std::vector<double> solve_dwells(const DwellProblem& problem, double accel_mps2) {
-  std::vector<double> floor(problem.segments.size(), 0.0);
+std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<double> floor, double accel_mps2) {
   std::vector<double> w;
   for (int it = 0; it < 3; ++it) {
     w = optimise_dwell(problem, floor);
@@ -214,6 +213,27 @@ std::vector<double> solve_dwells(const DwellProblem& problem, double accel_mps2)
     for (std::size_t j = 0; j < w.size(); ++j)
       if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
     w = limited;
+  }
+  return w;
+}
+
+// The dwells with an on/off pattern the pump can follow: segments the pump would spray through
+// are forced on (at least their fastest dwell) and stretches too short to switch on for are
+// forced off (their deposit removed from the problem), then the least squares is solved again
+// with that pattern, until flow_spell_fix has nothing left to change.
+std::vector<double> solve_dwells(DwellProblem problem, double accel_mps2, const FlowConfig& flow) {
+  const std::size_t n = problem.segments.size();
+  std::vector<double> floor(n, 0.0);
+  std::vector<double> w = limited_dwells(problem, floor, accel_mps2);
+  for (int it = 0; it < 6; ++it) {
+    const FlowSpellFix fix = flow_spell_fix(problem, w, flow, accel_mps2);
+    if (fix.empty()) break;
+    for (std::size_t j : fix.force_on) floor[j] = std::max(floor[j], 1.0 / problem.segments[j].cap_mps);
+    for (std::size_t j : fix.force_off) {
+      problem.unit_mm[j] = Sparse();
+      floor[j] = 0.0;
+    }
+    w = limited_dwells(problem, floor, accel_mps2);
   }
   return w;
 }
@@ -280,7 +300,7 @@ class LevellingRounds : public RoundStages {
     ctx.report(in.number, 0.3);
     problem.lambda_mm2_per_s = pc.time_weight_mm2_per_s;
     problem.w_max_s_per_m = 1.0 / pc.min_speed_mps;
-    const std::vector<double> w = solve_dwells(problem, ctx.config.timing.speed_change_accel_mps2);
+    const std::vector<double> w = solve_dwells(problem, ctx.config.timing.speed_change_accel_mps2, ctx.config.flow);
     std::vector<RegionPlan> out;
     for (std::size_t s = 0; s < sides.size(); ++s) {
       RegionPlan rp = sprayed_runs(sides[s], s, problem.segments, w);

@@ -61,6 +61,20 @@ std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vecto
 /// every pass line stay within accel_mps2 (see speeds.cpp).
 std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::vector<double> w, double accel_mps2);
 
+/// What the pump needs of the segments' on/off pattern: segments to force on (with at least
+/// their fastest dwell) and to force off, so that along every pass line each spray-off gap between
+/// two sprayed stretches lasts at least min_off_s and each sprayed stretch at least min_on_s (times
+/// margin_ratio: the trajectory's speed changes shift the times a little). A short gap is sprayed
+/// through; a stretch shorter than half the minimum is switched off, a longer one lengthened over
+/// its off neighbours (their time counted at the fastest speed accel_mps2 lets the nozzle reach
+/// from the stretch, as limit_speed_changes allows).
+struct FlowSpellFix {
+  std::vector<std::size_t> force_on, force_off;
+  bool empty() const { return force_on.empty() && force_off.empty(); }
+};
+FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<double>& w, const FlowConfig& flow,
+                            double accel_mps2, double margin_ratio = 1.2);
+
 // ---------------------------------------------------------------------------------------------
 // The machine's speed caps
 

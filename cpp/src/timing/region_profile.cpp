@@ -163,6 +163,20 @@ TimingParams TimingParams::from_config(const TimingConfig& c) {
   return p;
 }
 
+std::pair<double, double> lead_lengths(const std::vector<Pass>& passes, const TimingParams& params,
+                                       double start_accel_mps2, double end_accel_mps2) {
+  double lead_in = params.start_length_m, lead_out = params.end_length_m;
+  if (!passes.empty() && passes.front().waypoints.size() >= 2) {
+    const Pass& f = passes.front();
+    const Pass& l = passes.back();
+    const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
+    const double k1 = params.k1, k2 = params.k2;
+    lead_in = std::max(lead_in, v0 * v0 * (2.0 - k1) / (k1 * start_accel_mps2));
+    lead_out = std::max(lead_out, v1 * v1 * (1.0 + k2) / ((1.0 - k2) * end_accel_mps2));
+  }
+  return {lead_in, lead_out};
+}
+
 SpeedProfile region_profile(const CartesianPath& path, const TimingParams& params) {
   return profile_from_specs(specs_of(path), params);
 }

@@ -259,14 +259,9 @@ RegionSetup set_up_region(const TimingContext& ctx, const RegionJob& job) {
   rs.gap_scale.assign(slot_scale.begin() + 1, slot_scale.end() - 1);
   TimingParams& rp = rs.params;
   rp = job.params;
-  if (!passes.empty() && passes.front().waypoints.size() >= 2) {
-    const Pass& f = passes.front();
-    const Pass& l = passes.back();
-    const double v0 = f.speed_at(0), v1 = l.speed_at(l.waypoints.size() - 1);
-    rp.start_length_m = std::max(rp.start_length_m, v0 * v0 * (2.0 - rp.k1) / (rp.k1 * slot_scale.front() * stop_accel));
-    rp.end_length_m =
-        std::max(rp.end_length_m, v1 * v1 * (1.0 + rp.k2) / ((1.0 - rp.k2) * slot_scale.back() * stop_accel));
-  }
+  const auto [lead_in_m, lead_out_m] = lead_lengths(passes, rp, slot_scale.front() * stop_accel, slot_scale.back() * stop_accel);
+  rp.start_length_m = lead_in_m;
+  rp.end_length_m = lead_out_m;
   rs.path = timing_region_path(passes, rp.start_length_m, rp.end_length_m, ctx.timing, job.pass_offset, rs.gap_scale);
   rs.profile = region_profile(rs.path, rp);
   return rs;

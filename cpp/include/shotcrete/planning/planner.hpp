@@ -46,7 +46,7 @@ struct Round {
   std::string order_method;
   std::map<int, int> levels_before, levels_after;
   Eigen::VectorXd td_after_m;               // per grid cell after the simulated spraying
-  double spray_time_s = 0.0;                // nozzle time while spraying
+  double spray_time_s = 0.0;                // the pump's flow-on time (region_spray: ramps, minimum spells)
 };
 
 /// Why the rounds stopped.

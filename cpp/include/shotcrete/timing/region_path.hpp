@@ -6,6 +6,7 @@
 // lead-out (run-out after the last pass, length end_length_m). Pass speeds are set by the
 // deposition, so the nozzle reaches cruise speed before a pass starts and sprays only on passes
 // (and on the turns when spray_on_turns is set).
+#include <utility>
 #include <vector>
 
 #include "shotcrete/config.hpp"  // TimingConfig
@@ -71,6 +72,12 @@ struct TimingParams {
                                  // (tuned); 0 = speed_change_accel_mps2
   static TimingParams from_config(const TimingConfig& config);
 };
+
+/// Lead-in and lead-out lengths [m] of a region: at least params' start / end lengths, and long
+/// enough for the paper's start and end profiles to stay within the accelerations at the first and
+/// last pass speeds (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)).
+std::pair<double, double> lead_lengths(const std::vector<Pass>& passes, const TimingParams& params,
+                                       double start_accel_mps2, double end_accel_mps2);
 
 /// Speed profile of a region path built by region_path (same lead lengths): cycloid start, pass
 /// speeds on passes and links, cycloidal speed changes on turns (pass speed -> turn speed -> next

@@ -1,0 +1,46 @@
+#pragma once
+// The pump's flow (docs/architecture.md §9): a wet-mix pump cannot switch the concrete flow at
+// will; spells on and off last at least FlowConfig's minimums and every switch ramps.
+#include <vector>
+
+#include "shotcrete/config.hpp"
+
+namespace shotcrete {
+
+/// The pump's flow over time: spells [on_s[k], off_s[k]] with the flow on, each ramping linearly
+/// from 0 to full over ramp_s centred on on_s[k] and back over ramp_s centred on off_s[k] (so a
+/// ramp lays the same volume as an ideal step at the switching instant).
+struct FlowSchedule {
+  std::vector<double> on_s, off_s;  // sorted, off_s[k] - on_s[k] >= min_on_s, gaps >= min_off_s
+  double ramp_s = 0.0;
+  double commanded_on_s = 0.0;  // flow-on time the trajectory's spraying flags ask for
+  double bridged_s = 0.0;       // off-gaps shorter than min_off_s the flow stayed on through
+  double extended_s = 0.0;      // flow-on time added to spells shorter than min_on_s
+  int commanded_switches = 0;   // on and off switches the flags ask for
+  /// On and off switches of the schedule.
+  int switches() const { return 2 * static_cast<int>(on_s.size()); }
+  /// Shortest spell with the flow on / off between two spells [s] (0 when there is none).
+  double shortest_on_s() const;
+  double shortest_off_s() const;
+  /// Flow-on time of the schedule (ramps lay as much as steps) [s].
+  double on_time_s() const;
+  /// Flow (share of full, 0..1) at time t.
+  double flow_at(double t_s) const;
+  /// Integral of the flow from -infinity to t [s of full flow].
+  double integral_to(double t_s) const;
+};
+
+/// The schedule the pump runs for the spraying flags of samples at t_s (strictly increasing): the
+/// flags ask for the flow over each flagged sample's share of time (from the midpoint with its
+/// previous sample to the midpoint with its next; the first and last samples reach the ends), as
+/// spray_dwells does; off-gaps shorter than min_off_s are bridged, spells shorter than min_on_s
+/// are extended about their middle (within [t_s.front(), t_s.back()]), until both hold. Throws
+/// std::invalid_argument for unequal sizes, non-increasing times or a config that validate rejects.
+FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow);
+
+/// Full-flow dwell of every sample: the schedule's flow integrated over the sample's share of
+/// time (midpoints with its neighbours; the first and last samples take everything before / after),
+/// so the dwells add up to the schedule's on_time_s.
+std::vector<double> flow_dwells(const FlowSchedule& schedule, const std::vector<double>& t_s);
+
+}  // namespace shotcrete
