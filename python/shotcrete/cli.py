@@ -8,7 +8,8 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from . import cli_deposition, cli_order, cli_robot, synthetic_cloud
-from .cli_common import cli_config, console, print_json, user_errors
+from .cli_common import cli_config, console, print_json, refuse_overwrite, say, user_errors
+from .config import default_config_path
 from .io import read_cloud, write_cloud
 from .pipeline import run_job
 
@@ -25,7 +26,7 @@ def _emit(result: dict, as_json: bool, summary_keys: list[str]) -> None:
             console.print(f"{key}: {result[key]}", highlight=False)
 
 
-def _run_job(cloud, config, out: Path, as_json: bool, inputs=()) -> dict:
+def _run_job(cloud, config, out: Path, as_json: bool, inputs: dict) -> dict:
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console,
                   disable=as_json) as bar:
         tasks: dict[str, int] = {}
@@ -53,8 +54,7 @@ def synth(out: Path = typer.Option(..., "--out", help="cloud file to write (.pcd
           force: bool = typer.Option(False, help="overwrite an existing file")):
     """Write the synthetic bay (half cylinder with dig pits) as a point cloud."""
     with user_errors():
-        if out.exists() and not force:
-            raise ValueError(f"{out} exists; pass --force to overwrite it")
+        refuse_overwrite(out, force, "--out")
         cfg = cli_config(config)
         if seed is not None:
             if seed < 0:
@@ -74,11 +74,10 @@ def demo(out: Path = typer.Option(Path("out/demo"), "--out", help="output direct
     with user_errors():
         cfg = cli_config(config)
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
-        cloud = synthetic_cloud(cfg)
-        result = _run_job(cloud, cfg, out, as_json)
+        result = _run_job(lambda: synthetic_cloud(cfg), cfg, out, as_json, {"config": config or default_config_path()})
         _emit(result, as_json, SUMMARY)
         if not as_json:
-            console.print(f"[green]report:[/green] {Path(out) / 'report.html'}")
+            say("report:", str(Path(out) / "report.html"), "green")
 
 
 @app.command()
@@ -92,11 +91,10 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
     with user_errors():
         cfg = cli_config(config, units)
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
-        cloud = read_cloud(cloud_path)
-        result = _run_job(cloud, cfg, out, as_json, inputs=[cloud_path])
+        result = _run_job(lambda: read_cloud(cloud_path), cfg, out, as_json, {"cloud": cloud_path, "config": config or default_config_path()})
         _emit(result, as_json, SUMMARY)
         if not as_json:
-            console.print(f"[green]report:[/green] {Path(out) / 'report.html'}")
+            say("report:", str(Path(out) / "report.html"), "green")
 
 
 # The stage tools, listed after synth, demo and plan.

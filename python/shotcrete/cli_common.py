@@ -3,6 +3,7 @@ with --units, JSON on stdout. Imported by the cli* modules only."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -10,26 +11,54 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.text import Text
 
 from .config import load_config
 from .io import UNIT_SCALES
 
-console = Console(stderr=True, soft_wrap=True)  # errors on one line, never wrapped
+# Errors on one line, never wrapped; text printed verbatim, never read as markup ("[x, y, z]" stays).
+console = Console(stderr=True, soft_wrap=True, markup=False)
 
 EXIT_BAD_INPUT = 2
 
 
+def say(label: str, message: str, style: str) -> None:
+    """``label`` in ``style``, then ``message`` exactly as given."""
+    console.print(Text.assemble((label, style), " ", message), highlight=False)
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line of an error: OS errors as "file: reason", other messages with their lines joined."""
+    if isinstance(exc, OSError) and exc.strerror:
+        names = [str(n) for n in (exc.filename, exc.filename2) if n is not None]
+        text = f"{' -> '.join(names)}: {exc.strerror}" if names else exc.strerror
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(line.strip() for line in text.splitlines() if line.strip())
+
+
 @contextmanager
 def user_errors():
-    """Bad input becomes one red line and exit code 2, never a traceback."""
+    """Every error becomes one red line and exit code 2, never a traceback (the CLI's contract;
+    SHOTCRETE_TRACEBACK=1 shows the traceback of an unexpected one)."""
     try:
         yield
-    except (ValueError, FileNotFoundError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False)
+    except (typer.Exit, typer.Abort, typer.TyperException):  # the CLI's own exits (RuntimeErrors)
+        raise
+    except (ValueError, OSError, RuntimeError, MemoryError) as exc:
+        say("error:", error_line(exc), "red")
         raise typer.Exit(EXIT_BAD_INPUT)
-    except RuntimeError as exc:
-        console.print(f"[red]failed:[/red] {exc}", highlight=False)
-        raise typer.Exit(1)
+    except Exception as exc:
+        if os.environ.get("SHOTCRETE_TRACEBACK"):
+            raise
+        say("error:", f"internal error ({type(exc).__name__}): {error_line(exc)}", "red")
+        raise typer.Exit(EXIT_BAD_INPUT)
+
+
+def refuse_overwrite(path: Optional[Path], force: bool, option: str) -> None:
+    """A single-file output (``option``) is never overwritten without --force (as ``synth``)."""
+    if path is not None and (path.exists() or path.is_symlink()) and not force:
+        raise ValueError(f"{option} {path} exists; pass --force to overwrite it")
 
 
 def cli_config(path: Optional[Path], units: str = "m"):

@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from . import _core
-from .cli_common import cli_config, console, print_json, user_errors
+from .cli_common import cli_config, console, print_json, refuse_overwrite, user_errors
 from .deposition import fit_report, spacing_report, stroke_figure
 
 deposition_app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -32,9 +32,11 @@ def fit_cmd(csv: Path = typer.Argument(..., metavar="CSV", help="position_mm,thi
                                                     help="rebound fraction (default: deposition.rebound_fraction)"),
             config: Optional[Path] = typer.Option(None, help="YAML config file"),
             as_json: bool = typer.Option(False, "--json", help="print the fit as JSON"),
-            figure: Optional[Path] = typer.Option(None, "--figure", help="PNG of measured points vs fitted profile")):
+            figure: Optional[Path] = typer.Option(None, "--figure", help="PNG of measured points vs fitted profile"),
+            force: bool = typer.Option(False, "--force", help="overwrite an existing figure file")):
     """Fit the spot model to a measured stroke; prints R, cone angle, beta, q_max, MSE and flow."""
     with user_errors():
+        refuse_overwrite(figure, force, "--figure")
         cfg = cli_config(config)
         rebound_fraction = cfg.deposition.rebound_fraction if rebound is None else rebound
         data = _core.read_stroke_csv(str(csv), standoff_mm * 1e-3, speed_mm_s * 1e-3, rebound_fraction)

@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from . import _core
-from .cli_common import cli_config, console, print_json, user_errors
+from .cli_common import cli_config, console, print_json, refuse_overwrite, say, user_errors
 from .ordering import METHODS, convergence_figure, load_instance, result_json
 
 
@@ -26,9 +26,11 @@ def order(instance: Path = typer.Argument(..., metavar="INSTANCE.json",
           config: Optional[Path] = typer.Option(None, help="YAML config file"),
           convergence: Optional[Path] = typer.Option(None, "--convergence-figure",
                                                      help="write a PNG of best/mean length per iteration"),
-          as_json: bool = typer.Option(False, "--json", help="print the result as JSON")):
+          as_json: bool = typer.Option(False, "--json", help="print the result as JSON"),
+          force: bool = typer.Option(False, "--force", help="overwrite an existing figure file")):
     """Order regions (segments A->B, sprayed either way) for the shortest transit path."""
     with user_errors():
+        refuse_overwrite(convergence, force, "--convergence-figure")
         cfg = cli_config(config).ordering
         if method is not None:
             if method not in METHODS:
@@ -50,8 +52,7 @@ def order(instance: Path = typer.Argument(..., metavar="INSTANCE.json",
                 convergence_figure(result, convergence)
                 out["convergence_figure"] = str(convergence)
             else:
-                console.print(f"[yellow]note:[/yellow] {result.method} has no iterations; "
-                              "no convergence figure written", highlight=False)
+                say("note:", f"{result.method} has no iterations; no convergence figure written", "yellow")
         if as_json:
             print_json(out, allow_nan=False)
             return
@@ -62,7 +63,7 @@ def order(instance: Path = typer.Argument(..., metavar="INSTANCE.json",
         steps = [f"{i}{'<' if result.reversed[i] else '>'}" for i in result.order]
         console.print("order (> A->B, < B->A): " + " ".join(steps), highlight=False)
         if "convergence_figure" in out:
-            console.print(f"[green]figure:[/green] {convergence}", highlight=False)
+            say("figure:", str(convergence), "green")
 
 
 def register(app: typer.Typer) -> None:

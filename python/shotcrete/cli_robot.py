@@ -6,7 +6,7 @@ from typing import Optional
 
 import typer
 
-from .cli_common import cli_config, console, print_json, user_errors
+from .cli_common import cli_config, console, print_json, refuse_overwrite, user_errors
 from .robot import ik_bench, load_robot, reach, reach_figure, robot_summary
 
 robot_app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -57,10 +57,12 @@ def reach_cmd(radius_m: Optional[float] = typer.Option(None, "--radius-m", help=
               n_theta: int = typer.Option(61, help="samples over theta in [0, pi]"),
               n_d: int = typer.Option(13, help="samples along the bay"),
               figure: Optional[Path] = typer.Option(None, "--figure", help="write the map as PNG"),
+              force: bool = typer.Option(False, "--force", help="overwrite an existing figure file"),
               config: Optional[Path] = typer.Option(None, help="YAML config file"),
               as_json: bool = typer.Option(False, "--json", help="print JSON")):
     """Reachability of a half-cylinder bay with the nozzle normal to the wall, carrier fixed."""
     with user_errors():
+        refuse_overwrite(figure, force, "--figure")
         cfg = cli_config(config)
         radii = [radius_m] if radius_m is not None else [5.0, 5.6, 6.5, 8.0]
         summaries, maps = [], []

@@ -12,6 +12,7 @@ import numpy as np
 
 from . import _core, plots, report
 from .io import write_cloud
+from .outdir import job_output
 from .planning import plan_surface
 from .robot import load_robot
 
@@ -22,30 +23,36 @@ def _no_progress(stage: str, fraction: float) -> None:
     pass
 
 
-def run_job(cloud: _core.Cloud, config: _core.Config, out: Path, progress: Progress | None = None,
-            inputs: list[Path] = ()) -> dict:
-    """Run the whole chain on ``cloud`` and write report.json, report.html, plan.json, figures and
-    the sprayed cloud to ``out``. Returns the report as a dict: the core's job summary
-    (``_core.summarise_job``) plus ``timings_s`` and ``files``."""
+def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config, out: Path,
+            progress: Progress | None = None, inputs: dict[str, Path] | None = None) -> dict:
+    """Run the whole chain on ``cloud`` (or the cloud a loader returns, called once ``out`` is
+    locked, so a second job on ``out`` fails before reading anything) and write report.json, report.html, plan.json, figures and
+    the sprayed cloud to ``out`` (locked, written beside it and moved into place when complete:
+    ``outdir.job_output``). ``inputs``: the files the job read by role ("cloud", "config"), hashed
+    into report.json's ``provenance``. Returns the report as a dict: the core's job summary
+    (``_core.summarise_job``) plus ``timings_s``, ``files`` and ``provenance``."""
     progress = progress or _no_progress
-    out = report.prepare_out_dir(Path(out), list(inputs))
-    t0 = time.perf_counter()
-    surface, timings = surface_step(cloud, config, progress)
-    robot = load_robot(config)
-    arm_plan = plan_step(surface, config, robot, progress, timings)
-    summary = _core.summarise_job(surface, arm_plan, robot, config, points_in=len(cloud))
-    result = summary.to_dict()
+    inputs = {k: Path(v) for k, v in (inputs or {}).items() if v is not None}
+    with job_output(Path(out), inputs.values()) as tmp:
+        t0 = time.perf_counter()
+        cloud = cloud() if callable(cloud) else cloud
+        surface, timings = surface_step(cloud, config, progress)
+        robot = load_robot(config)
+        arm_plan = plan_step(surface, config, robot, progress, timings)
+        summary = _core.summarise_job(surface, arm_plan, robot, config, points_in=len(cloud))
+        result = summary.to_dict()
 
-    progress("report", 0.0)
-    t_report = time.perf_counter()
-    figures = figures_step(out / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
-    files = files_step(out, surface, arm_plan)
-    timings["report"] = time.perf_counter() - t_report
-    timings["total"] = time.perf_counter() - t0
-    result["timings_s"] = timings
-    result["files"] = files
-    report.write_json(out / "report.json", result)
-    report.write_html(out, result, [(cap, str(p.relative_to(out))) for cap, p in figures])
+        progress("report", 0.0)
+        t_report = time.perf_counter()
+        figures = figures_step(tmp / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
+        files = files_step(tmp, surface, arm_plan)
+        timings["report"] = time.perf_counter() - t_report
+        timings["total"] = time.perf_counter() - t0
+        result["timings_s"] = timings
+        result["files"] = files
+        result["provenance"] = report.provenance(config, cloud, inputs)
+        report.write_json(tmp / "report.json", result)
+        report.write_html(tmp, result, [(cap, str(p.relative_to(tmp))) for cap, p in figures])
     progress("report", 1.0)
     return result
 
@@ -74,6 +81,7 @@ def figures_step(figs_dir: Path, surface, plan, summary, executed=None) -> list[
     """The report's figures as (caption, file): TD and levels before, each round's passes, TD and
     levels after it (the planner's estimate), cells per level per round, speeds, the residual (of
     the executed deposit when there is one: ``executed``, an ExecutedDeposit) and the planner's."""
+    figs_dir.mkdir(parents=True, exist_ok=True)
     grid = surface.grid
     valid = np.asarray(grid.valid).reshape(-1)
     td_before = np.asarray(grid.td_m).reshape(-1)

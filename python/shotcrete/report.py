@@ -1,29 +1,34 @@
 """report.json and report.html for a job directory."""
 from __future__ import annotations
 
+import hashlib
 import html
 import json
 from pathlib import Path
 from typing import Any
 
-MARKER = ".shotcrete-output"
+import numpy as np
 
 
-def prepare_out_dir(out: Path, inputs: list[Path] = ()) -> Path:
-    """Create ``out``; refuse a non-empty directory we did not write, and outputs over an input."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"output path {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists():
-        raise ValueError(f"output directory {out} is not empty and was not written by shotcrete; "
-                         "choose another --out so nothing of yours is overwritten")
-    for p in inputs:
-        if Path(p).resolve().parent == out.resolve():
-            raise ValueError(f"input {p} lies in the output directory {out}; choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "figures").mkdir(exist_ok=True)
-    (out / MARKER).write_text("written by shotcrete-planner; files here may be replaced by the next run\n")
-    return out
+def _sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def provenance(config, cloud, inputs: dict[str, Path]) -> dict:
+    """report.json's ``provenance``: the program version, sha256 of each input file by role
+    ("cloud", "config"), of the config the job ran with (after --units / --tune-timing; for the demo
+    it holds the generated bay's parameters, synth.*) and of the points planned on (float64 x y z)."""
+    from . import __version__
+
+    points = np.ascontiguousarray(np.asarray(cloud.xyz, dtype=np.float64))
+    return {"program": "shotcrete-planner", "version": __version__,
+            "inputs": {role: {"path": str(Path(p).resolve()), "sha256": _sha256_file(p)} for role, p in inputs.items()},
+            "config_effective_sha256": hashlib.sha256(config.to_yaml().encode()).hexdigest(),
+            "points": len(points), "points_sha256": hashlib.sha256(points.tobytes()).hexdigest()}
 
 
 def _jsonable(value: Any) -> Any:

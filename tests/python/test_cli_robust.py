@@ -1,0 +1,299 @@
+"""Job outputs and CLI robustness (issue 17; docs/architecture.md §10): atomic output sets with a
+backup, report.json's provenance, the lock per output directory, one-line errors with exit 2,
+single-file outputs never overwritten without --force, a strict config reader."""
+import errno
+import hashlib
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import shotcrete
+from shotcrete import pipeline
+
+SHOTCRETE = str(Path(sys.executable).parent / "shotcrete")
+ROOT = Path(__file__).resolve().parents[2]
+# A small bay: a few seconds a job, figures and a trajectory like the default's.
+TINY_BAY = "synth: {theta_min_rad: 1.0, theta_max_rad: 1.4, length_m: 0.6, points_per_cell: 6, pit_count: 2}\n"
+# The same bay with the arm's base 6 m below its place: the wall is out of reach, no trajectory.
+NO_REACH = TINY_BAY + "robot: {base_position_m: [0.6, 0, -7.2]}\n"
+
+
+def _cli(*args, env=None, **kw):
+    return subprocess.run([SHOTCRETE, *map(str, args)], capture_output=True, text=True, env=env, **kw)
+
+
+def _snapshot(out: Path) -> dict:
+    """Every file under ``out`` with its sha256."""
+    return {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+def _leftovers(out: Path) -> list:
+    """Temporary directories, old backups being removed, or the lock of jobs on ``out``."""
+    return sorted(p.name for p in out.parent.iterdir()
+                  if p.name.startswith((f".{out.name}.tmp-", f".{out.name}.old-", f".{out.name}.lock")))
+
+
+def _assert_complete(out: Path) -> None:
+    """Every file report.json and report.html name is there, and nothing else."""
+    report = json.loads((out / "report.json").read_text())
+    html = (out / "report.html").read_text()
+    named = set(report["files"].values()) | {s.split('"')[0] for s in html.split('src="')[1:]}
+    assert set(_snapshot(out)) == named | {"report.json", "report.html", ".shotcrete-output"}
+
+
+def _one_error_line(stderr: str) -> str:
+    """The one error line of ``stderr``; the others may only be warnings and the progress display
+    (stage, bar, elapsed time)."""
+    lines = [ln for ln in stderr.splitlines() if ln.strip() and not ln.startswith("warning:")
+             and not re.fullmatch(r"[a-z0-9 ]+ [━ ]* ?\d+:\d\d:\d\d", ln)]
+    assert len(lines) == 1 and lines[0].startswith("error: "), stderr
+    assert "Traceback" not in stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory):
+    """A complete demo set in <dir>/demo (copied per test), and its snapshot."""
+    base = tmp_path_factory.mktemp("first")
+    cfg = base / "tiny.yaml"
+    cfg.write_text(TINY_BAY)
+    r = _cli("demo", "--out", base / "demo", "--config", cfg, "--json")
+    assert r.returncode == 0, r.stderr
+    return base / "demo", cfg
+
+
+@pytest.fixture()
+def previous(first_run, tmp_path):
+    """A copy of a complete earlier run in tmp_path/demo; returns (out, its snapshot, config)."""
+    import shutil
+
+    src, cfg = first_run
+    out = tmp_path / "demo"
+    shutil.copytree(src, out)
+    snap = _snapshot(out)
+    assert {"report.json", "report.html", "plan.json", "trajectory.npz", "surface.ply", "sprayed.ply",
+            ".shotcrete-output"} <= set(snap)
+    return out, snap, cfg
+
+
+def test_failed_rerun_keeps_the_previous_set(previous, run_cli, monkeypatch):
+    """Disk full while the trajectory is written (after the figures and plan.json): one line,
+    exit 2, the previous set untouched, nothing left beside it."""
+    out, snap, cfg = previous
+
+    def disk_full(path, **arrays):
+        Path(path).write_bytes(b"\0" * 100)  # what a full disk leaves: a truncated file
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(pipeline.np, "savez_compressed", disk_full)
+    r = run_cli("demo", "--out", out, "--config", cfg)
+    assert r.exit_code == 2
+    line = _one_error_line(r.output)
+    assert "No space left on device" in line and "trajectory.npz" in line
+    assert _snapshot(out) == snap
+    assert _leftovers(out) == [] and not out.with_name("demo.prev").exists()
+
+
+def test_rerun_without_trajectory_leaves_no_stale_file(previous):
+    """A re-run whose IK fails writes a complete set without trajectory.npz; the previous set,
+    trajectory included, is kept whole in demo.prev."""
+    out, snap, _ = previous
+    cfg = out.parent / "noreach.yaml"
+    cfg.write_text(NO_REACH)
+    r = _cli("demo", "--out", out, "--config", cfg, "--json")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["ik"]["solved"] is False and "trajectory" not in report["files"]
+    assert not (out / "trajectory.npz").exists()
+    assert {f for f in _snapshot(out) if not f.startswith("figures/")} == {
+        ".shotcrete-output", "report.json", "report.html", "plan.json", "surface.ply", "sprayed.ply"}
+    assert _snapshot(out.with_name("demo.prev")) == snap
+    assert _leftovers(out) == []
+    _assert_complete(out)
+
+
+def _wait_for(predicate, proc, what, limit_s=120.0):
+    t0 = time.monotonic()
+    while not predicate():
+        assert proc.poll() is None, f"the job ended before {what}: {proc.stderr.read()}"
+        assert time.monotonic() - t0 < limit_s, f"no {what}"
+        time.sleep(0.01)
+
+
+def test_kill_9_mid_write_keeps_the_previous_set_and_the_next_job_recovers(previous):
+    out, snap, cfg = previous
+    seed2 = out.parent / "seed2.yaml"
+    seed2.write_text(TINY_BAY.replace("pit_count: 2}", "pit_count: 2, seed: 2}"))
+    proc = subprocess.Popen([SHOTCRETE, "demo", "--out", str(out), "--config", str(seed2)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    figures = lambda: [p for p in out.parent.glob(".demo.tmp-*/figures/*.png")]  # noqa: E731
+    _wait_for(figures, proc, "figure in the temporary directory")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    assert _snapshot(out) == snap
+    # The next job takes the stale lock over, removes the killed job's files and replaces the set.
+    r = _cli("demo", "--out", out, "--config", seed2)
+    assert r.returncode == 0, r.stderr
+    assert f"stale lock of {out.resolve()} (pid {proc.pid} on host {socket.gethostname()}" in r.stderr
+    assert "unfinished output of an earlier job" in r.stderr
+    assert _leftovers(out) == []
+    assert _snapshot(out.with_name("demo.prev")) == snap
+    assert _snapshot(out)["report.json"] != snap["report.json"]
+    _assert_complete(out)
+    _assert_complete(out.with_name("demo.prev"))
+
+
+def test_second_job_on_the_same_out_fails_at_once_naming_the_holder(tmp_path):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY_BAY)
+    out = tmp_path / "job"
+    lock = tmp_path / ".job.lock"
+    first = subprocess.Popen([SHOTCRETE, "demo", "--out", str(out), "--config", str(cfg)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    _wait_for(lambda: lock.exists() and lock.read_text().strip(), first, "lock file")
+    second = _cli("demo", "--out", out, "--config", cfg)
+    still_running = first.poll() is None
+    assert second.returncode == 2
+    line = _one_error_line(second.stderr)
+    assert f"is in use by another shotcrete job (pid {first.pid} on host {socket.gethostname()}, started 20" in line
+    assert str(lock) in line
+    first.wait()
+    assert still_running and first.returncode == 0, first.stderr.read()
+    assert "stale" not in second.stderr
+    assert (out / "report.json").is_file() and _leftovers(out) == []
+
+
+def test_report_records_the_inputs_hashes_and_version(tmp_path, run_cli):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY_BAY)
+    cloud = tmp_path / "bay.xyz"
+    assert run_cli("synth", "--out", cloud, "--config", cfg).exit_code == 0
+    r = run_cli("plan", cloud, "--out", tmp_path / "job", "--config", cfg, "--units", "m")
+    assert r.exit_code == 0, r.output
+    prov = json.loads((tmp_path / "job" / "report.json").read_text())["provenance"]
+    sha = lambda p: hashlib.sha256(Path(p).read_bytes()).hexdigest()  # noqa: E731
+    assert prov["version"] == shotcrete.__version__
+    assert prov["inputs"]["cloud"] == {"path": str(cloud.resolve()), "sha256": sha(cloud)}
+    assert prov["inputs"]["config"] == {"path": str(cfg.resolve()), "sha256": sha(cfg)}
+    config = shotcrete.load_config(cfg)
+    assert prov["config_effective_sha256"] == hashlib.sha256(config.to_yaml().encode()).hexdigest()
+    xyz = np.ascontiguousarray(shotcrete.read_cloud(cloud).xyz, dtype=np.float64)
+    assert prov["points"] == len(xyz) and prov["points_sha256"] == hashlib.sha256(xyz.tobytes()).hexdigest()
+
+
+def test_demo_provenance_is_the_config_and_the_generated_bay(first_run):
+    out, cfg = first_run
+    prov = json.loads((out / "report.json").read_text())["provenance"]
+    assert set(prov["inputs"]) == {"config"}
+    assert prov["inputs"]["config"]["sha256"] == hashlib.sha256(cfg.read_bytes()).hexdigest()
+    synth = shotcrete.load_config(cfg)
+    assert prov["config_effective_sha256"] == hashlib.sha256(synth.to_yaml().encode()).hexdigest()
+    synth.synth.seed += 1  # another generated bay: another hash
+    assert prov["config_effective_sha256"] != hashlib.sha256(synth.to_yaml().encode()).hexdigest()
+
+
+def test_os_errors_are_one_line_exit_2(tmp_path):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    r = _cli("demo", "--out", blocker / "sub")
+    assert r.returncode == 2
+    out = (blocker / "sub").resolve()
+    assert _one_error_line(r.stderr) == f"error: output directory {out} lies under {blocker.resolve()}, which is not a directory"
+    assert blocker.read_text() == "x"
+
+
+def test_read_only_directory_is_one_line_exit_2(tmp_path):
+    import tempfile
+
+    outer = Path(tempfile.mkdtemp())  # not under tmp_path: the job may run as nobody, who needs to reach it
+    ro = outer / "ro"
+    try:
+        outer.chmod(0o755)
+        (outer / "tiny.yaml").write_text(TINY_BAY)
+        ro.mkdir(mode=0o555)
+        kw = {}
+        if os.geteuid() == 0:  # root writes anywhere: run the job as nobody
+            kw = {"user": 65534, "group": 65534, "env": {**os.environ, "MPLCONFIGDIR": str(outer / "mpl")}}
+            (outer / "mpl").mkdir(mode=0o777)
+            (outer / "mpl").chmod(0o777)
+        r = _cli("demo", "--out", ro / "out", "--config", outer / "tiny.yaml", **kw)
+        assert r.returncode == 2, r.stderr
+        assert _one_error_line(r.stderr) == f"error: {ro / '.out.lock'}: Permission denied"
+        assert list(ro.iterdir()) == []
+    finally:
+        ro.chmod(0o755)
+        import shutil
+
+        shutil.rmtree(outer)
+
+
+def test_messages_keep_their_brackets(tmp_path):
+    r = _cli("plan", tmp_path / "scan[x, y, z].xyz", "--out", tmp_path / "o")
+    assert r.returncode == 2
+    assert "scan[x, y, z].xyz" in _one_error_line(r.stderr)
+
+
+def test_non_utf8_config_is_one_line_exit_2(tmp_path):
+    cfg = tmp_path / "latin1.yaml"
+    cfg.write_bytes("synth:\n  seed: 3  # caf\u00e9\n".encode("latin-1"))
+    r = _cli("demo", "--out", tmp_path / "o", "--config", cfg)
+    assert r.returncode == 2
+    assert _one_error_line(r.stderr) == f"error: {cfg} line 2: not UTF-8 text (byte 0xe9)"
+    assert not (tmp_path / "o").exists()
+
+
+CSV = ROOT / "data" / "deposition_stroke.csv"
+
+
+@pytest.mark.parametrize("args", [
+    ["deposition", "fit", CSV, "--figure"],
+    ["robot", "reach", "--radius-m", 5.6, "--n-theta", 5, "--n-d", 2, "--figure"],
+    ["order", "INSTANCE", "--method", "aco", "--convergence-figure"],
+])
+def test_single_file_outputs_need_force(tmp_path, run_cli, args):
+    inst = tmp_path / "inst.json"
+    inst.write_text(json.dumps({"regions": [{"a": [0, 0, 0], "b": [1, 0, 0]}, {"a": [2, 0, 0], "b": [3, 0, 0]}]}))
+    args = [inst if a == "INSTANCE" else a for a in args]
+    fig = tmp_path / "mine.png"
+    fig.write_bytes(b"not shotcrete's")
+    r = run_cli(*args, fig)
+    assert r.exit_code == 2 and f"{fig} exists; pass --force to overwrite it" in r.output
+    assert fig.read_bytes() == b"not shotcrete's"
+    r = run_cli(*args, fig, "--force")
+    assert r.exit_code == 0, r.output
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("text, message", [
+    ('profile:\n  estimate_axis: "yes"\n', "line 2: config key 'profile.estimate_axis' must be true or false"),
+    ("ordering:\n  seed: 1\n  local_search: on please\n",
+     "line 3: config key 'ordering.local_search' must be true or false"),
+    ("synth:\n  seed: 1\n  pit_count: 3\n  seed: 2\n", "line 4: duplicate key 'synth.seed' (first on line 2)"),
+    ("synth: {seed: 1}\ngrid: {}\nsynth: {seed: 2}\n", "line 3: duplicate key 'synth' (first on line 1)"),
+])
+def test_strict_config(tmp_path, run_cli, text, message):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(text)
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        shotcrete.load_config(cfg)
+    r = _cli("robot", "info", "--config", cfg)
+    assert r.returncode == 2 and _one_error_line(r.stderr).startswith(f"error: {cfg} {message}")
+
+
+def test_strict_config_accepts_real_booleans(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("profile:\n  estimate_axis: yes\npreprocess:\n  crop_enabled: False\nordering: {local_search: true}\n")
+    c = shotcrete.load_config(cfg)
+    assert c.profile.estimate_axis is True and c.preprocess.crop_enabled is False and c.ordering.local_search
+    shotcrete.load_config(shotcrete.default_config_path())
