@@ -90,7 +90,6 @@ TEST(Planner, UniformOverbreakEndsFlush) {
   cfg.planner.mode = PlannerMode::optimal;
   cfg.planner.time_weight_mm2_per_s = 10;  // accuracy first: time barely counts
   cfg.flow.ramp_s = cfg.flow.min_on_s = cfg.flow.min_off_s = 0.0;  // an ideal pump (the real one: OptimalSpellsFitThePump)
-  cfg.planner.segment_length_m = 0.1;
   Plan plan = plan_bay(s, cfg);
   EXPECT_TRUE(plan.stop_reason.kind == StopKind::flush || plan.stop_reason.kind == StopKind::levelled)
       << plan.stop_reason;
@@ -101,8 +100,10 @@ TEST(Planner, UniformOverbreakEndsFlush) {
       lo = std::min(lo, td[c]);
       hi = std::max(hi, td[c]);
     }
-  EXPECT_GT(lo, -0.010);
-  EXPECT_LT(hi, 0.010);
+  // Within the finish band: the speed changes of the timed path (which the planner deposits with)
+  // blur the line ends a little.
+  EXPECT_GT(lo, -cfg.planner.finish_tolerance_m);
+  EXPECT_LT(hi, cfg.planner.finish_tolerance_m);
 }
 
 TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
@@ -139,6 +140,8 @@ TEST(Planner, SinglePitIsCoveredAndNothingElseSprayed) {
   Surface s = analytic_bay(pit, 0.9, 1.6, 1.2);
   Config cfg;
   cfg.planner.mode = PlannerMode::optimal;  // default time weight
+  // An ideal pump: the real one's 2 s ramps lay concrete up to a ramp's travel beyond the spots.
+  cfg.flow.ramp_s = cfg.flow.min_on_s = cfg.flow.min_off_s = 0.0;
   Plan plan = plan_bay(s, cfg);
   ASSERT_FALSE(plan.rounds.empty());
   const double R = cfg.deposition.spot_radius_m;
