@@ -128,6 +128,7 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("turn_speed_mps", &TimingConfig::turn_speed_mps, 0.0, 10.0, "nozzle speed mid turn-around [m/s]; 0 = pass speeds");
   f("turn_run_m", &TimingConfig::turn_run_m, 0.0, 2.0, "straight run before/after each turn arc [m]");
   f("speed_change_accel_mps2", &TimingConfig::speed_change_accel_mps2, 0.01, 100.0, "peak acceleration of speed changes inside a pass [m/s^2]");
+  f("turn_accel_mps2", &TimingConfig::turn_accel_mps2, 0.0, 100.0, "centripetal acceleration on turn arcs and speed changes on their runs [m/s^2]; 0 = speed_change_accel_mps2");
   f("spray_on_turns", &TimingConfig::spray_on_turns, 0, 0, "spray on the turn-arounds");
   f("nozzle_max_speed_mps", &TimingConfig::nozzle_max_speed_mps, 0.01, 10.0, "nozzle speed limit [m/s]");
   f("nozzle_max_accel_mps2", &TimingConfig::nozzle_max_accel_mps2, 0.01, 100.0, "nozzle acceleration limit [m/s^2]");

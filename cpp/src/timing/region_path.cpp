@@ -203,7 +203,7 @@ CartesianPath timing_region_path(const std::vector<Pass>& passes, double lead_in
   o.turn_run_m = timing.turn_run_m;
   o.stop_accel_mps2 = timing.nozzle_max_accel_mps2;
   o.turn_speed_mps = timing.turn_speed_mps;
-  o.turn_accel_mps2 = timing.speed_change_accel_mps2;
+  o.turn_accel_mps2 = timing.turn_accel_mps2 > 0.0 ? timing.turn_accel_mps2 : timing.speed_change_accel_mps2;
   o.gap_accel_scale = gap_accel_scale;
   return region_path(passes, o);
 }

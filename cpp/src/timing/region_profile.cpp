@@ -160,6 +160,7 @@ TimingParams TimingParams::from_config(const TimingConfig& c) {
   p.end_length_m = c.end_length_m;
   p.turn_speed_mps = c.turn_speed_mps;
   p.speed_change_accel_mps2 = c.speed_change_accel_mps2;
+  p.turn_accel_mps2 = c.turn_accel_mps2;
   return p;
 }
 

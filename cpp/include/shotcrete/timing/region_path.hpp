@@ -52,7 +52,7 @@ CartesianPath region_path(const std::vector<Pass>& passes, const RegionPathOptio
 
 /// The region path time_plan times (and the swarm's RegionJointModel models): region_path with the
 /// config's turn runs, stop-and-go runs sized for timing.nozzle_max_accel_mps2 and turn runs sized
-/// for the config's turn speed at timing.speed_change_accel_mps2. The geometry depends on the
+/// for the config's turn speed at timing.turn_accel_mps2 (speed_change_accel_mps2 when 0). The geometry depends on the
 /// config only, never on the tuned TimingParams (they shape the speed profile along it), so one
 /// joint path serves every particle of the swarm.
 CartesianPath timing_region_path(const std::vector<Pass>& passes, double lead_in_m, double lead_out_m,
