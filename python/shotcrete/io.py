@@ -10,6 +10,12 @@ from . import _core
 UNIT_SCALES = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
+def _one_line(exc: Exception) -> str:
+    """The first non-empty line of a library's message (libE57 appends a multi-line debug dump)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
+
+
 def _cloud_from_array(xyz: np.ndarray, path: Path) -> _core.Cloud:
     xyz = np.asarray(xyz, dtype=np.float64)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
@@ -32,7 +38,7 @@ def read_cloud(path: str | Path) -> _core.Cloud:
         try:
             las = laspy.read(str(path))
         except Exception as exc:  # laspy raises several types for a bad file
-            raise ValueError(f"{path}: not a readable LAS/LAZ file ({exc})") from exc
+            raise ValueError(f"{path}: not a readable LAS/LAZ file ({_one_line(exc)})") from None
         return _cloud_from_array(np.column_stack([las.x, las.y, las.z]), path)
     if ext == ".e57":
         import pye57
@@ -44,7 +50,7 @@ def read_cloud(path: str | Path) -> _core.Cloud:
                 scan = e57.read_scan(i, ignore_missing_fields=True, transform=True)
                 parts.append(np.column_stack([scan["cartesianX"], scan["cartesianY"], scan["cartesianZ"]]))
         except Exception as exc:
-            raise ValueError(f"{path}: not a readable E57 file ({exc})") from exc
+            raise ValueError(f"{path}: not a readable E57 file ({_one_line(exc)})") from None
         if not parts:
             raise ValueError(f"{path}: the E57 file has no scans")
         return _cloud_from_array(np.vstack(parts), path)
