@@ -39,7 +39,13 @@ class LocalFrame:
 
     @staticmethod
     def of(cloud: _core.Cloud, config: _core.Config) -> "LocalFrame":
-        return LocalFrame(local_origin(np.asarray(cloud.xyz) * config.io.unit_scale))
+        """The local frame of a cloud in its input units (config.io.unit_scale); none (origin 0)
+        for a cloud wider than io.max_extent_m, which the surface stage refuses with a units hint."""
+        xyz_m = np.asarray(cloud.xyz) * config.io.unit_scale
+        finite = xyz_m[np.isfinite(xyz_m).all(axis=1)] if len(xyz_m) else xyz_m
+        if len(finite) and np.ptp(finite, axis=0).max() > config.io.max_extent_m:
+            return LocalFrame(np.zeros(3))
+        return LocalFrame(local_origin(xyz_m))
 
     @property
     def shifted(self) -> bool:

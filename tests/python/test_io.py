@@ -189,3 +189,30 @@ def test_cli_reader_rows_exit_2_with_one_line(tmp_path, run_cli):
         lines = [ln for ln in r.output.splitlines() if ln.strip() and "surface" not in ln]
         assert r.exit_code == 2, (name, r.output)
         assert len(lines) == 1 and lines[0].startswith("error: ") and name in lines[0], (name, r.output)
+
+
+# ---- crashes and hangs the reader fuzzer found (tests/python/fuzz_readers.py) ------------------
+
+def test_fuzz_finding_unknown_pcd_header_line(tmp_path):
+    # PCL 1.13 stops its header parse at an unknown line and segfaulted reading binary_compressed data.
+    good = pcd_bytes(points(40, "f4"), "binary_compressed")
+    assert "'VERsION 0.7'" in read_error(write(tmp_path / "u.pcd", good.replace(b"VERSION 0.7", b"VERsION 0.7")))
+    assert "unknown PCD header line 'FOO 1'" in read_error(write(tmp_path / "f.pcd", good.replace(b"WIDTH", b"FOO 1\nWIDTH")))
+    assert "twice" in read_error(write(tmp_path / "t.pcd", good.replace(b"HEIGHT 1\n", b"HEIGHT 1\nHEIGHT 1\n")))
+
+
+def test_fuzz_finding_bare_ply_property_line(tmp_path):
+    # was a read past the end of the line's words (segfault)
+    good = ply_bytes(points(10, "f4", extras=False), "binary_little_endian")
+    assert "malformed PLY property" in read_error(write(tmp_path / "p.ply", good.split(b"property float y")[0] + b"property \n"))
+
+
+def test_fuzz_finding_las_counts_checked_against_file_size(tmp_path):
+    # a mutated VLR count / point data offset made laspy loop for minutes
+    path = shotcrete.write_cloud(tmp_path / "c.las", shotcrete.Cloud(cylinder_points(50)))
+    good = path.read_bytes()
+    vlrs = good[:100] + (3_532_741_906).to_bytes(4, "little") + good[104:]
+    assert "VLRs" in read_error(write(tmp_path / "v.las", vlrs))
+    offset = good[:96] + (1_497_741_424).to_bytes(4, "little") + good[100:]
+    assert "do not fit" in read_error(write(tmp_path / "o.las", offset))
+    assert "truncated" in read_error(write(tmp_path / "t.las", good[:-100]))

@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <sstream>
 #include <stdexcept>
@@ -111,8 +112,16 @@ PcdHeader read_pcd_header(std::istream& in, const std::string& path) {
       h.data_offset = in.good() ? static_cast<std::streamoff>(in.tellg()) : -1;
       return h;
     }
-    if (h.keys.size() > 20 || h.lines > 200) break;
-    h.keys[key] = t;
+    if (h.lines > 200) break;
+    // PCL 1.13 stops its header parse at an unknown line and then reads from the wrong offset
+    // (a segfault on binary_compressed data): only the keys of the format are accepted, once each.
+    static const char* known[] = {"VERSION", "FIELDS", "COLUMNS", "SIZE", "TYPE", "COUNT",
+                                  "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS"};
+    if (std::none_of(std::begin(known), std::end(known), [&](const char* k) { return key == k; }))
+      fail(path, h.keys.empty() ? "not a PCD file (it starts with '" + printable(line) + "')"
+                                : "unknown PCD header line '" + printable(line) + "'");
+    if (h.keys.count(key)) fail(path, "PCD header line " + key + " appears twice");
+    h.keys[key == "COLUMNS" ? "FIELDS" : key] = t;
   }
   fail(path, "not a PCD file (no header with FIELDS, POINTS and DATA)");
 }
@@ -186,7 +195,7 @@ void add_ply_property(const std::string& path, std::vector<PlyElement>& elements
   if (elements.empty()) fail(path, "PLY property before any element");
   PlyElement& e = elements.back();
   const bool list = t.size() == 5 && t[1] == "list";
-  if (!list && t.size() != 3) fail(path, "malformed PLY property line '" + printable(t[0] + " " + t[1]) + " ...'");
+  if (!list && t.size() != 3) fail(path, "malformed PLY property line (" + std::to_string(t.size()) + " words)");
   const std::string& type = list ? t[2] : t[1];
   if (ply_type_size(type) == 0 || (list && ply_type_size(t[3]) == 0))
     fail(path, "PLY property '" + printable(t.back()) + "' has an unknown type '" + printable(list ? t[3] : type) + "'");
