@@ -1,5 +1,5 @@
-"""Mutation fuzzer for the cloud readers (PCD, PLY, XYZ, LAS): valid seed files (written by the
-independent writers of cloud_files.py and by laspy) mutated by bit flips, byte changes, chunk
+"""Mutation fuzzer for the cloud readers (PCD, PLY, XYZ, LAS, E57): valid seed files (written by
+the independent writers of cloud_files.py, laspy and pye57) mutated by bit flips, byte changes, chunk
 insertions, deletions and duplications, truncation, and header numbers replaced by hostile ones
 (negative, huge, zero). Every case must either read or raise ValueError with one line; anything
 else (another exception, a signal, a case slower than the time limit) is a finding.
@@ -56,6 +56,17 @@ def seeds() -> dict[str, bytes]:
         with tempfile.TemporaryDirectory() as tmp:
             las.write(str(Path(tmp) / "s.las"))
             out["cloud.las"] = (Path(tmp) / "s.las").read_bytes()
+    except ImportError:  # pragma: no cover
+        pass
+    try:
+        import pye57
+
+        xyz = np.random.default_rng(5).normal(size=(40, 3))
+        with tempfile.TemporaryDirectory() as tmp:
+            e57 = pye57.E57(str(Path(tmp) / "s.e57"), mode="w")
+            e57.write_scan_raw({"cartesianX": xyz[:, 0], "cartesianY": xyz[:, 1], "cartesianZ": xyz[:, 2]})
+            e57.close()
+            out["scan.e57"] = (Path(tmp) / "s.e57").read_bytes()
     except ImportError:  # pragma: no cover
         pass
     return out
