@@ -216,3 +216,22 @@ def test_fuzz_finding_las_counts_checked_against_file_size(tmp_path):
     offset = good[:96] + (1_497_741_424).to_bytes(4, "little") + good[100:]
     assert "do not fit" in read_error(write(tmp_path / "o.las", offset))
     assert "truncated" in read_error(write(tmp_path / "t.las", good[:-100]))
+
+
+@pytest.mark.parametrize("data", ["ascii", "binary"])
+def test_pcd_extra_field_with_count_above_one(tmp_path, data):
+    # a descriptor-like field of COUNT 3 between y and z: offsets must follow SIZE x COUNT
+    n = 30
+    arr = np.zeros(n, dtype=[("x", "<f8"), ("y", "<f8"), ("desc", "<f4", (3,)), ("z", "<f8")])
+    xyz = cylinder_points(n) + np.asarray(SURVEY)
+    arr["x"], arr["y"], arr["z"] = xyz.T
+    arr["desc"] = np.arange(3 * n, dtype=np.float32).reshape(n, 3)
+    head = (f"VERSION 0.7\nFIELDS x y desc z\nSIZE 8 8 4 8\nTYPE F F F F\nCOUNT 1 1 3 1\nWIDTH {n}\nHEIGHT 1\n"
+            f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {data}\n").encode()
+    if data == "ascii":
+        rows = [[float(a["x"]), float(a["y"]), *map(float, a["desc"]), float(a["z"])] for a in arr]
+        body = "".join(" ".join(repr(v) for v in row) + "\n" for row in rows).encode()
+    else:
+        body = arr.tobytes()
+    back = shotcrete.read_cloud(write(tmp_path / "d.pcd", head + body))
+    np.testing.assert_array_equal(back.xyz, xyz)
