@@ -43,7 +43,7 @@ def _run_job(cloud, config, out: Path, as_json: bool, inputs: dict) -> dict:
 
 TUNE_HELP = ("tune the timing of every region by particle swarm (timing.tune_with_pso); kept when faster "
              "within the same joint limits")
-SUMMARY = ["cells", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
+SUMMARY = ["local_origin_m", "cells", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
            "total_time_s", "spray_time_ratio", "report_html"]
 
 

@@ -1,6 +1,7 @@
 """Cloud files: PCD/PLY/XYZ through the C++ core (PCL), LAS/LAZ through laspy, E57 through pye57."""
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -8,6 +9,36 @@ import numpy as np
 from . import _core
 
 UNIT_SCALES = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+def _one_line(exc: Exception) -> str:
+    """The first non-empty line of a library's message (libE57 appends a multi-line debug dump)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
+
+
+def _check_las_header(path: Path) -> None:
+    """The LAS public header's counts against the file size, before laspy reads (a mutated VLR
+    count made laspy loop for minutes). Offsets from the LAS 1.0-1.4 specifications."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(375)
+    if len(head) < 227 or head[:4] != b"LASF":
+        raise ValueError(f"{path}: not a LAS/LAZ file (no LASF signature)")
+    minor = head[25]
+    header_size, offset, n_vlr = struct.unpack_from("<HII", head, 94)
+    point_format, record_len, count = struct.unpack_from("<BHI", head, 104)
+    if minor >= 4 and len(head) >= 255 and count == 0:
+        count = struct.unpack_from("<Q", head, 247)[0]
+    if not header_size <= offset <= size:
+        raise ValueError(f"{path}: LAS header size {header_size} / point data offset {offset} do not fit the "
+                         f"file of {size} bytes")
+    if n_vlr * 54 > offset - header_size:
+        raise ValueError(f"{path}: LAS header declares {n_vlr} VLRs, more than fit in {offset - header_size} bytes")
+    compressed = point_format & 0xC0 or path.suffix.lower() == ".laz"
+    if not compressed and count * record_len > size - offset:
+        raise ValueError(f"{path}: LAS header declares {count} points of {record_len} bytes but the file holds "
+                         f"{size - offset} bytes of point data (truncated, or the header overstates the count)")
 
 
 def _cloud_from_array(xyz: np.ndarray, path: Path) -> _core.Cloud:
@@ -29,10 +60,11 @@ def read_cloud(path: str | Path) -> _core.Cloud:
     if ext in (".las", ".laz"):
         import laspy
 
+        _check_las_header(path)
         try:
             las = laspy.read(str(path))
         except Exception as exc:  # laspy raises several types for a bad file
-            raise ValueError(f"{path}: not a readable LAS/LAZ file ({exc})") from exc
+            raise ValueError(f"{path}: not a readable LAS/LAZ file ({_one_line(exc)})") from None
         return _cloud_from_array(np.column_stack([las.x, las.y, las.z]), path)
     if ext == ".e57":
         import pye57
@@ -44,7 +76,7 @@ def read_cloud(path: str | Path) -> _core.Cloud:
                 scan = e57.read_scan(i, ignore_missing_fields=True, transform=True)
                 parts.append(np.column_stack([scan["cartesianX"], scan["cartesianY"], scan["cartesianZ"]]))
         except Exception as exc:
-            raise ValueError(f"{path}: not a readable E57 file ({exc})") from exc
+            raise ValueError(f"{path}: not a readable E57 file ({_one_line(exc)})") from None
         if not parts:
             raise ValueError(f"{path}: the E57 file has no scans")
         return _cloud_from_array(np.vstack(parts), path)

@@ -15,6 +15,7 @@ from .io import write_cloud
 from .outdir import job_output
 from .planning import plan_surface
 from .robot import load_robot
+from .survey import LocalFrame
 
 Progress = Callable[[str, float], None]
 
@@ -36,21 +37,25 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
     with job_output(Path(out), inputs.values()) as tmp:
         t0 = time.perf_counter()
         cloud = cloud() if callable(cloud) else cloud
+        given_cloud, given_config = cloud, config  # provenance: what the user gave
+        frame = LocalFrame.of(cloud, config)  # survey coordinates: run in a local frame, write back
+        cloud, config = frame.to_local(cloud, config)
         surface, timings = surface_step(cloud, config, progress)
         robot = load_robot(config)
         arm_plan = plan_step(surface, config, robot, progress, timings)
         summary = _core.summarise_job(surface, arm_plan, robot, config, points_in=len(cloud))
         result = summary.to_dict()
+        result["local_origin_m"] = frame.origin_m.tolist()  # outputs are in the input's frame
 
         progress("report", 0.0)
         t_report = time.perf_counter()
         figures = figures_step(tmp / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
-        files = files_step(tmp, surface, arm_plan)
+        files = files_step(tmp, surface, arm_plan, frame, robot)
         timings["report"] = time.perf_counter() - t_report
         timings["total"] = time.perf_counter() - t0
         result["timings_s"] = timings
         result["files"] = files
-        result["provenance"] = report.provenance(config, cloud, inputs)
+        result["provenance"] = report.provenance(given_config, given_cloud, inputs)
         report.write_json(tmp / "report.json", result)
         report.write_html(tmp, result, [(cap, str(p.relative_to(tmp))) for cap, p in figures])
     progress("report", 1.0)
@@ -137,27 +142,40 @@ def _pass_tracks(plan_round, surface):
     return tracks
 
 
-def files_step(out: Path, surface, arm_plan) -> dict:
+def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, robot=None) -> dict:
     """plan.json, trajectory.npz (when timed), surface.ply and sprayed.ply (the executed deposit's
-    wall when timed); returns report.json's ``files`` entry."""
+    wall when timed), every coordinate in the input's frame (``frame``'s origin added back);
+    returns report.json's ``files`` entry."""
     plan, trajectory = arm_plan.plan, arm_plan.trajectory
-    (out / "plan.json").write_text(json.dumps(plan_to_dict(plan)) + "\n")
+    frame = frame or LocalFrame(np.zeros(3))
+    (out / "plan.json").write_text(json.dumps(plan_to_dict(plan, frame.origin_m)) + "\n")
     files = {"plan": "plan.json", "surface_cloud": "surface.ply", "sprayed_cloud": "sprayed.ply"}
     if trajectory is not None:
         np.savez_compressed(out / "trajectory.npz", t_s=trajectory.t_s, q=trajectory.q, qd=trajectory.qd,
-                            qdd=trajectory.qdd, nozzle_position_m=trajectory.positions, nozzle_axis=trajectory.axes,
+                            qdd=trajectory.qdd, nozzle_position_m=frame.points_to_input(trajectory.positions),
+                            nozzle_axis=trajectory.axes, base_position_m=_base_position(robot, frame),
                             spraying=trajectory.spraying, pass_index=trajectory.pass_index,
                             region_index=trajectory.region_index)
         files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle
-    write_cloud(out / "surface.ply", surface.cloud, _core.point_td(surface.cloud, surface.axis, surface.profile))
+    write_cloud(out / "surface.ply", frame.cloud_to_input(surface.cloud),
+                _core.point_td(surface.cloud, surface.axis, surface.profile))
     # The wall as the trajectory sprays it; the planner's estimate without a trajectory.
     sprayed = arm_plan.executed.sprayed_cloud if arm_plan.executed is not None else plan.sprayed_cloud
-    write_cloud(out / "sprayed.ply", sprayed, _core.point_td(sprayed, surface.axis, surface.profile))
+    write_cloud(out / "sprayed.ply", frame.cloud_to_input(sprayed), _core.point_td(sprayed, surface.axis, surface.profile))
     return files
 
 
-def plan_to_dict(plan) -> dict:
-    """The plan as plain data: rounds -> regions (in spraying order) -> passes (waypoints in m, speeds in m/s)."""
+def _base_position(robot, frame: LocalFrame) -> np.ndarray:
+    """The robot's base_link position in the input's frame (NaN when no robot was given)."""
+    if robot is None:
+        return np.full(3, np.nan)
+    return frame.points_to_input(np.asarray(robot.base_pose)[:3, 3])
+
+
+def plan_to_dict(plan, origin_m=(0.0, 0.0, 0.0)) -> dict:
+    """The plan as plain data: rounds -> regions (in spraying order) -> passes (waypoints in m, speeds
+    in m/s); waypoints in the input's frame (``origin_m``, the local frame's origin, added)."""
+    origin_m = np.asarray(origin_m, dtype=np.float64)
     rounds = []
     for i, rnd in enumerate(plan.rounds):
         regions = []
@@ -174,12 +192,12 @@ def plan_to_dict(plan) -> dict:
                     "length_m": round(p.length_m, 4),
                     "duration_s": round(p.duration_s(), 3),
                     "speed_profile_mps": np.round(p.speed_profile_mps, 5).tolist(),
-                    "positions_m": np.round(p.positions_m, 4).tolist(),
+                    "positions_m": np.round(np.asarray(p.positions_m) + origin_m, 4).tolist(),
                     "axes": np.round(p.axes, 5).tolist(),
                 } for p in reg.passes],
             })
         rounds.append({"round": i + 1, "kind": rnd.kind, "level": rnd.level, "order": list(rnd.order),
                        "order_method": rnd.order_method, "link_length_m": rnd.link_length_m,
                        "spray_time_s": rnd.spray_time_s, "regions": regions})
-    return {"frame": "tunnel (x along the axis, y across, z up), metres", "rounds": rounds,
+    return {"frame": "the input cloud's frame, metres", "local_origin_m": origin_m.tolist(), "rounds": rounds,
             "stop_reason": plan.stop_reason}

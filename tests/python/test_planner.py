@@ -92,7 +92,8 @@ def test_cli_demo_report_contract(tmp_path, run_cli):
     numbers = [k for k, v in expected.items() if isinstance(v, float)]
     assert {k: got[k] for k in numbers} == pytest.approx({k: expected[k] for k in numbers}, rel=1e-9)
     assert {k: got[k] for k in expected if k not in numbers} == {k: v for k, v in expected.items() if k not in numbers}
-    assert set(report) - set(summary.to_dict()) == {"timings_s", "files", "provenance"}
+    assert set(report) - set(summary.to_dict()) == {"timings_s", "files", "provenance", "local_origin_m"}
+    assert report["local_origin_m"] == [0.0, 0.0, 0.0]  # a bay near its own origin runs unshifted
     assert summary.passes == report["passes"]
     assert summary.trajectory.duration_s == pytest.approx(report["total_time_s"], rel=1e-9)
     assert set(report["residual_mm"]) >= {"mean", "min", "max", "rms"}

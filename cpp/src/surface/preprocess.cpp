@@ -28,7 +28,39 @@ Cloud from_pcl(const pcl::PointCloud<pcl::PointXYZ>& pc) {
   return out;
 }
 
+/// 12345.6 -> "12,346"
+std::string thousands(double value) {
+  std::string digits = std::to_string(static_cast<long long>(std::llround(value)));
+  for (int i = static_cast<int>(digits.size()) - 3; i > 0; i -= 3) digits.insert(static_cast<std::size_t>(i), ",");
+  return digits;
+}
+
 }  // namespace
+
+std::string unit_hint(double span, double max_extent_m) {
+  // The unit that makes the span closest (in ratio) to a bay's ~10 m; a scene may be larger.
+  struct Unit {
+    const char* name;
+    const char* option;
+    double scale;
+  };
+  const Unit units[] = {{"centimetres", "cm", 0.01}, {"millimetres", "mm", 0.001}};
+  const Unit* best = nullptr;
+  for (const auto& u : units)
+    if (span * u.scale <= max_extent_m &&
+        (!best || std::abs(std::log10(span * u.scale / 10.0)) < std::abs(std::log10(span * best->scale / 10.0))))
+      best = &u;
+  std::ostringstream msg;
+  msg << "coordinates span " << thousands(span) << " units, more than io.max_extent_m = " << max_extent_m << " m";
+  if (!best) {
+    msg << ", even read as millimetres; crop the scan to the bay";
+  } else {
+    msg.precision(3);
+    msg << ": looks like " << best->name << " (" << span * best->scale << " m); pass --units " << best->option
+        << " (io.unit_scale: " << best->scale << ")";
+  }
+  return msg.str();
+}
 
 void check_cloud(const Cloud& cloud, const IoConfig& io) {
   if (cloud.size() == 0) throw std::invalid_argument("cloud is empty");
@@ -43,13 +75,7 @@ void check_cloud(const Cloud& cloud, const IoConfig& io) {
       throw std::invalid_argument(msg.str());
     }
   const Eigen::Vector3d extent = cloud.xyz.colwise().maxCoeff() - cloud.xyz.colwise().minCoeff();
-  if (extent.maxCoeff() > io.max_extent_m) {
-    std::ostringstream msg;
-    msg << "cloud extent is " << extent.maxCoeff() << " units, more than io.max_extent_m = " << io.max_extent_m
-        << " m: it looks like millimetres. Coordinates must be metres; pass the unit option (--units mm, or "
-           "io.unit_scale: 0.001)";
-    throw std::invalid_argument(msg.str());
-  }
+  if (extent.maxCoeff() > io.max_extent_m) throw std::invalid_argument(unit_hint(extent.maxCoeff(), io.max_extent_m));
 }
 
 Cloud scale_cloud(const Cloud& cloud, double unit_scale) {

@@ -5,11 +5,17 @@
 #include "shotcrete/surface/profile.hpp"
 #include "shotcrete/types.hpp"
 
+#include <string>
+
 namespace shotcrete {
 
 /// Throws std::invalid_argument for an empty cloud, NaN/inf coordinates, a normals array of the
 /// wrong size, or an extent beyond io.max_extent_m (which usually means millimetres).
 void check_cloud(const Cloud& cloud, const IoConfig& io);
+
+/// The message for a cloud spanning `span` units (> max_extent_m): the unit (cm or mm) that makes
+/// it bay-sized, e.g. "coordinates span 12,000 units, ...: looks like millimetres (12 m); pass --units mm".
+std::string unit_hint(double span, double max_extent_m);
 
 /// Applies io.unit_scale to the coordinates (normals unchanged).
 Cloud scale_cloud(const Cloud& cloud, double unit_scale);

@@ -1,0 +1,100 @@
+"""Survey coordinates (issue 16): a bay offset to (500 km, 4000 km, 300 m) and written as a double
+PLY plans like the bay at the origin, and every output carries the input's frame."""
+import json
+
+import numpy as np
+import pytest
+
+import shotcrete
+from shotcrete import pipeline
+from shotcrete.survey import LocalFrame, local_origin
+
+OFFSET = np.array([500000.0, 4000000.0, 300.0])
+
+
+def test_local_origin_is_the_rounded_box_centre():
+    xyz = np.array([[0.0, -5.0, 0.0], [1.2, 5.0, 5.6]])
+    np.testing.assert_array_equal(local_origin(xyz), [0.0, 0.0, 0.0])  # near its origin: unshifted
+    np.testing.assert_array_equal(local_origin(xyz + OFFSET), OFFSET)
+    np.testing.assert_array_equal(local_origin(xyz + [149.0, -251.0, 45.0]), [100.0, -300.0, 0.0])
+    np.testing.assert_array_equal(local_origin(np.full((3, 3), np.nan)), [0.0, 0.0, 0.0])
+
+
+def test_to_local_moves_cloud_and_config_coordinates_by_the_same_origin():
+    cfg = shotcrete.load_config()
+    cfg.profile.axis_origin_m = OFFSET + [0.0, 0.0, 1.0]
+    cfg.robot.base_position_m = OFFSET + [0.6, 0.0, -1.2]
+    xyz = np.array([[0.5, 0.0, 5.0], [0.7, 1.0, 5.5]]) + OFFSET
+    frame = LocalFrame.of(shotcrete.Cloud(xyz), cfg)
+    cloud, local = frame.to_local(shotcrete.Cloud(xyz), cfg)
+    np.testing.assert_array_equal(frame.origin_m, OFFSET)
+    np.testing.assert_allclose(cloud.xyz, xyz - OFFSET, atol=1e-9)
+    np.testing.assert_allclose(local.profile.axis_origin_m, [0.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(local.robot.base_position_m, [0.6, 0.0, -1.2], atol=1e-9)
+    np.testing.assert_allclose(local.preprocess.crop_max_m - local.preprocess.crop_min_m,
+                               np.asarray(cfg.preprocess.crop_max_m) - cfg.preprocess.crop_min_m)
+    np.testing.assert_array_equal(cfg.robot.base_position_m, OFFSET + [0.6, 0.0, -1.2])  # the user's config untouched
+    np.testing.assert_allclose(frame.cloud_to_input(cloud).xyz, xyz, atol=1e-9)
+    # millimetres: the shift is in input units, the origin in metres
+    cfg.io.unit_scale = 0.001
+    frame_mm = LocalFrame.of(shotcrete.Cloud(xyz * 1000), cfg)
+    np.testing.assert_array_equal(frame_mm.origin_m, OFFSET)
+    np.testing.assert_allclose(frame_mm.to_local(shotcrete.Cloud(xyz * 1000), cfg)[0].xyz, (xyz - OFFSET) * 1000, atol=1e-6)
+
+
+def test_config_left_at_the_origin_is_refused_naming_the_key():
+    cfg = shotcrete.load_config()
+    xyz = np.array([[0.5, 0.0, 5.0], [0.7, 1.0, 5.5]]) + OFFSET
+    with pytest.raises(ValueError, match=r"robot\.base_position_m is 4,031\.\d km"):
+        LocalFrame.of(shotcrete.Cloud(xyz), cfg).to_local(shotcrete.Cloud(xyz), cfg)
+    cfg.robot.base_position_m = OFFSET
+    with pytest.raises(ValueError, match=r"profile\.axis_origin_m"):
+        LocalFrame.of(shotcrete.Cloud(xyz), cfg).to_local(shotcrete.Cloud(xyz), cfg)
+
+
+def _write_double_ply(path, xyz):
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(xyz)}\n"
+            "property double x\nproperty double y\nproperty double z\nend_header\n")
+    path.write_bytes(head.encode() + np.ascontiguousarray(xyz, dtype="<f8").tobytes())
+    return path
+
+
+def test_georeferenced_bay_plans_like_the_bay_at_the_origin(tmp_path, monkeypatch):
+    monkeypatch.setattr(pipeline, "figures_step", lambda *a, **k: [])  # figures carry no coordinates
+    cfg = shotcrete.load_config()
+    cfg.synth.theta_min_rad, cfg.synth.theta_max_rad, cfg.synth.length_m = 1.0, 1.4, 0.4
+    cfg.synth.points_per_cell = 6
+    cfg.planner.max_rounds = 3
+    bay = shotcrete.synthetic_cloud(cfg)
+    ref = pipeline.run_job(bay, cfg, tmp_path / "ref")
+
+    geo_cfg = cfg.copy()
+    geo_cfg.profile.axis_origin_m = np.asarray(cfg.profile.axis_origin_m) + OFFSET
+    geo_cfg.robot.base_position_m = np.asarray(cfg.robot.base_position_m) + OFFSET
+    geo_file = _write_double_ply(tmp_path / "geo.ply", np.asarray(bay.xyz) + OFFSET)
+    geo_cloud = shotcrete.read_cloud(geo_file)
+    np.testing.assert_allclose(geo_cloud.xyz, np.asarray(bay.xyz) + OFFSET, rtol=0, atol=1e-9)
+    out = tmp_path / "geo"
+    geo = pipeline.run_job(geo_cloud, geo_cfg, out)
+
+    assert geo["local_origin_m"] == OFFSET.tolist() and ref["local_origin_m"] == [0.0, 0.0, 0.0]
+    assert geo["required_volume_m3"] == pytest.approx(ref["required_volume_m3"], rel=1e-6)
+    assert geo["residual_mm"]["rms"] == pytest.approx(ref["residual_mm"]["rms"], rel=0.01)
+    assert geo["cells"] == ref["cells"] and geo["passes"] == ref["passes"]
+
+    # Every output carries the input's frame: plan waypoints, sprayed cloud, trajectory and its base.
+    def waypoints(report_dir):
+        plan = json.loads((report_dir / "plan.json").read_text())
+        return np.array([w for r in plan["rounds"] for g in r["regions"] for p in g["passes"] for w in p["positions_m"]])
+
+    np.testing.assert_allclose(waypoints(out), waypoints(tmp_path / "ref") + OFFSET, rtol=0, atol=2e-3)
+    sprayed, sprayed_ref = (shotcrete.read_cloud(d / "sprayed.ply") for d in (out, tmp_path / "ref"))
+    assert len(sprayed) == len(sprayed_ref)
+    np.testing.assert_allclose(sprayed.xyz.mean(axis=0), sprayed_ref.xyz.mean(axis=0) + OFFSET, rtol=0, atol=1e-3)
+    surface = shotcrete.read_cloud(out / "surface.ply")
+    assert np.all(np.abs(surface.xyz - OFFSET).max(axis=0) < 10.0)  # in the input's frame, not local, not float32
+    traj, traj_ref = np.load(out / "trajectory.npz"), np.load(tmp_path / "ref" / "trajectory.npz")
+    np.testing.assert_allclose(traj["base_position_m"], geo_cfg.robot.base_position_m, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(traj_ref["base_position_m"], cfg.robot.base_position_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(traj["nozzle_position_m"].mean(axis=0),
+                               traj_ref["nozzle_position_m"].mean(axis=0) + OFFSET, rtol=0, atol=1e-2)
