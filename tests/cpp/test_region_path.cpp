@@ -148,6 +148,7 @@ TEST(Region, TurnRunsSizedForTheSpeedChange) {
   const CartesianPath path = region_path(passes, opt);
   TimingParams prm = TimingParams::from_config(TimingConfig{});
   prm.speed_change_accel_mps2 = a;
+  prm.turn_accel_mps2 = a;
   const SpeedProfile prof = region_profile(path, prm);
   int runs = 0;
   for (std::size_t i = 0; i < path.pieces().size(); ++i) {
