@@ -249,8 +249,10 @@ Path scalable_path(const Instance& inst, const OrderingProblem& p, const Orderin
   if (inst.n == 0) return {};
   ctl.report("nearest neighbour", 0.0);
   NeighbourSearch ns(inst, nearest_neighbour_path(inst, p));
+  ctl.report("nearest neighbour", 1.0);
   ctl.report("local search", 0.0);
   ns.run_all();
+  ctl.report("local search", 1.0);
   const int n = inst.n;
   const long kicks = static_cast<long>(cfg.ils_kicks_per_region) * n;
   std::mt19937_64 rng(cfg.seed ^ 0x9E3779B97F4A7C15ULL);
