@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 OUT ?= out/demo
 export CMAKE_CXX_COMPILER_LAUNCHER := ccache
 
-.PHONY: setup demo test test-cpp test-python test-ros screenshot bench regression clean
+.PHONY: setup demo test test-cpp test-python test-ros test-asan screenshot bench regression clean
 
 setup:
 	bash scripts/setup.sh
@@ -24,6 +24,10 @@ test-python: setup
 
 test-ros: setup
 	bash scripts/run_tests.sh ros
+
+# The C++ tests once more, built with AddressSanitizer + UndefinedBehaviorSanitizer in build/asan.
+test-asan: setup
+	bash scripts/test_asan.sh
 
 screenshot: setup
 	bash ros1_pkg/scripts/rviz_screenshot.sh out/rviz.png

@@ -5,10 +5,9 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from . import cli_deposition, cli_order, cli_robot, synthetic_cloud
-from .cli_common import cli_config, console, print_json, refuse_overwrite, say, user_errors
+from .cli_common import cli_config, console, print_json, progress_reporter, refuse_overwrite, say, user_errors
 from .config import default_config_path
 from .io import read_cloud, write_cloud
 from .pipeline import run_job
@@ -27,15 +26,7 @@ def _emit(result: dict, as_json: bool, summary_keys: list[str]) -> None:
 
 
 def _run_job(cloud, config, out: Path, as_json: bool, inputs: dict) -> dict:
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console,
-                  disable=as_json) as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, fraction: float) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=1.0)
-            bar.update(tasks[stage], completed=fraction)
-
+    with progress_reporter(disable=as_json) as progress:
         result = run_job(cloud, config, out, progress, inputs=inputs)
     result["report_html"] = str(Path(out) / "report.html")
     return result

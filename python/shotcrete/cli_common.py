@@ -74,3 +74,21 @@ def cli_config(path: Optional[Path], units: str = "m"):
 def print_json(data, **dumps_options) -> None:
     """``data`` as JSON on stdout (the console writes to stderr)."""
     sys.stdout.write(json.dumps(data, **dumps_options) + "\n")
+
+
+@contextmanager
+def progress_reporter(disable: bool = False):
+    """A rich progress bar per stage on stderr; yields progress(stage, fraction) for the core's
+    ProgressFn (shown unless disabled, e.g. with --json)."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console,
+                  disable=disable) as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, fraction: float) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=1.0)
+            bar.update(tasks[stage], completed=fraction)
+
+        yield progress

@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from . import _core
-from .cli_common import cli_config, console, print_json, refuse_overwrite, say, user_errors
+from .cli_common import cli_config, console, print_json, progress_reporter, refuse_overwrite, say, user_errors
 from .ordering import METHODS, convergence_figure, load_instance, result_json
 
 
@@ -45,7 +45,8 @@ def order(instance: Path = typer.Argument(..., metavar="INSTANCE.json",
         if local_search is not None:
             cfg.local_search = local_search
         problem = load_instance(instance)
-        result = _core.solve_ordering(problem, cfg)
+        with progress_reporter(disable=as_json) as progress:  # long runs (large n) show their phases
+            result = _core.solve_ordering(problem, cfg, progress)
         out = result_json(result, len(problem))
         if convergence is not None:
             if result.best_per_iteration:

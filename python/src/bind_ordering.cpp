@@ -83,17 +83,20 @@ void bind_ordering(py::module_& m) {
       });
 
   m.def("validate_ordering_problem", &validate_ordering_problem, py::arg("problem"),
-        "Raise ValueError for a/b size mismatch or a non-finite coordinate (naming the region).");
+        "Raise ValueError for a/b size mismatch, a non-finite coordinate or one beyond 1e6 m (naming the "
+        "region, endpoint and value).");
   m.def("link_length", &link_length, py::arg("problem"), py::arg("order"), py::arg("reversed"),
         "Transit length [m] of an order (a permutation) with reversed indexed by region.");
-  m.def("solve_ordering", &solve_ordering, py::arg("problem"), py::arg("config"),
+  m.def("solve_ordering", &solve_ordering, py::arg("problem"), py::arg("config"), py::arg("progress") = nullptr,
         "Dispatch on config.method (aco | ga | nn | exact | best); config is an OrderingConfig "
-        "(config.ordering). aco/ga/nn are polished by local search when config.local_search.",
+        "(config.ordering). aco/ga/nn are polished by local search when config.local_search. From 150 "
+        "regions on, best is the scalable path (method nn+ils). Iterations stop once "
+        "config.time_budget_s is spent. progress(stage: str, fraction: float) is called per phase.",
         py::call_guard<py::gil_scoped_release>());
-  m.def("solve_aco", &solve_aco, py::arg("problem"), py::arg("config"),
+  m.def("solve_aco", &solve_aco, py::arg("problem"), py::arg("config"), py::arg("progress") = nullptr,
         "Ant colony (Ant-Cycle); the hybrid with per-iteration local search when config.local_search.",
         py::call_guard<py::gil_scoped_release>());
-  m.def("solve_ga", &solve_ga, py::arg("problem"), py::arg("config"),
+  m.def("solve_ga", &solve_ga, py::arg("problem"), py::arg("config"), py::arg("progress") = nullptr,
         "Genetic algorithm: order + direction bits, order crossover, inversion mutation.",
         py::call_guard<py::gil_scoped_release>());
   m.def("solve_nearest_neighbour", &solve_nearest_neighbour, py::arg("problem"),

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <random>
 #include <string>
 
@@ -156,6 +157,35 @@ TEST(Fit, RecoversKnownParameters) {
   EXPECT_LT(fit.mse_mm2, 1e-8);
 }
 
+// Issue 17: one thickness of 1e300 made every error infinite and fit_stroke read best_x[0] of an
+// empty vector (segfault). Values outside the physical range are refused at the boundary.
+TEST(Fit, OutOfRangeOrNonFiniteSamplesAreRefused) {
+  const StrokeData good = read_stroke_csv(kCsv);
+  auto expect_refused = [&](size_t i, double x, double t, const std::string& fragment) {
+    StrokeData d = good;
+    d.position_m[i] = x;
+    d.thickness_m[i] = t;
+    try {
+      fit_stroke(d);
+      ADD_FAILURE() << "no error for x = " << x << ", t = " << t;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("sample " + std::to_string(i)), std::string::npos) << e.what();
+    }
+  };
+  expect_refused(3, good.position_m[3], 1e297, "outside the physical range");  // 1e300 mm
+  expect_refused(3, good.position_m[3], 1.0001, "outside the physical range");
+  expect_refused(0, 1e297, 0.001, "outside the physical range");
+  expect_refused(0, -10.5, 0.001, "outside the physical range");
+  expect_refused(5, good.position_m[5], std::numeric_limits<double>::quiet_NaN(), "not finite");
+  expect_refused(5, std::numeric_limits<double>::infinity(), 0.001, "not finite");
+  // The limits themselves are accepted: a 1 m thick stroke still fits (as a spike) and is finite.
+  StrokeData edge = good;
+  edge.thickness_m[3] = 1.0;
+  const StrokeFit f = fit_stroke(edge);
+  EXPECT_TRUE(std::isfinite(f.mse_mm2) && std::isfinite(f.model.radius_m) && std::isfinite(f.model.peak_rate_mps));
+}
+
 TEST(Fit, FlowAgreesWithNominalWithinRebound) {
   // The stroke is what stayed on the wall, so the deposited flow must lie between the nominal
   // pump flow (nothing lost) and the nominal flow minus the assumed rebound share (8%).
@@ -211,6 +241,11 @@ TEST(Csv, BadInputsGiveClearErrors) {
   expect_error("position_mm,thickness_mm\n0,0\n10,0\n20,0\n30,0\n40,0\n", "all thickness values are zero");
   expect_error("position_mm,thickness_mm\n0,1,3\n10,2\n20,3\n30,1\n40,1\n", "expected 2 columns");
   expect_error("position_mm,thickness_mm\n0,1\n10,\n20,3\n30,1\n40,1\n", "non-numeric thickness");
+  expect_error("position_mm,thickness_mm\n0,1\n10,1e300\n20,3\n30,1\n40,1\n",
+               "line 3: thickness 1e300 mm is above the physical limit of 1000 mm");
+  expect_error("position_mm,thickness_mm\n0,1\n1e300,1\n20,3\n30,1\n40,1\n",
+               "line 3: position 1e300 mm is outside the physical range +-10000 mm");
+  expect_error("position_mm,thickness_mm\n0,1\n10,1e400\n20,3\n30,1\n40,1\n", "non-numeric thickness '1e400'");
   EXPECT_THROW(read_stroke_csv("/nonexistent/stroke.csv"), std::invalid_argument);
   // A valid file without header parses.
   const StrokeData ok = read_stroke_csv(write_tmp("ok.csv", "0,1\n10,2\n20,3\n30,1\n40,1\n"));

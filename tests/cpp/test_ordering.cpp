@@ -377,3 +377,153 @@ TEST(Ordering, GaPresets) {
   EXPECT_EQ(r.best_per_iteration.size(), 100u);
   EXPECT_GE(r.link_length_m, solve_exact(p).link_length_m - 1e-9);
 }
+
+// ------------------------------------------------------------------ issue 17: safety and scale
+
+// Coordinates of 1e155 overflowed every distance: nn / aco corrupted the heap (double free), exact
+// returned [127, 0]. They are refused at the boundary, naming the region, endpoint and value.
+TEST(Ordering, CoordinatesOutsideThePhysicalRangeAreRefused) {
+  OrderingProblem p;
+  p.a_m = {{0, 0, 0}, {1e155, 0, 0}};
+  p.b_m = {{1, 0, 0}, {1e155, 1, 0}};
+  for (const char* m : {"aco", "ga", "nn", "exact", "best"}) {
+    OrderingConfig c;
+    c.method = parse_enum<OrderingMethod>(m, "ordering.method");
+    try {
+      solve_ordering(p, c);
+      ADD_FAILURE() << m << ": 1e155 accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), "ordering: region 1 endpoint a has x = 1e+155 m, outside the physical range |x| <= 1e+06 m")
+          << m;
+    }
+  }
+  p.a_m[1] = {0, 0, -1.000001e6};
+  EXPECT_THROW(validate_ordering_problem(p), std::invalid_argument);
+  p.a_m[1] = {0, 0, 5};
+  p.b_m[1] = {0, 1, 5};
+  EXPECT_NO_THROW(validate_ordering_problem(p));
+  p.start_m = Eigen::Vector3d(0, 2e6, 0);
+  try {
+    validate_ordering_problem(p);
+    ADD_FAILURE() << "start 2e6 accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("the start point has y = 2e+06 m"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(link_length(p, {0, 1}, {false, false}), std::invalid_argument);
+}
+
+// At the edge of the range the distances are large but finite: every solver returns a permutation
+// and exact still equals brute force.
+TEST(Ordering, ExtremeButValidCoordinatesGiveValidOrders) {
+  OrderingProblem p;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> u(-1e6, 1e6);
+  for (int i = 0; i < 6; ++i) {
+    p.a_m.emplace_back(u(rng), u(rng), u(rng));
+    p.b_m.emplace_back(u(rng), u(rng), u(rng));
+  }
+  p.a_m[0] = {1e6, -1e6, 1e6};
+  p.b_m[0] = {-1e6, 1e6, -1e6};
+  const double opt = brute_force(p);
+  for (const char* m : {"aco", "ga", "nn", "exact", "best"}) {
+    OrderingConfig c;
+    c.method = parse_enum<OrderingMethod>(m, "ordering.method");
+    const OrderingResult r = solve_ordering(p, c);
+    expect_valid(r, 6);
+    EXPECT_GE(r.link_length_m, opt * (1 - 1e-12)) << m;
+    EXPECT_NEAR(path_cost(p, r.order, r.reversed), r.link_length_m, 1e-6) << m;
+  }
+  EXPECT_NEAR(solve_exact(p).link_length_m, opt, 1e-6);
+}
+
+// Regions in rows (unit rasters, unit gaps, rows one apart): every link is at least 1 m, so n - 1
+// is a lower bound that the serpentine attains. Shuffled and flipped, the scalable path (n >= 150)
+// must find it.
+TEST(Ordering, ScalablePathReachesTheKnownOptimumOfRows) {
+  const int rows = 16, per_row = 15, n = rows * per_row;
+  std::vector<int> perm(n);
+  std::iota(perm.begin(), perm.end(), 0);
+  std::mt19937 rng(5);
+  std::shuffle(perm.begin(), perm.end(), rng);
+  OrderingProblem p;
+  for (int k = 0; k < n; ++k) {
+    const int i = perm[k], row = i / per_row, col = i % per_row;
+    Eigen::Vector3d a(2.0 * col, 1.0 * row, 0), b(2.0 * col + 1.0, 1.0 * row, 0);
+    if (rng() & 1) std::swap(a, b);
+    p.a_m.push_back(a);
+    p.b_m.push_back(b);
+  }
+  OrderingConfig c;
+  c.time_budget_s = 1e6;  // the kick budget alone: the same result on a slow (sanitizer) build
+  const OrderingResult r = solve_ordering(p, c);
+  EXPECT_EQ(r.method, "nn+ils");
+  expect_valid(r, n);
+  EXPECT_NEAR(r.link_length_m, n - 1.0, 1e-9);
+  EXPECT_NEAR(path_cost(p, r.order, r.reversed), r.link_length_m, 1e-9);
+}
+
+TEST(Ordering, ScalablePathBeatsNearestNeighbourAndRepeats) {
+  const OrderingProblem p = bay_instance(400, 9, true);
+  OrderingConfig c;
+  c.time_budget_s = 1e6;  // the kick budget alone: deterministic on a slow (sanitizer) build
+  std::vector<std::string> stages;
+  double last_fraction = -1.0;
+  const OrderingResult r = solve_ordering(p, c, [&](const std::string& stage, double f) {
+    if (stages.empty() || stages.back() != stage) stages.push_back(stage);
+    last_fraction = f;
+  });
+  EXPECT_EQ(r.method, "nn+ils");
+  expect_valid(r, 400);
+  EXPECT_NEAR(path_cost(p, r.order, r.reversed), r.link_length_m, 1e-9);
+  const double nn = solve_nearest_neighbour(p).link_length_m;
+  EXPECT_LT(r.link_length_m, 0.85 * nn);  // measured about 30 % shorter on bay-like instances
+  const OrderingResult again = solve_ordering(p, c);
+  EXPECT_EQ(again.order, r.order);  // deterministic per seed
+  EXPECT_EQ(again.reversed, r.reversed);
+  const std::vector<std::string> want{"ordering: nearest neighbour", "ordering: local search",
+                                      "ordering: iterated local search"};
+  EXPECT_EQ(stages, want);
+  EXPECT_EQ(last_fraction, 1.0);
+  // The neighbour-list local search alone (nn+ls from 150 regions on) never worsens NN.
+  c.method = OrderingMethod::nn;
+  const OrderingResult ls = solve_ordering(p, c);
+  expect_valid(ls, 400);
+  EXPECT_EQ(ls.method, "nn+ls");
+  EXPECT_LE(ls.link_length_m, nn + 1e-9);
+  EXPECT_LE(r.link_length_m, ls.link_length_m + 1e-9);
+}
+
+// The budget is checked after every iteration: a budget already spent leaves one iteration.
+TEST(Ordering, TimeBudgetStopsColonyAndGeneticAlgorithm) {
+  const OrderingProblem p = bay_instance(20, 6);
+  OrderingConfig c = raw("aco", 1);
+  c.time_budget_s = 1e-12;
+  std::vector<double> fractions;
+  const OrderingResult a = solve_aco(p, c, [&](const std::string& s, double f) {
+    if (s == "ordering: aco" || s == "ordering: ant colony") fractions.push_back(f);
+  });
+  expect_valid(a, 20);
+  EXPECT_EQ(a.best_per_iteration.size(), 1u);
+  ASSERT_FALSE(fractions.empty());
+  EXPECT_EQ(fractions.front(), 0.0);
+  EXPECT_EQ(fractions.back(), 1.0);
+  const OrderingResult g = solve_ga(p, c);
+  expect_valid(g, 20);
+  EXPECT_EQ(g.best_per_iteration.size(), 1u);
+  c.time_budget_s = 0.0;
+  EXPECT_THROW(solve_aco(p, c), std::invalid_argument);
+  c.time_budget_s = 8.0;
+  c.ils_kicks_per_region = -1;
+  EXPECT_THROW(solve_ga(p, c), std::invalid_argument);
+}
+
+TEST(Ordering, ColonyRefusesMoreRegionsThanItsMatrices) {
+  OrderingProblem p;
+  for (int i = 0; i <= kMaxColonyRegions; ++i) {
+    p.a_m.emplace_back(0.01 * i, 0, 0);
+    p.b_m.emplace_back(0.01 * i, 1, 0);
+  }
+  OrderingConfig c;
+  c.method = OrderingMethod::aco;
+  EXPECT_THROW(solve_ordering(p, c), std::invalid_argument);
+}

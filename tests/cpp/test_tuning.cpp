@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -55,6 +56,16 @@ TEST(Pso, FindsKnownMinima) {
   EXPECT_NEAR(rb.best_x[0], -2.0, 1e-9);
   EXPECT_NEAR(rb.best_x[1], 0.5, 1e-3);
   EXPECT_THROW(pso_minimize(sphere, hi, lo, o), std::invalid_argument);
+  // Non-finite bounds (issue 17): refused, not a swarm of NaN positions.
+  Eigen::VectorXd bad = lo;
+  bad[2] = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(pso_minimize(sphere, bad, hi, o), std::invalid_argument);
+  bad[2] = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(pso_minimize(sphere, lo, bad, o), std::invalid_argument);
+  // An objective that is NaN everywhere gives a result (every value counts as +inf), no crash.
+  const PsoResult rn = pso_minimize([](const Eigen::VectorXd&) { return std::nan(""); }, lo, hi, o);
+  EXPECT_TRUE(std::isinf(rn.best_f));
+  EXPECT_EQ(rn.best_x.size(), 5);
 }
 
 TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {

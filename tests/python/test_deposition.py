@@ -1,5 +1,7 @@
 """Deposition model through the bindings and the CLI: JSON output, bad CSVs, dtypes and shapes."""
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +63,25 @@ def test_fit_cli_bad_csv_exit_2(run_cli, tmp_path, text, message):
     assert message in r.output and "Traceback" not in r.output
     with pytest.raises(ValueError, match=message):
         _core.read_stroke_csv(str(bad))
+
+
+def test_fit_cli_huge_thickness_is_refused_not_a_segfault(tmp_path):
+    """Issue 17: one thickness of 1e300 crashed `deposition fit` (segfault in fit_stroke). In a child
+    process, so a crash shows as a signal instead of killing pytest."""
+    bad = tmp_path / "huge.csv"
+    bad.write_text(CSV.read_text().replace("\n-140,10\n", "\n-140,1e300\n"))
+    assert "1e300" in bad.read_text()
+    r = subprocess.run([str(Path(sys.executable).parent / "shotcrete"), "deposition", "fit", str(bad)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert "thickness 1e300 mm is above the physical limit of 1000 mm" in r.stderr
+    assert "Traceback" not in r.stderr
+    data = _core.read_stroke_csv(str(CSV))
+    th = np.array(data.thickness_m)
+    th[3] = 1e297  # 1e300 mm
+    data = _core.StrokeData(np.array(data.position_m), th)
+    with pytest.raises(ValueError, match="sample 3 .* outside the physical range"):
+        _core.fit_stroke(data)
 
 
 def test_fit_cli_missing_file_and_bad_speed(run_cli, tmp_path):

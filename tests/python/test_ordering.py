@@ -2,12 +2,16 @@
 import itertools
 import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import shotcrete
 from shotcrete import _core
+from shotcrete.ordering import problem_from_dict
 
 
 def bay_problem(n, seed=0, start=False):
@@ -182,3 +186,62 @@ def test_cli_bad_options_and_empty_instance(tmp_path, run_cli):
     assert run_cli("order", inst, "--method", "tabu").exit_code == 2
     assert run_cli("order", tmp_path / "missing.json").exit_code == 2
     assert run_cli("order", inst, "--ga-preset", "c").exit_code == 2
+
+
+# ---------------------------------------------------------------- issue 17: safety and scale
+
+HUGE = '{"regions": [{"a": [0, 0, 0], "b": [1, 0, 0]}, {"a": [1e155, 0, 0], "b": [1e155, 1, 0]}]}'
+HUGE_MESSAGE = "region 1 endpoint a has x = 1e+155 m, outside the physical range |x| <= 1e+06 m"
+
+
+@pytest.mark.parametrize("method", ["nn", "aco", "ga", "exact", "best"])
+def test_cli_huge_coordinates_exit_2_not_a_crash(tmp_path, method):
+    """Issue 17: nn/aco aborted (double free), exact/best printed the invalid order [127, 0]. In a
+    child process, so an abort shows as a signal instead of killing pytest."""
+    inst = tmp_path / "huge.json"
+    inst.write_text(HUGE)
+    r = subprocess.run([str(Path(sys.executable).parent / "shotcrete"), "order", str(inst), "--method", method,
+                        "--json"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert HUGE_MESSAGE in r.stderr and "Traceback" not in r.stderr
+    assert r.stdout == ""
+
+
+def test_api_huge_or_non_finite_coordinates_raise_value_error():
+    cfg = shotcrete.load_config().ordering
+    a = np.array([[0.0, 0, 0], [1e155, 0, 0]])
+    b = np.array([[1.0, 0, 0], [1e155, 1, 0]])
+    for method in ("nn", "aco", "ga", "exact", "best"):
+        cfg.method = method
+        with pytest.raises(ValueError, match=r"x = 1e\+155 m, outside the physical range"):
+            _core.solve_ordering(_core.OrderingProblem(a, b), cfg)
+    with pytest.raises(ValueError, match=r"the start point has z = -2e\+06 m"):
+        _core.validate_ordering_problem(_core.OrderingProblem(a[:1], b[:1], np.array([0.0, 0.0, -2e6])))
+    with pytest.raises(ValueError, match="region 1 endpoint a"):
+        problem_from_dict(json.loads(HUGE))
+    ok = _core.OrderingProblem(np.array([[0.0, 0, 1e6]]), np.array([[0.0, 1, -1e6]]))
+    assert _core.solve_ordering(ok, cfg).order == [0]  # the range includes its limit
+
+
+def test_large_instance_takes_the_scalable_path_with_progress(tmp_path, run_cli):
+    """From 150 regions the default method is nearest neighbour + neighbour-list local search +
+    iterated local search (nn+ils): a valid order, shorter than NN, with progress per phase."""
+    p = bay_problem(300, seed=8)
+    calls = []
+    slow = tmp_path / "budget.yaml"  # the kick budget alone: the same order however loaded the machine
+    slow.write_text("ordering:\n  time_budget_s: 3600\n")
+    cfg = shotcrete.load_config(slow).ordering
+    r = _core.solve_ordering(p, cfg, lambda stage, f: calls.append((stage, f)))
+    assert r.method == "nn+ils" and sorted(r.order) == list(range(300))
+    assert r.link_length_m == pytest.approx(path_length(p.a_m, p.b_m, None, r.order, r.reversed), abs=1e-9)
+    assert r.link_length_m < 0.9 * _core.solve_nearest_neighbour(p).link_length_m
+    stages = [s for s, _ in calls]
+    assert stages[0] == "ordering: nearest neighbour" and calls[-1] == ("ordering: iterated local search", 1.0)
+    assert all(0.0 <= f <= 1.0 for _, f in calls)
+    inst = write_instance(tmp_path / "large.json", p)
+    out = run_cli("order", inst)  # the CLI shows the phases on stderr
+    assert out.exit_code == 0, out.output
+    assert "ordering: iterated local search" in out.output and "method: nn+ils" in out.output
+    out = run_cli("order", inst, "--json", "--config", slow)
+    assert json.loads(out.stdout)["order"] == r.order  # same seed, same order
+    assert "ordering:" not in out.stdout

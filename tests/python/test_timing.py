@@ -99,6 +99,8 @@ def test_pso_known_minimum():
     assert all(0.0 <= b <= 1.0 for b in res.success_history)
     again = _core.pso_minimize(lambda x: float(np.sum((x - c) ** 2)), -3 * np.ones(3), 3 * np.ones(3), opts)
     np.testing.assert_array_equal(res.best_x, again.best_x)
+    with pytest.raises(ValueError, match="bounds must be finite"):  # issue 17
+        _core.pso_minimize(lambda x: 0.0, np.array([-3.0, np.nan, -3.0]), 3 * np.ones(3), opts)
 
 
 def test_time_plan_on_robot():

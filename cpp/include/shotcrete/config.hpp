@@ -138,6 +138,8 @@ struct OrderingConfig {
   int ga_generations = 400;
   int exact_max_regions = 16;
   bool local_search = true;
+  double time_budget_s = 8.0;     // wall clock of one solve; iterations stop once it is spent
+  int ils_kicks_per_region = 20;  // large instances: iterated local search kicks per region
 };
 
 struct RobotConfig {

@@ -101,6 +101,8 @@ template <class F> void visit(OrderingConfig*, F&& f) {
   f("ga_generations", &OrderingConfig::ga_generations, 1, 100000, "GA generations");
   f("exact_max_regions", &OrderingConfig::exact_max_regions, 1, 20, "largest n solved exactly");
   f("local_search", &OrderingConfig::local_search, 0, 0, "polish with 2-opt/or-opt/flips");
+  f("time_budget_s", &OrderingConfig::time_budget_s, 0.01, 86400.0, "wall clock of one solve; colony, GA and kicks stop once spent [s]");
+  f("ils_kicks_per_region", &OrderingConfig::ils_kicks_per_region, 0, 100000, "large instances (>= 150 regions): kicks per region");
 }
 template <class F> void visit(RobotConfig*, F&& f) {
   f("urdf_path", &RobotConfig::urdf_path, 0, 0, "URDF file; empty = bundled manipulator");

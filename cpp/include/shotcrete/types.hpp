@@ -3,6 +3,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <array>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
@@ -10,6 +11,9 @@
 #include <vector>
 
 namespace shotcrete {
+
+/// Progress of a long stage: called between its steps with a stage name and the fraction done.
+using ProgressFn = std::function<void(const std::string& stage, double fraction)>;
 
 /// N x 3 row-major: maps one-to-one onto a C-contiguous numpy (N, 3) float64 array.
 using Points = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;

@@ -18,6 +18,16 @@ namespace shotcrete {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+// Physical range of a measured stroke: a pass leaves at most 1 m of concrete within +-10 m of its
+// centre; anything beyond is a unit or data error (and 1e300 overflows the least squares).
+constexpr double kMaxStrokeThickness_m = 1.0;
+constexpr double kMaxStrokePosition_m = 10.0;
+
+std::string format_number(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
 
 double beta_fn(double a, double b) { return std::exp(std::lgamma(a) + std::lgamma(b) - std::lgamma(a + b)); }
 
@@ -161,6 +171,12 @@ StrokeData read_stroke_csv(const std::string& path, double standoff_m, double sp
     if (!parse_number(cells[0], x)) throw std::invalid_argument(where + "non-numeric position '" + trim(cells[0]) + "'");
     if (!parse_number(cells[1], t)) throw std::invalid_argument(where + "non-numeric thickness '" + trim(cells[1]) + "'");
     if (t < 0) throw std::invalid_argument(where + "negative thickness " + trim(cells[1]) + " mm");
+    if (std::abs(x) > kMaxStrokePosition_m * 1e3)
+      throw std::invalid_argument(where + "position " + trim(cells[0]) + " mm is outside the physical range +-" +
+                                  std::to_string(static_cast<int>(kMaxStrokePosition_m * 1e3)) + " mm");
+    if (t > kMaxStrokeThickness_m * 1e3)
+      throw std::invalid_argument(where + "thickness " + trim(cells[1]) + " mm is above the physical limit of " +
+                                  std::to_string(static_cast<int>(kMaxStrokeThickness_m * 1e3)) + " mm");
     data.position_m.push_back(x * 1e-3);
     data.thickness_m.push_back(t * 1e-3);
   }
@@ -221,8 +237,15 @@ StrokeFit fit_stroke(const StrokeData& data) {
   FitProblem pr;
   double tsum = 0, xt = 0, tmax = 0;
   for (size_t i = 0; i < n; ++i) {
-    if (!std::isfinite(data.position_m[i]) || !std::isfinite(data.thickness_m[i]) || data.thickness_m[i] < 0)
-      throw std::invalid_argument("stroke: sample " + std::to_string(i) + " is not finite or negative");
+    const double x = data.position_m[i], t = data.thickness_m[i];
+    if (!std::isfinite(x) || !std::isfinite(t) || t < 0)
+      throw std::invalid_argument("stroke: sample " + std::to_string(i) + " (position " + format_number(x) +
+                                  " m, thickness " + format_number(t) + " m) is not finite or negative");
+    if (std::abs(x) > kMaxStrokePosition_m || t > kMaxStrokeThickness_m)
+      throw std::invalid_argument("stroke: sample " + std::to_string(i) + " (position " + format_number(x) +
+                                  " m, thickness " + format_number(t) + " m) is outside the physical range (|position| <= " +
+                                  format_number(kMaxStrokePosition_m) + " m, thickness <= " +
+                                  format_number(kMaxStrokeThickness_m) + " m)");
     pr.x_mm.push_back(data.position_m[i] * 1e3);  // mm keeps the problem well scaled
     pr.t_mm.push_back(data.thickness_m[i] * 1e3);
     tsum += pr.t_mm.back();
@@ -255,11 +278,14 @@ StrokeFit fit_stroke(const StrokeData& data) {
       } catch (const nlopt::roundoff_limited&) {
         f = pr.sse(x[0], x[1], x[2]);  // converged as far as doubles allow
       }
-      if (f < best) {
+      if (std::isfinite(f) && f < best && std::all_of(x.begin(), x.end(), [](double v) { return std::isfinite(v); })) {
         best = f;
         best_x = x;
       }
     }
+  if (best_x.empty())  // every start ended on a non-finite error: nothing to report
+    throw std::invalid_argument("stroke: the fit found no finite error from any start (" +
+                                std::to_string(pr.evaluations) + " evaluations); check the stroke data");
   double amp_mm = 0;
   best = pr.sse(best_x[0], best_x[1], best_x[2], &amp_mm);
 

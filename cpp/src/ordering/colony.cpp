@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 #include "instance.hpp"
 
@@ -27,7 +29,7 @@ AcoGraph aco_graph(const Instance& inst, const OrderingConfig& cfg) {
   // Heuristic eta^beta = 1 / (d + eps)^beta; eps keeps coincident endpoints finite.
   const double eps = 1e-9 + 1e-6 * inst.mean_distance();
   g.eta_b.resize(static_cast<size_t>(R) * E);
-  for (size_t k = 0; k < g.eta_b.size(); ++k) g.eta_b[k] = std::pow(1.0 / (inst.D[k] + eps), cfg.aco_beta);
+  for (size_t k = 0; k < g.eta_b.size(); ++k) g.eta_b[k] = std::pow(1.0 / (inst.d(static_cast<int>(k / E), static_cast<int>(k % E)) + eps), cfg.aco_beta);
   // Candidate regions per row: the K regions with the nearest endpoint (own region excluded). The
   // start row (2n) lists every region: without a start point it is a virtual start at distance 0
   // from everything, so the colony learns where to begin an open path.
@@ -104,6 +106,9 @@ int next_entry(const Instance& inst, const AcoGraph& g, const double* ch, int ro
         next = f;
       }
   }
+  // Only a non-finite transition value (a distance that overflowed) leaves no choice: never index
+  // with -1 (issue 17: coordinates of 1e155 corrupted the heap here).
+  if (next < 0) throw std::logic_error("ordering: the ant colony found no next region (non-finite transition values)");
   return next;
 }
 
@@ -139,7 +144,7 @@ Path polished_best(const Instance& inst, const std::vector<Path>& paths, const s
   return polished;
 }
 
-SearchOutput aco(const Instance& inst, const OrderingConfig& cfg, const Path& nn_path) {
+SearchOutput aco(const Instance& inst, const OrderingConfig& cfg, const Path& nn_path, const RunControl& ctl) {
   const int n = inst.n, E = inst.E, R = E + 1;
   std::mt19937_64 rng(cfg.seed);
   const int ants = std::max(1, static_cast<int>(std::lround(cfg.aco_ants_per_region * n)));
@@ -184,15 +189,21 @@ SearchOutput aco(const Instance& inst, const OrderingConfig& cfg, const Path& nn
     for (double& t : tau) t *= (1.0 - cfg.aco_rho);
     if (cfg.local_search) deposit_pheromone(tau, E, polished, cfg.aco_q / std::max(polished_len, 1e-12));
     for (int a = 0; a < ants; ++a) deposit_pheromone(tau, E, paths[a], cfg.aco_q / std::max(lengths[a], 1e-12));
+    ctl.report("ant colony", static_cast<double>(it + 1) / cfg.aco_iterations);
+    if (ctl.spent()) break;  // time_budget_s: the best so far
   }
   return out;
 }
 
 }  // namespace
 
-OrderingResult solve_aco(const OrderingProblem& problem, const OrderingConfig& config) {
-  return solve_by_search(problem, config, "aco", [&](const Instance& inst) {
-    return aco(inst, config, nearest_neighbour_path(inst, problem));
+OrderingResult solve_aco(const OrderingProblem& problem, const OrderingConfig& config, const ProgressFn& progress) {
+  if (problem.a_m.size() > static_cast<size_t>(kMaxColonyRegions))
+    throw std::invalid_argument("ordering: the ant colony is limited to " + std::to_string(kMaxColonyRegions) +
+                                " regions (three (2n + 1) x 2n matrices), got " + std::to_string(problem.a_m.size()) +
+                                "; use method best or nn");
+  return solve_by_search(problem, config, "aco", progress, [&](const Instance& inst, const RunControl& ctl) {
+    return aco(inst, config, nearest_neighbour_path(inst, problem), ctl);
   });
 }
 

@@ -33,7 +33,7 @@ Path order_crossover(const Path& p1, const Path& p2, int i, int j, std::vector<c
   return c;
 }
 
-SearchOutput ga(const Instance& inst, const OrderingConfig& cfg) {
+SearchOutput ga(const Instance& inst, const OrderingConfig& cfg, const RunControl& ctl) {
   const int n = inst.n, P = std::max(2, cfg.ga_population);
   std::mt19937_64 rng(cfg.seed);
   std::vector<Path> pop(static_cast<size_t>(P)), next_pop(static_cast<size_t>(P));
@@ -91,6 +91,8 @@ SearchOutput ga(const Instance& inst, const OrderingConfig& cfg) {
     best = static_cast<int>(std::min_element(fit.begin(), fit.end()) - fit.begin());
     out.best_hist.push_back(fit[best]);
     out.mean_hist.push_back(std::accumulate(fit.begin(), fit.end(), 0.0) / P);
+    ctl.report("genetic algorithm", static_cast<double>(g + 1) / cfg.ga_generations);
+    if (ctl.spent()) break;  // time_budget_s: the best so far
   }
   out.best = pop[best];
   return out;
@@ -98,8 +100,9 @@ SearchOutput ga(const Instance& inst, const OrderingConfig& cfg) {
 
 }  // namespace
 
-OrderingResult solve_ga(const OrderingProblem& problem, const OrderingConfig& config) {
-  return solve_by_search(problem, config, "ga", [&](const Instance& inst) { return ga(inst, config); });
+OrderingResult solve_ga(const OrderingProblem& problem, const OrderingConfig& config, const ProgressFn& progress) {
+  return solve_by_search(problem, config, "ga", progress,
+                         [&](const Instance& inst, const RunControl& ctl) { return ga(inst, config, ctl); });
 }
 
 void apply_ga_preset(OrderingConfig& c, const std::string& preset) {

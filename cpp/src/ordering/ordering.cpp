@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <limits>
 #include <random>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 
@@ -21,6 +22,16 @@ constexpr int kExactHardMax = 20;
 constexpr int kBestKicks = 500;  // iterated-local-search kicks after the colony in method best
 
 OrderingResult to_result(const Instance& inst, const Path& s, const std::string& method) {
+  // Assert-style check of every solver's output (issue 17: overflowing distances once gave [127, 0]).
+  std::vector<char> seen(static_cast<size_t>(inst.n), 0);
+  bool ok = s.size() == static_cast<size_t>(inst.n);
+  for (size_t k = 0; ok && k < s.size(); ++k) {
+    ok = s[k] >= 0 && s[k] < inst.E && !seen[static_cast<size_t>(s[k] >> 1)];
+    if (ok) seen[static_cast<size_t>(s[k] >> 1)] = 1;
+  }
+  if (!ok)
+    throw std::logic_error("ordering: internal error: " + method + " returned an order that is not a permutation of " +
+                           std::to_string(inst.n) + " regions");
   OrderingResult r;
   r.method = method;
   r.order.reserve(s.size());
@@ -58,6 +69,7 @@ Path greedy_from(const Instance& inst, int first_entry) {
         bd = inst.d(row, f);
         best = f;
       }
+    if (best < 0) throw std::logic_error("ordering: nearest neighbour found no finite distance to a free region");
     e = best;
   }
   return s;
@@ -181,6 +193,7 @@ bool or_opt_pass(const Instance& inst, Path& s) {
 }
 
 void local_search(const Instance& inst, Path& s) {
+  if (inst.n >= kScalableMinRegions) return local_search_neighbours(inst, s);
   for (int pass = 0; pass < 100000; ++pass) {
     const bool a = two_opt_pass(inst, s);
     const bool b = or_opt_pass(inst, s);
@@ -190,7 +203,7 @@ void local_search(const Instance& inst, Path& s) {
 
 // Iterated local search: double-bridge kicks (blocks A B C D -> A C B D), each followed by the
 // local search; a kicked path replaces the best only when it is shorter. Deterministic per rng.
-void iterated_local_search(const Instance& inst, Path& best, int kicks, std::mt19937_64& rng) {
+void iterated_local_search(const Instance& inst, Path& best, int kicks, std::mt19937_64& rng, const RunControl& ctl) {
   const int n = static_cast<int>(best.size());
   if (n < 8) return;
   double best_cost = inst.cost(best);
@@ -211,6 +224,8 @@ void iterated_local_search(const Instance& inst, Path& best, int kicks, std::mt1
       best_cost = tc;
       best.swap(t);
     }
+    ctl.report("iterated local search", static_cast<double>(k + 1) / kicks);
+    if (ctl.spent()) break;  // time_budget_s: the best so far
   }
 }
 
@@ -249,11 +264,13 @@ Path exact_path(const Instance& inst) {
   int last = 0;
   for (int e = 1; e < E; ++e)
     if (dp[full * E + e] < dp[full * E + last]) last = e;
+  if (!(dp[full * E + last] < inf)) throw std::logic_error("ordering: exact solver found no finite path");
   Path s(static_cast<size_t>(n));
   size_t mask = full;
   for (int k = n - 1; k >= 0; --k) {
     s[static_cast<size_t>(k)] = last;
     const int p = parent[mask * E + last];
+    if (k > 0 && p == 0xFF) throw std::logic_error("ordering: exact solver lost its path");
     mask &= ~(size_t{1} << (last >> 1));
     last = p;
   }
@@ -267,11 +284,30 @@ void check_config(const OrderingConfig& c) {
   if (!(c.aco_q > 0)) throw std::invalid_argument("ordering.aco_q must be > 0");
   if (c.ga_population < 2) throw std::invalid_argument("ordering.ga_population must be >= 2");
   if (c.ga_generations < 1) throw std::invalid_argument("ordering.ga_generations must be >= 1");
+  if (!(c.time_budget_s > 0)) throw std::invalid_argument("ordering.time_budget_s must be > 0");
+  if (c.ils_kicks_per_region < 0) throw std::invalid_argument("ordering.ils_kicks_per_region must be >= 0");
 }
 
 }  // namespace ordering_internal
 
 using namespace ordering_internal;
+
+namespace {
+
+// Finite and within kMaxOrderingCoordinate_m, else std::invalid_argument naming what and the value.
+void check_point(const Eigen::Vector3d& v, const std::string& what) {
+  for (int k = 0; k < 3; ++k) {
+    const double x = v[k];
+    if (std::isfinite(x) && std::abs(x) <= kMaxOrderingCoordinate_m) continue;
+    std::ostringstream os;
+    os << "ordering: " << what << " has " << "xyz"[k] << " = " << x << " m, ";
+    if (std::isfinite(x)) os << "outside the physical range |" << "xyz"[k] << "| <= " << kMaxOrderingCoordinate_m << " m";
+    else os << "a non-finite coordinate";
+    throw std::invalid_argument(os.str());
+  }
+}
+
+}  // namespace
 
 void validate_ordering_problem(const OrderingProblem& p) {
   if (p.a_m.size() != p.b_m.size())
@@ -280,13 +316,10 @@ void validate_ordering_problem(const OrderingProblem& p) {
   if (p.a_m.size() > static_cast<size_t>(std::numeric_limits<int>::max() / 4))
     throw std::invalid_argument("ordering: too many regions");
   for (size_t i = 0; i < p.a_m.size(); ++i) {
-    if (!p.a_m[i].allFinite())
-      throw std::invalid_argument("ordering: region " + std::to_string(i) + " endpoint a has a non-finite coordinate");
-    if (!p.b_m[i].allFinite())
-      throw std::invalid_argument("ordering: region " + std::to_string(i) + " endpoint b has a non-finite coordinate");
+    check_point(p.a_m[i], "region " + std::to_string(i) + " endpoint a");
+    check_point(p.b_m[i], "region " + std::to_string(i) + " endpoint b");
   }
-  if (p.start_m && !p.start_m->allFinite())
-    throw std::invalid_argument("ordering: the start point has a non-finite coordinate");
+  if (p.start_m) check_point(*p.start_m, "the start point");
 }
 
 double link_length(const OrderingProblem& problem, const std::vector<int>& order, const std::vector<bool>& reversed) {
@@ -350,13 +383,24 @@ OrderingResult improve_local(const OrderingProblem& problem, const OrderingResul
 
 namespace {
 
-// best: exact for small n, else the hybrid colony followed by an iterated local search.
-OrderingResult solve_best(const OrderingProblem& problem, const OrderingConfig& config) {
+// best: exact for small n, the scalable path for large n, else the hybrid colony followed by an
+// iterated local search.
+OrderingResult solve_best(const OrderingProblem& problem, const OrderingConfig& config, const ProgressFn& progress) {
   const int n = static_cast<int>(problem.a_m.size());
   if (n <= std::min(config.exact_max_regions, kExactHardMax)) return solve_exact(problem);
+  if (n >= kScalableMinRegions) {
+    const auto t0 = Clock::now();
+    check_config(config);
+    const Instance inst(problem);
+    const RunControl ctl{t0, config.time_budget_s, progress};
+    OrderingResult r = to_result(inst, scalable_path(inst, problem, config, ctl), "nn+ils");
+    r.solve_time_s = seconds_since(t0);
+    return r;
+  }
   OrderingConfig hybrid = config;
   hybrid.local_search = true;
-  const OrderingResult aco_ls = improve_local(problem, solve_aco(problem, hybrid));
+  const auto t_start = Clock::now();
+  const OrderingResult aco_ls = improve_local(problem, solve_aco(problem, hybrid, progress));
   // Measured on 30 runs at n = 100 (partial rasters): the hybrid colony alone ends 1.0 % (max
   // 2.2 %) above the best known; 200 kicks: 0.12 % (max 0.86 %), 500 kicks: 0.05 % (max 0.27 %)
   // for about 0.4 s of CPU in all.
@@ -364,7 +408,8 @@ OrderingResult solve_best(const OrderingProblem& problem, const OrderingConfig& 
   const Instance inst(problem);
   Path s = to_path(aco_ls);
   std::mt19937_64 rng(config.seed ^ 0x9E3779B97F4A7C15ULL);
-  iterated_local_search(inst, s, kBestKicks, rng);
+  const RunControl ctl{t_start, config.time_budget_s, progress};
+  if (!ctl.spent()) iterated_local_search(inst, s, kBestKicks, rng, ctl);
   OrderingResult r = to_result(inst, s, "aco+ils");
   r.best_per_iteration = aco_ls.best_per_iteration;
   r.mean_per_iteration = aco_ls.mean_per_iteration;
@@ -374,15 +419,15 @@ OrderingResult solve_best(const OrderingProblem& problem, const OrderingConfig& 
 
 }  // namespace
 
-OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConfig& config) {
+OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConfig& config, const ProgressFn& progress) {
   validate_ordering_problem(problem);
   auto polish = [&](const OrderingResult& r) { return config.local_search ? improve_local(problem, r) : r; };
   switch (config.method) {
     case OrderingMethod::exact: return solve_exact(problem);
     case OrderingMethod::nn: return polish(solve_nearest_neighbour(problem));
-    case OrderingMethod::aco: return polish(solve_aco(problem, config));
-    case OrderingMethod::ga: return polish(solve_ga(problem, config));
-    case OrderingMethod::best: return solve_best(problem, config);
+    case OrderingMethod::aco: return polish(solve_aco(problem, config, progress));
+    case OrderingMethod::ga: return polish(solve_ga(problem, config, progress));
+    case OrderingMethod::best: return solve_best(problem, config, progress);
   }
   throw std::invalid_argument("ordering.method must be one of " + enum_choices<OrderingMethod>() + "; got value " +
                               std::to_string(static_cast<int>(config.method)));

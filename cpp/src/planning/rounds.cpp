@@ -68,6 +68,8 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   std::vector<double> v_max;
   for (std::size_t j = 0; j < rp.passes.size(); ++j) {
     const auto cap = ctx.caps(rp.passes[j], where + ", pass " + std::to_string(j));
+    if (cap.empty() || std::any_of(cap.begin(), cap.end(), [](double v) { return std::isnan(v); }))
+      throw std::runtime_error(where + ", pass " + std::to_string(j) + ": the speed cap has no usable value");
     v_max.push_back(*std::min_element(cap.begin(), cap.end()));
     // BOBYQA needs lower < upper; a pass capped at the slowest speed keeps a hair of room.
     v_max.back() = std::max(v_max.back(), pc.min_speed_mps * (1.0 + 1e-6));

@@ -72,8 +72,35 @@ double golden_speed(const Objective& objective, double v_max, double min_speed_m
 
 }  // namespace
 
+namespace {
+
+// The optimiser's inputs: no empty sets, no non-finite value, bounds the optimiser can use.
+void check_speed_problem(const std::vector<Eigen::VectorXd>& unit_per_pass, const std::vector<int>& slots,
+                         double target_m, const PlannerConfig& cfg, const std::vector<double>& v_max) {
+  if (unit_per_pass.empty() || slots.empty())
+    throw std::invalid_argument("speed optimisation: no passes or no cells (" + std::to_string(unit_per_pass.size()) +
+                                " passes, " + std::to_string(slots.size()) + " cells)");
+  if (v_max.size() != unit_per_pass.size())
+    throw std::invalid_argument("speed optimisation: one speed bound per pass is needed");
+  if (!(target_m > 0) || !std::isfinite(target_m))
+    throw std::invalid_argument("speed optimisation: target thickness must be finite and > 0, got " + std::to_string(target_m));
+  for (std::size_t j = 0; j < v_max.size(); ++j) {
+    if (!(v_max[j] > cfg.min_speed_mps) || std::isnan(v_max[j]))
+      throw std::invalid_argument("speed optimisation: pass " + std::to_string(j) + " speed bound " +
+                                  std::to_string(v_max[j]) + " m/s is not above the minimum speed");
+    if (!unit_per_pass[j].allFinite())
+      throw std::invalid_argument("speed optimisation: pass " + std::to_string(j) + " has a non-finite deposit");
+    for (int s : slots)
+      if (s < 0 || s >= unit_per_pass[j].size())
+        throw std::invalid_argument("speed optimisation: cell slot " + std::to_string(s) + " out of range");
+  }
+}
+
+}  // namespace
+
 PassSpeeds optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const std::vector<int>& slots,
                            double target_m, const PlannerConfig& cfg, const std::vector<double>& v_max) {
+  check_speed_problem(unit_per_pass, slots, target_m, cfg, v_max);
   const int n = static_cast<int>(unit_per_pass.size());
   const int m = static_cast<int>(slots.size());
   // A (m x n): thickness on region cell i from pass j at 1 m/s; T = A * (1 / v).

@@ -24,6 +24,7 @@ struct Swarm {
 void check_pso_input(const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, const PsoOptions& o) {
   if (lower.size() == 0 || upper.size() != lower.size())
     throw std::invalid_argument("pso_minimize: lower and upper must be non-empty and of equal size");
+  if (!lower.allFinite() || !upper.allFinite()) throw std::invalid_argument("pso_minimize: bounds must be finite");
   if ((upper.array() < lower.array()).any()) throw std::invalid_argument("pso_minimize: upper bound below lower bound");
   if (o.particles < 1 || o.iterations < 0) throw std::invalid_argument("pso_minimize: particles must be >= 1, iterations >= 0");
 }

@@ -30,8 +30,12 @@ struct OrderingResult {
   std::vector<double> best_per_iteration, mean_per_iteration;
 };
 
-/// Throws std::invalid_argument for a/b of different sizes or a non-finite coordinate (naming the
-/// region and endpoint).
+/// Largest |coordinate| of an endpoint or the start point [m]: a tunnel bay is metres across, so
+/// anything beyond is a unit or data error (and squares of 1e155 overflow every distance).
+constexpr double kMaxOrderingCoordinate_m = 1e6;
+
+/// Throws std::invalid_argument for a/b of different sizes, a non-finite coordinate or one beyond
+/// kMaxOrderingCoordinate_m (naming the region, endpoint and value).
 void validate_ordering_problem(const OrderingProblem& problem);
 
 /// Transit length of a given order. `reversed` is indexed by region (size n); `order` must be a
@@ -42,8 +46,15 @@ double link_length(const OrderingProblem& problem, const std::vector<int>& order
 /// Dispatch on config.method: aco | ga | nn | exact | best. aco/ga/nn are passed through
 /// improve_local when config.local_search is true. best = exact when n <= exact_max_regions, else
 /// the hybrid ant colony + local search (local_search forced on) followed by an iterated local
-/// search (500 double-bridge kicks, seeded from config.seed); method string "aco+ils".
-OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConfig& config);
+/// search (500 double-bridge kicks, seeded from config.seed); method string "aco+ils". From
+/// 150 regions on (the scalable path, docs/architecture.md §6) best is nearest neighbour, then
+/// 2-opt / or-opt over the 10 nearest endpoints and an iterated local search with local
+/// double-bridge kicks (ils_kicks_per_region * n); method string "nn+ils". The colony, the GA and
+/// the kicks stop once config.time_budget_s is spent (the best so far is returned). progress, if
+/// given, is called per phase / iteration with a stage name ("ordering: ...") and the fraction done.
+/// Every order returned is checked to be a permutation (std::logic_error otherwise: a bug).
+OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConfig& config,
+                              const ProgressFn& progress = {});
 
 /// Ant colony, Ant-Cycle model (ants = aco_ants_per_region * n, alpha, beta, rho, Q, iterations).
 /// Pheromone lives on (exit endpoint -> entry endpoint) edges; for every candidate region the
@@ -55,14 +66,16 @@ OrderingResult solve_ordering(const OrderingProblem& problem, const OrderingConf
 /// config.local_search the colony is a hybrid: each iteration's best path is polished by the local
 /// search and deposits pheromone like one more ant (the direction rule alone never tries the
 /// farther entry of a region); without it, plain Ant-Cycle.
-OrderingResult solve_aco(const OrderingProblem& problem, const OrderingConfig& config);
+/// Throws std::invalid_argument above kMaxColonyRegions (its three (2n + 1) x 2n matrices).
+OrderingResult solve_aco(const OrderingProblem& problem, const OrderingConfig& config, const ProgressFn& progress = {});
+constexpr int kMaxColonyRegions = 2500;
 
 /// Genetic algorithm: chromosome = region order + one direction bit per region; tournament
 /// selection (size 2) with the best individual kept, order crossover (OX, the bit travels with its
 /// region) with probability ga_crossover, inversion mutation (a reversed sub-sequence, each region
 /// in it flipped, as in spraying the block backwards) plus one direction-bit flip, each with
 /// probability ga_mutation; ga_population individuals for ga_generations generations.
-OrderingResult solve_ga(const OrderingProblem& problem, const OrderingConfig& config);
+OrderingResult solve_ga(const OrderingProblem& problem, const OrderingConfig& config, const ProgressFn& progress = {});
 
 /// The two published GA parameter sets: "a" = Pc 0.9 / Pm 0.1 / 400 generations (the defaults),
 /// "b" = Pc 0.2 / Pm 0.05 / 100 generations; population 100 in both. Other names throw.
@@ -79,7 +92,8 @@ OrderingResult solve_exact(const OrderingProblem& problem);
 
 /// Local search until no move improves: 2-opt on the sequence (reversing a block also flips every
 /// region in it; a block of one is a direction flip) and or-opt (moving a block of 1-3 regions
-/// elsewhere, forwards or reversed). Returns a copy with method + "+ls" and the time added.
+/// elsewhere, forwards or reversed). Returns a copy with method + "+ls" and the time added. From
+/// 150 regions on the moves are limited to the 10 nearest endpoints (neighbour lists, as in LKH).
 OrderingResult improve_local(const OrderingProblem& problem, const OrderingResult& initial);
 
 }  // namespace shotcrete

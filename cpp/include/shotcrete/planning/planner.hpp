@@ -84,8 +84,6 @@ struct Plan {
   std::map<std::string, double> timings_s;  // per stage
 };
 
-using ProgressFn = std::function<void(const std::string& stage, double fraction)>;
-
 /// Highest nozzle speed [m/s] at each of a pass's waypoints that the machine can follow (e.g. the
 /// arm's joint limits along the pass: arm_speed_caps in timing.hpp); +inf where nothing binds.
 using SpeedCapFn = std::function<std::vector<double>(const std::vector<NozzlePose>& waypoints)>;
