@@ -22,8 +22,8 @@ from shotcrete.robot import load_robot
 # name -> {section.key: value}; "default" is config/default.yaml.
 ALTERNATIVES = {
     "default": {},
-    "faster speed changes and turns (1.0 m/s^2, turn 0.5 m/s)": {"timing.speed_change_accel_mps2": 1.0,
-                                                                  "timing.turn_speed_mps": 0.5},
+    "turn speed 0.5 m/s": {"timing.turn_speed_mps": 0.5},
+    "seed paper's turns (pass speeds, 0.5 m/s^2)": {"timing.turn_accel_mps2": 0.0},
     "spray on turns": {"timing.spray_on_turns": True},
     "circumferential passes": {"planner.pass_direction": "circumferential"},
 }

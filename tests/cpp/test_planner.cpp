@@ -106,13 +106,19 @@ TEST(Planner, UniformOverbreakEndsFlush) {
   EXPECT_LT(hi, cfg.planner.finish_tolerance_m);
 }
 
-TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
+// A fifth of the default arch, 1.2 m long, with the default pit density.
+static Config small_synthetic_bay_config() {
   Config cfg;
   cfg.synth.theta_min_rad = 0.8;
   cfg.synth.theta_max_rad = 1.4;
   cfg.synth.length_m = 1.2;
   cfg.synth.points_per_cell = 6;
-  cfg.synth.pit_count = 6;  // the default pit density on this fifth of the arch
+  cfg.synth.pit_count = 6;
+  return cfg;
+}
+
+TEST(Planner, GradedRoundsReachLevelZeroAndLevelsNeverRise) {
+  Config cfg = small_synthetic_bay_config();
   cfg.planner.mode = PlannerMode::graded;
   for (std::uint64_t seed : {1, 2, 3}) {
     cfg.synth.seed = seed;
@@ -314,12 +320,7 @@ TEST(Planner, MaxRoundsIsTheStopReasonWhenRoundsRunOut) {
 // flow the pump adds (gaps it sprays through, spells it lengthens) is a small share of what the
 // plan asks for, and the pump never switches faster than its minimums.
 TEST(Planner, OptimalSpellsFitThePump) {
-  Config cfg;
-  cfg.synth.theta_min_rad = 0.8;
-  cfg.synth.theta_max_rad = 1.4;
-  cfg.synth.length_m = 1.2;
-  cfg.synth.points_per_cell = 6;
-  cfg.synth.pit_count = 6;
+  Config cfg = small_synthetic_bay_config();
   cfg.planner.mode = PlannerMode::optimal;
   for (std::uint64_t seed : {1, 2}) {
     cfg.synth.seed = seed;
@@ -332,8 +333,12 @@ TEST(Planner, OptimalSpellsFitThePump) {
         commanded += spray.flow.commanded_on_s;
         added += spray.flow.bridged_s + spray.flow.extended_s;
         on += spray.flow.on_time_s();
-        if (!spray.flow.on_s.empty()) EXPECT_GE(spray.flow.shortest_on_s(), cfg.flow.min_on_s - 1e-9);
-        if (spray.flow.on_s.size() > 1) EXPECT_GE(spray.flow.shortest_off_s(), cfg.flow.min_off_s - 1e-9);
+        if (!spray.flow.on_s.empty()) {
+          EXPECT_GE(spray.flow.shortest_on_s(), cfg.flow.min_on_s - 1e-9);
+        }
+        if (spray.flow.on_s.size() > 1) {
+          EXPECT_GE(spray.flow.shortest_off_s(), cfg.flow.min_off_s - 1e-9);
+        }
       }
     ASSERT_GT(commanded, 0.0) << "seed " << seed;
     EXPECT_LT(added, 0.02 * commanded) << "seed " << seed << ": the pump adds " << added << " s to " << commanded << " s";

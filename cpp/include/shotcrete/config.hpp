@@ -166,7 +166,7 @@ struct TimingConfig {
   double pso_w_min = 0.0;            // w = (w_max - w_min) Bs + w_min
   double pso_w_max = 1.0;
   double max_lead_length_m = 0.5;    // swarm bound of the start/end lengths
-  double turn_speed_mps = 0.5;       // nozzle speed mid turn-around; 0 = keep the pass speeds
+  double turn_speed_mps = 0.0;       // nozzle speed mid turn-around; 0 = keep the pass speeds
   double turn_run_m = 0.1;           // straight run before / after each turn-around arc (speed change room)
   double speed_change_accel_mps2 = 0.5;  // peak nozzle acceleration of speed changes inside a pass
   double turn_accel_mps2 = 1.0;  // centripetal acceleration on turn arcs and speed changes on turn runs; 0 = speed_change_accel_mps2
