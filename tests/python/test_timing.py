@@ -170,8 +170,8 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     cfg = small_config
     cfg.timing.tune_with_pso = True
     cfg.timing.pso_particles, cfg.timing.pso_iterations = 6, 4
-    # The seed paper's turns (pass speeds, 0.5 m/s^2) leave the swarm room to shorten them; with
-    # the default faster turns the config's timing is often kept.
+    # The seed paper's turns (pass speeds, 0.5 m/s^2; the defaults) leave the swarm room to shorten
+    # them; with a turn speed of its own the config's timing is often kept.
     cfg.timing.turn_speed_mps, cfg.timing.turn_accel_mps2 = 0.0, 0.0
     robot = load_robot(cfg)
     surface = _core.build_surface(small_cloud, cfg)

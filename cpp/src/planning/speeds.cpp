@@ -255,7 +255,8 @@ double crossing_time_s(const std::vector<Segment>& segs, const std::vector<doubl
   return len / v_mean;
 }
 
-// A pattern change to weigh: segments set to new dwells.
+// A pattern change: segments switched on (w > 0: the dwell they could have, used to count time)
+// or off (w = 0).
 struct Change {
   std::vector<std::size_t> seg;
   std::vector<double> w;
