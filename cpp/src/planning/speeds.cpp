@@ -291,19 +291,10 @@ Change lengthen_run(const std::vector<Segment>& segs, const std::vector<double>&
   return c;
 }
 
-// A short gap sprayed through at the speeds the nozzle crosses it with.
-Change spray_gap(const std::vector<Segment>& segs, const std::vector<double>& w, const SpellRun& r, double accel_mps2) {
+// A short gap sprayed through (its dwells are left to the next least-squares solve).
+Change spray_gap(const std::vector<Segment>& segs, const SpellRun& r) {
   Change c;
-  const double v0 = 1.0 / w[r.a - 1], v1 = 1.0 / w[r.b];
-  double d0 = 0.0;
-  double total = 0.0;
-  for (std::size_t j = r.a; j < r.b; ++j) total += segs[j].length_m;
-  for (std::size_t j = r.a; j < r.b; ++j) {
-    d0 += 0.5 * segs[j].length_m;
-    c.seg.push_back(j);
-    c.w.push_back(std::max(reachable_dwell(segs[j], v0, d0, accel_mps2), reachable_dwell(segs[j], v1, total - d0, accel_mps2)));
-    d0 += 0.5 * segs[j].length_m;
-  }
+  for (std::size_t j = r.a; j < r.b; ++j) c.seg.push_back(j), c.w.push_back(1.0 / segs[j].cap_mps);
   return c;
 }
 
@@ -332,7 +323,7 @@ FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<doubl
     for (std::size_t k = 0; k < runs.size(); ++k) {
       const SpellRun& r = runs[k];
       if (!r.on && k > 0 && k + 1 < runs.size() && crossing_time_s(segs, w, r) < min_off) {
-        apply(spray_gap(segs, w, r, accel_mps2));
+        apply(spray_gap(segs, r));
       } else if (r.on && on_time_s(segs, w, r) < min_on) {
         // Measured on the default bay (seed 1): dropping only the stretches shorter than half
         // the minimum and lengthening the others leaves the smallest residual (weighing the two
