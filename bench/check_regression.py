@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "bench" / "reference" / "demo_report_numbers.json"
 MODES = ("optimal", "graded")
 # Wall-clock figures and file names: not results.
-SKIP = {"timings_s", "report_html", "files"}
+SKIP = {"timings_s", "report_html", "files", "provenance"}
 
 
 def flatten(node, prefix: str = "") -> dict:
