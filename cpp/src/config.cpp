@@ -2,7 +2,10 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <map>
 #include <fstream>
 #include <set>
 #include <sstream>
@@ -20,6 +23,12 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
       if (!node.IsSequence() || node.size() != 3)
         throw std::invalid_argument("config key '" + key + "': expected a list of 3 numbers");
       for (int i = 0; i < 3; ++i) out[i] = node[i].as<double>();
+    } else if constexpr (std::is_same_v<T, bool>) {
+      // A quoted "yes" is text, not a boolean (the Python loader says the same).
+      if (!node.IsScalar() || node.Tag() == "!")
+        throw std::invalid_argument("config key '" + key + "' must be true or false (a YAML boolean), got " +
+                                    (node.IsScalar() ? "the quoted text " : std::string()) + "'" + YAML::Dump(node) + "'");
+      out = node.as<bool>();
     } else if constexpr (is_named_enum_v<T>) {
       if (!node.IsScalar()) throw std::invalid_argument("config key '" + key + "': expected one of " + enum_choices<T>());
       out = parse_enum<T>(node.as<std::string>(), "config key '" + key + "'");
@@ -39,15 +48,53 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
   }
 }
 
+// The names of a mapping's keys; a key given twice is an error naming both lines (yaml-cpp keeps
+// both entries and node[key] would silently take the first).
+std::set<std::string> mapping_keys(const YAML::Node& map, const std::string& prefix) {
+  std::set<std::string> keys;
+  std::map<std::string, int> first_line;
+  for (const auto& kv : map) {
+    if (!kv.first.IsScalar())
+      throw std::invalid_argument("config: a key " + (prefix.empty() ? std::string("at the top level") : "under '" + prefix + "'") + " is not a plain name");
+    const auto name = kv.first.as<std::string>();
+    const int line = kv.first.Mark().line + 1;
+    if (!first_line.emplace(name, line).second)
+      throw std::invalid_argument("config line " + std::to_string(line) + ": duplicate key '" + prefix + name +
+                                  "' (first on line " + std::to_string(first_line[name]) + ")");
+    keys.insert(name);
+  }
+  return keys;
+}
+
+// Index of the first byte that is not part of valid UTF-8, or npos.
+std::size_t first_non_utf8(const std::string& text) {
+  const auto* s = reinterpret_cast<const unsigned char*>(text.data());
+  const std::size_t n = text.size();
+  for (std::size_t i = 0; i < n;) {
+    const unsigned char c = s[i];
+    std::size_t len = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
+    if (len == 0 || i + len > n || (len == 2 && c < 0xC2) || (len == 4 && c > 0xF4)) return i;
+    for (std::size_t k = 1; k < len; ++k)
+      if ((s[i + k] & 0xC0) != 0x80) return i;
+    if (len == 3) {
+      const unsigned cp = ((c & 0x0Fu) << 12) | ((s[i + 1] & 0x3Fu) << 6) | (s[i + 2] & 0x3Fu);
+      if (cp < 0x800 || (cp >= 0xD800 && cp <= 0xDFFF)) return i;  // overlong, surrogate
+    } else if (len == 4) {
+      const unsigned cp = ((c & 0x07u) << 18) | ((s[i + 1] & 0x3Fu) << 12);
+      if (cp < 0x10000 || cp > 0x10FFFF) return i;
+    }
+    i += len;
+  }
+  return std::string::npos;
+}
+
 void apply_yaml(const YAML::Node& root, Config& config) {
   if (!root || root.IsNull()) return;
   if (!root.IsMap()) throw std::invalid_argument("config: the top level must be a mapping of sections");
   std::set<std::string> known_sections;
   fields::visit_sections([&](const char* name, auto section_ptr) { known_sections.insert(name); });
-  for (const auto& kv : root) {
-    const auto name = kv.first.as<std::string>();
+  for (const auto& name : mapping_keys(root, ""))
     if (!known_sections.count(name)) throw std::invalid_argument("config: unknown section '" + name + "'");
-  }
   fields::visit_sections([&](const char* section_name, auto section_ptr) {
     const YAML::Node node = root[section_name];
     if (!node || node.IsNull()) return;
@@ -59,8 +106,7 @@ void apply_yaml(const YAML::Node& root, Config& config) {
       known.insert(key);
       if (node[key]) read_value(node[key], std::string(section_name) + "." + key, section.*member);
     });
-    for (const auto& kv : node) {
-      const auto key = kv.first.as<std::string>();
+    for (const auto& key : mapping_keys(node, std::string(section_name) + ".")) {
       if (!known.count(key))
         throw std::invalid_argument(std::string("config: unknown key '") + section_name + "." + key + "'");
     }
@@ -115,6 +161,12 @@ void validate(const Config& config) {
 
 Config config_from_yaml(const std::string& text) {
   Config config;
+  if (const std::size_t bad = first_non_utf8(text); bad != std::string::npos) {
+    const auto line = std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(bad), '\n') + 1;
+    char byte[8];
+    std::snprintf(byte, sizeof byte, "0x%02x", static_cast<unsigned char>(text[bad]));
+    throw std::invalid_argument("config line " + std::to_string(line) + ": not UTF-8 text (byte " + byte + ")");
+  }
   YAML::Node root;
   try {
     root = YAML::Load(text);

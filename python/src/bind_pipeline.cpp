@@ -126,6 +126,7 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("regions_tuned", &SwarmSummary::regions_tuned)
       .def_readonly("regions", &SwarmSummary::regions)
       .def_readonly("evaluations", &SwarmSummary::evaluations)
+      .def_readonly("regions_cut_by_budget", &SwarmSummary::regions_cut_by_budget)
       .def_readonly("params", &SwarmSummary::params);
   py::class_<JobSummary>(m, "JobSummary",
                          "The summary of a job planned for the arm: report.json's figures, the ROS node's ~summary.")

@@ -395,7 +395,8 @@ void bind_timing(py::module_& m) {
       .def_readonly("best_f", &PsoResult::best_f)
       .def_readonly("best_history", &PsoResult::best_history)
       .def_readonly("success_history", &PsoResult::success_history)
-      .def_readonly("evaluations", &PsoResult::evaluations);
+      .def_readonly("evaluations", &PsoResult::evaluations)
+      .def_readonly("stopped_by_deadline", &PsoResult::stopped_by_deadline, "the deadline stopped the iterations early");
   m.def("pso_minimize", &pso_minimize, py::arg("f"), py::arg("lower"), py::arg("upper"), py::arg("options"),
         py::arg("initial") = std::vector<Eigen::VectorXd>{},
         "Particle swarm with adaptive inertia weight and acceleration coefficients (AIWCPSO), seeded.");
@@ -407,7 +408,9 @@ void bind_timing(py::module_& m) {
       .def_readonly("duration_s", &TimingTuning::duration_s)
       .def_readonly("initial_duration_s", &TimingTuning::initial_duration_s)
       .def_readonly("initial_feasible", &TimingTuning::initial_feasible)
-      .def_readonly("pso", &TimingTuning::pso);
+      .def_readonly("pso", &TimingTuning::pso)
+      .def_readonly("regions_cut_by_budget", &TimingTuning::regions_cut_by_budget,
+                    "swarms stopped early by timing.pso_time_budget_s");
   m.def(
       "tune_timing",
       [](const Robot* robot, const py::handle& regions, const Eigen::VectorXd& q_start, const TimingConfig& tc,

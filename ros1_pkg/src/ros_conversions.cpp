@@ -44,13 +44,18 @@ double read_value(const std::uint8_t* p, std::uint8_t datatype) {
 }  // namespace
 
 std::string cloud_from_msg(const sensor_msgs::PointCloud2& msg, const std::string& expected_frame,
-                           shotcrete::Cloud& out) {
+                           shotcrete::Cloud& out, std::size_t max_points) {
   // No tf lookup: the planner works in the tunnel frame, so any other frame is refused rather
   // than silently misplaced.
-  if (msg.header.frame_id != expected_frame)
-    return "frame '" + msg.header.frame_id + "' is not the tunnel frame '" + expected_frame + "'";
+  if (msg.header.frame_id != expected_frame) {
+    const std::string& f = msg.header.frame_id;  // a hostile name can be megabytes long
+    const std::string shown = f.size() <= 64 ? f : f.substr(0, 64) + "... (" + std::to_string(f.size()) + " bytes)";
+    return "frame '" + shown + "' is not the tunnel frame '" + expected_frame + "'";
+  }
   const std::size_t n = static_cast<std::size_t>(msg.width) * msg.height;
   if (n == 0) return "empty cloud (width * height = 0)";
+  if (n > max_points)
+    return "cloud of " + std::to_string(n) + " points is larger than ~max_points (" + std::to_string(max_points) + ")";
   if (msg.is_bigendian != host_is_big_endian()) return "byte order differs from this machine's";
   const sensor_msgs::PointField* xyz[3];
   const char* names[3] = {"x", "y", "z"};
@@ -74,7 +79,9 @@ std::string cloud_from_msg(const sensor_msgs::PointCloud2& msg, const std::strin
   std::size_t bad = 0, i = 0;
   for (std::uint32_t row = 0; row < msg.height; ++row) {
     for (std::uint32_t col = 0; col < msg.width; ++col, ++i) {
-      const std::uint8_t* p = msg.data.data() + row * msg.row_step + col * msg.point_step;
+      // In size_t: row * row_step can pass 2^32 on a legal multi-GB message.
+      const std::uint8_t* p = msg.data.data() + static_cast<std::size_t>(row) * msg.row_step +
+                              static_cast<std::size_t>(col) * msg.point_step;
       bool finite = true;
       for (int k = 0; k < 3; ++k) {
         const double v = read_value(p + xyz[k]->offset, xyz[k]->datatype);

@@ -15,9 +15,10 @@ namespace shotcrete_ros {
 
 /// Reads x/y/z of a PointCloud2 into `out`. Returns an empty string when the message is usable,
 /// otherwise the reason it is not (wrong frame, empty, missing or non-float x/y/z, inconsistent
-/// sizes, NaN/Inf points); `out` is only written on success.
+/// sizes, more than max_points points, NaN/Inf points); `out` is only written on success. Every
+/// size is checked before anything is allocated, so a hostile header costs nothing.
 std::string cloud_from_msg(const sensor_msgs::PointCloud2& msg, const std::string& expected_frame,
-                           shotcrete::Cloud& out);
+                           shotcrete::Cloud& out, std::size_t max_points);
 
 /// PointCloud2 with float32 x, y, z, intensity (= TD in metres) and packed rgb (TD through the
 /// colour map on [0, td_color_max_m]; TD <= 0 is grey: nothing left to spray there).

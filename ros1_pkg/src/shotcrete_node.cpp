@@ -101,6 +101,8 @@ class ShotcreteNode {
     pnh_.param("joint_state_rate_hz", joint_rate_hz_, 50.0);
     pnh_.param("cloud_rate_hz", cloud_rate_hz_, 2.0);
     pnh_.param("td_color_max_m", td_color_max_m_, 0.0);  // 0 = the largest TD of the scan
+    pnh_.param("max_points", max_points_, 20000000);     // larger clouds on ~cloud_in are refused
+    if (max_points_ < 1) throw std::invalid_argument("~max_points must be >= 1, got " + std::to_string(max_points_));
     if (!(time_scale_ > 0) || !(joint_rate_hz_ >= 1) || !(cloud_rate_hz_ > 0))
       throw std::invalid_argument("~execute_time_scale and ~cloud_rate_hz must be > 0, ~joint_state_rate_hz >= 1");
     std::ostringstream ov;
@@ -305,7 +307,7 @@ class ShotcreteNode {
   // ---------------------------------------------------------------------------------------------
   void on_cloud(const sensor_msgs::PointCloud2::ConstPtr& msg) {
     Cloud cloud;
-    const std::string reason = cloud_from_msg(*msg, frame_id_, cloud);
+    const std::string reason = cloud_from_msg(*msg, frame_id_, cloud, static_cast<std::size_t>(max_points_));
     if (!reason.empty()) {
       ROS_WARN("cloud on %s ignored: %s", cloud_sub_.getTopic().c_str(), reason.c_str());
       return;
@@ -553,6 +555,7 @@ class ShotcreteNode {
   std::string config_path_, frame_id_, urdf_path_;
   double time_scale_ = 1.0, max_wall_s_ = 0.0, joint_rate_hz_ = 50.0, cloud_rate_hz_ = 2.0, td_color_max_m_ = 0.0;
   double color_max_m_ = 0.3;
+  int max_points_ = 20000000;
   std::unique_ptr<shotcrete::Robot> robot_;
   Eigen::VectorXd q_current_;
   std::atomic<bool> executing_{false};

@@ -316,6 +316,24 @@ TEST(Planner, MaxRoundsIsTheStopReasonWhenRoundsRunOut) {
   EXPECT_EQ(plan.stop_reason.kind, StopKind::max_rounds) << plan.stop_reason;
 }
 
+// planner.time_budget_s: no round starts once the budget is spent; the plan says why it stopped
+// and warns that it is unfinished.
+TEST(Planner, TimeBudgetStopsBeforeTheNextRound) {
+  Surface s = analytic_bay(uniform_300mm);
+  Config cfg;
+  cfg.planner.mode = PlannerMode::graded;
+  const Plan full = plan_bay(s, cfg);
+  ASSERT_GT(full.rounds.size(), 1u);
+  cfg.planner.time_budget_s = 0.0;  // spent by the first round, which always runs
+  const Plan cut = plan_bay(s, cfg);
+  EXPECT_EQ(cut.rounds.size(), 1u);
+  EXPECT_EQ(cut.stop_reason.kind, StopKind::time_budget) << cut.stop_reason;
+  EXPECT_EQ(cut.stop_reason.text().rfind("time budget spent (planner.time_budget_s): after round 1, ", 0), 0u) << cut.stop_reason;
+  ASSERT_FALSE(cut.warnings.empty());
+  EXPECT_NE(cut.warnings.back().find("planning stopped before it finished"), std::string::npos);
+  EXPECT_GT(cut.td_after_m.maxCoeff(), full.td_after_m.maxCoeff());  // less sprayed
+}
+
 // Optimal mode plans spells the pump can follow: along the region_spray of every region, the
 // flow the pump adds (gaps it sprays through, spells it lengthens) is a small share of what the
 // plan asks for, and the pump never switches faster than its minimums.

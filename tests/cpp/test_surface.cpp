@@ -303,6 +303,17 @@ TEST(Input, BadCloudsGiveClearErrors) {
   }
   cfg.io.unit_scale = 0.001;  // the unit option makes the same cloud usable
   EXPECT_NO_THROW(build_surface(mm, cfg));
+  // A span past 2^63 (a hostile ROS message: float32 values near 1e37) is named in %g; it was
+  // printed through llround, undefined there ("-9,223,372,036,854,775,808 units").
+  Cloud huge = lattice_cylinder(5.6, td_linear, 2);
+  huge.xyz *= 1e37;
+  cfg.io.unit_scale = 1.0;
+  try {
+    build_surface(huge, cfg);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("coordinates span 1.16e+38 units, more than io.max_extent_m = 1000 m, even read as millimetres"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Io, RoundTripsKeepPointsAndNormals) {
@@ -330,6 +341,34 @@ TEST(Io, RoundTripsKeepPointsAndNormals) {
 TEST(Config, DefaultYamlMatchesStructDefaults) {
   const Config file = load_config(std::string(SHOTCRETE_DATA_DIR) + "/../config/default.yaml");
   EXPECT_EQ(config_to_yaml(file), config_to_yaml(Config{}));
+}
+
+// The core's loader is as strict as the Python one (config.check_config_text): a key given twice,
+// a quoted boolean and bytes that are not UTF-8 are errors naming the line, not silently read.
+TEST(Config, DuplicateKeysQuotedBooleansAndNonUtf8AreErrors) {
+  auto message = [](const std::string& text) {
+    try {
+      config_from_yaml(text);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("(accepted)");
+  };
+  EXPECT_EQ(message("grid:\n  cell_size_m: 0.1\nplanner:\n  max_rounds: 3\n  max_rounds: 4\n"),
+            "config line 5: duplicate key 'planner.max_rounds' (first on line 4)");
+  EXPECT_EQ(message("planner: {max_rounds: 3}\nplanner: {max_rounds: 4}\n"),
+            "config line 2: duplicate key 'planner' (first on line 1)");
+  EXPECT_EQ(message("ordering: {local_search: \"yes\"}"),
+            "config key 'ordering.local_search' must be true or false (a YAML boolean), got the quoted text 'yes'");
+  EXPECT_NE(message("ordering: {local_search: 'false'}").find("must be true or false"), std::string::npos);
+  EXPECT_NE(message("ordering: {local_search: [true]}").find("'ordering.local_search' must be true or false"), std::string::npos);
+  EXPECT_FALSE(config_from_yaml("ordering: {local_search: false}").ordering.local_search);
+  EXPECT_EQ(message("# caf\xc3\xa9 is fine\nplanner:\n  max_rounds: 3 # \xff\n"), "config line 3: not UTF-8 text (byte 0xff)");
+  EXPECT_EQ(message("planner: {max_rounds: 3} # \xed\xa0\x80"), "config line 1: not UTF-8 text (byte 0xed)");  // surrogate
+  EXPECT_EQ(message("planner: {max_rounds: 3} # \xc0\xaf"), "config line 1: not UTF-8 text (byte 0xc0)");      // overlong
+  EXPECT_EQ(message("planner: {max_rounds: 3} # \xe2\x82"), "config line 1: not UTF-8 text (byte 0xe2)");      // cut short
+  EXPECT_EQ(config_from_yaml("# caf\xc3\xa9 \xe2\x82\xac \xf0\x9f\x98\x80\nplanner: {max_rounds: 3}").planner.max_rounds, 3);
+  EXPECT_EQ(message("{[1, 2]: 3}"), "config: a key at the top level is not a plain name");
 }
 
 TEST(Config, UnknownKeysAndRangesAreErrors) {

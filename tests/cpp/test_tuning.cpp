@@ -3,9 +3,11 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "shotcrete/robot/robot.hpp"
@@ -68,6 +70,43 @@ TEST(Pso, FindsKnownMinima) {
   EXPECT_EQ(rn.best_x.size(), 5);
 }
 
+// A deadline stops the iterations, never the initial swarm; the result is the best of what ran.
+TEST(Pso, DeadlineStopsTheIterations) {
+  PsoOptions o;
+  o.particles = 6;
+  o.iterations = 1000;
+  Eigen::VectorXd lo = Eigen::VectorXd::Constant(3, -1.0), hi = Eigen::VectorXd::Constant(3, 1.0);
+  std::vector<double> seen;
+  auto f = [&](const Eigen::VectorXd& x) {
+    seen.push_back(x.squaredNorm());
+    return seen.back();
+  };
+  o.deadline = std::chrono::steady_clock::now();  // already spent
+  const PsoResult r0 = pso_minimize(f, lo, hi, o);
+  EXPECT_TRUE(r0.stopped_by_deadline);
+  EXPECT_EQ(r0.evaluations, 6);
+  EXPECT_EQ(r0.best_history.size(), 1u);
+  EXPECT_EQ(r0.best_f, *std::min_element(seen.begin(), seen.end()));
+  // A slow objective against a 0.2 s deadline: fewer than the 1000 iterations, the best of them.
+  seen.clear();
+  auto slow = [&](const Eigen::VectorXd& x) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    return f(x);
+  };
+  o.deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(200);
+  const PsoResult r1 = pso_minimize(slow, lo, hi, o);
+  EXPECT_TRUE(r1.stopped_by_deadline);
+  EXPECT_LT(r1.evaluations, 6 * 1001);
+  EXPECT_EQ(static_cast<std::size_t>(r1.evaluations), seen.size());
+  EXPECT_EQ(r1.best_f, *std::min_element(seen.begin(), seen.end()));
+  // The default deadline never stops it.
+  o.deadline = PsoOptions{}.deadline;
+  o.iterations = 20;
+  const PsoResult r2 = pso_minimize(f, lo, hi, o);
+  EXPECT_FALSE(r2.stopped_by_deadline);
+  EXPECT_EQ(r2.evaluations, 6 * 21);
+}
+
 TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
   const auto passes = axial_region(8, 1.2, 0.2, 0.0, 1.0, {0.25, 0.2});
   for (double amax : {2.0, 1.2}) {
@@ -88,7 +127,30 @@ TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
     const SpeedProfile prof = region_profile(path, tuned);
     EXPECT_NEAR(prof.duration_s(), t.duration_s, 1e-9);
     EXPECT_LE(check_nozzle(path, prof, NozzleLimits{tc.nozzle_max_speed_mps, amax}, 2000.0).accel_ratio, 1.0 + 1e-3);
+    EXPECT_EQ(t.regions_cut_by_budget, 0);
   }
+}
+
+// timing.pso_time_budget_s: progress per region, and a spent budget cuts every swarm to its
+// initial particles (the config's parameters among them), still a valid tuning.
+TEST(Tuning, ProgressAndTimeBudget) {
+  const auto passes = axial_region(8, 1.2, 0.2, 0.0, 1.0, {0.25, 0.2});
+  TimingConfig tc;
+  std::vector<double> fractions;
+  const ProgressFn progress = [&](const std::string& stage, double f) {
+    EXPECT_EQ(stage, "tuning timing");
+    fractions.push_back(f);
+  };
+  const TimingTuning full = tune_timing(nullptr, {passes, passes, passes}, Eigen::VectorXd(), tc, RobotConfig{}, progress);
+  EXPECT_EQ(fractions, (std::vector<double>{0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0}));
+  EXPECT_EQ(full.regions_cut_by_budget, 0);
+  tc.pso_time_budget_s = 0.0;
+  const TimingTuning cut = tune_timing(nullptr, {passes, passes, passes}, Eigen::VectorXd(), tc, RobotConfig{});
+  EXPECT_EQ(cut.regions_cut_by_budget, 3);
+  ASSERT_EQ(cut.pso.size(), 3u);
+  for (const auto& p : cut.pso) EXPECT_EQ(p.evaluations, tc.pso_particles);
+  EXPECT_LE(cut.duration_s, cut.initial_duration_s);  // the config's particle is in the initial swarm
+  EXPECT_GE(cut.duration_s, full.duration_s - 1e-9);
 }
 
 TEST(RobotTiming, TunedRegionsRespectJointLimits) {

@@ -115,6 +115,7 @@ struct PlannerConfig {
   double min_speed_mps = 0.05;
   double max_speed_mps = 1.0;
   int max_rounds = 12;
+  double time_budget_s = 1800.0;   // wall clock of one plan_bay; no round starts once it is spent
   double sample_step_m = 0.01;     // integration step of the nozzle along a pass
   double segment_length_m = 0.15;  // optimal mode: length of a constant-speed piece of a pass
   double time_weight_mm2_per_s = 500.0;  // optimal mode: squared residual (mm^2, summed over cells) worth 1 s
@@ -160,6 +161,7 @@ struct TimingConfig {
   double end_length_m = 0.1;         // nozzle path length of the end segment
   int pso_particles = 15;
   int pso_iterations = 30;
+  double pso_time_budget_s = 600.0;  // wall clock of the whole swarm tuning; swarms stop iterating once spent
   std::uint64_t pso_seed = 1;
   double pso_a = 2.05;               // c1 = a Bs + b, c2 = a (1 - Bs) + b
   double pso_b = 0.5;

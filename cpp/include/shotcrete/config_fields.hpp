@@ -79,6 +79,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("min_speed_mps", &PlannerConfig::min_speed_mps, 0.001, 10.0, "slowest nozzle speed [m/s]");
   f("max_speed_mps", &PlannerConfig::max_speed_mps, 0.001, 10.0, "fastest nozzle speed [m/s]");
   f("max_rounds", &PlannerConfig::max_rounds, 1, 1000, "round limit");
+  f("time_budget_s", &PlannerConfig::time_budget_s, 0.0, 604800.0, "wall clock of one plan; no round starts once spent (0: one round) [s]");
   f("sample_step_m", &PlannerConfig::sample_step_m, 0.001, 0.1, "integration step along a pass [m]");
   f("segment_length_m", &PlannerConfig::segment_length_m, 0.02, 2.0, "optimal mode: constant-speed piece of a pass [m]");
   f("time_weight_mm2_per_s", &PlannerConfig::time_weight_mm2_per_s, 0.0, 1e6, "optimal mode: residual mm^2 traded per s of spraying");
@@ -121,6 +122,7 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("end_length_m", &TimingConfig::end_length_m, 0.0, 5.0, "end segment length [m]");
   f("pso_particles", &TimingConfig::pso_particles, 2, 1000, "swarm size");
   f("pso_iterations", &TimingConfig::pso_iterations, 1, 10000, "swarm iterations");
+  f("pso_time_budget_s", &TimingConfig::pso_time_budget_s, 0.0, 604800.0, "wall clock of the swarm tuning; swarms stop iterating once spent [s]");
   f("pso_seed", &TimingConfig::pso_seed, 0, 0, "swarm random seed");
   f("pso_a", &TimingConfig::pso_a, 0.0, 10.0, "acceleration coefficient slope a");
   f("pso_b", &TimingConfig::pso_b, 0.0, 10.0, "acceleration coefficient offset b");

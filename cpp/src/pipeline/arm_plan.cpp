@@ -105,7 +105,9 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
                         const Robot& robot, const ProgressFn& progress) {
   if (progress) progress("timing swarm", 0.0);
   try {
-    out.tuning = tune_timing(&robot, regions, robot.neutral(), config.timing, config.robot);
+    out.tuning = tune_timing(&robot, regions, robot.neutral(), config.timing, config.robot,
+                             progress ? ProgressFn([&](const std::string&, double f) { progress("timing swarm", 0.8 * f); })
+                                      : ProgressFn{});
     const TimedTrajectory& cur = *out.trajectory;
     auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
     std::vector<TimingParams> params = out.tuning->params;

@@ -97,6 +97,7 @@ SwarmSummary summarise_swarm(const ArmPlan& arm_plan) {
     s.regions_tuned = static_cast<int>(std::count_if(tun->feasible.begin(), tun->feasible.end(), [](char f) { return f != 0; }));
     s.regions = static_cast<int>(tun->feasible.size());
     for (const auto& p : tun->pso) s.evaluations += p.evaluations;
+    s.regions_cut_by_budget = tun->regions_cut_by_budget;
     s.params = tun->params;
   }
   return s;
@@ -167,6 +168,7 @@ void write(JsonWriter& w, const SwarmSummary& s) {
   if (s.duration_s) w.value(*s.duration_s);
   else w.null();
   w.field("regions_tuned", s.regions_tuned).field("regions", s.regions).field("evaluations", s.evaluations);
+  w.field("regions_cut_by_budget", s.regions_cut_by_budget);
   w.key("params").begin_array();
   for (const auto& p : s.params) write(w, p);
   w.end_array().end_object();

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -111,6 +112,13 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     // Grade.
     const RoundInput in{number, {top_level(stages->active_levels(wall)), max_td_m(wall.surface.grid)}, wall};
     if (stages->finished(in.grade)) break;  // the reason is settled after the loop
+    // A round is never cut short (its deposit would be half a pattern); the budget only keeps the
+    // next one from starting, and the plan says so.
+    if (number > 1 && seconds_since(t_start) > pc.time_budget_s) {
+      stop = StopReason{StopKind::time_budget, "after round " + std::to_string(number - 1) + ", " +
+                                                   std::to_string(std::lround(seconds_since(t_start))) + " s"};
+      break;
+    }
     ctx.report(number, 0.0);
     const auto t_round = Clock::now();
     Round round;
@@ -134,6 +142,9 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     stop = stages->stop_test(in, plan.rounds.back(), ctx);
   }
   plan.stop_reason = stop ? *stop : stop_after_loop(wall, *stages);
+  if (plan.stop_reason.kind == StopKind::time_budget)
+    plan.warnings.push_back("planning stopped before it finished: planner.time_budget_s (" +
+                            std::to_string(std::lround(pc.time_budget_s)) + " s) spent, " + plan.stop_reason.detail);
   finish_plan(plan, wall, surface, model, rebound);
   if (caps.active()) plan.timings_s["speed_caps"] = caps.seconds();
   plan.timings_s["total"] = seconds_since(t_start);

@@ -7,6 +7,7 @@
 #include <pcl/search/kdtree.h>
 
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
@@ -30,6 +31,12 @@ Cloud from_pcl(const pcl::PointCloud<pcl::PointXYZ>& pc) {
 
 /// 12345.6 -> "12,346"
 std::string thousands(double value) {
+  // llround is undefined past 2^63 (a hostile cloud's span can be 1e38): such spans in %g.
+  if (!(std::abs(value) < 1e15)) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.3g", value);
+    return text;
+  }
   std::string digits = std::to_string(static_cast<long long>(std::llround(value)));
   for (int i = static_cast<int>(digits.size()) - 3; i > 0; i -= 3) digits.insert(static_cast<std::size_t>(i), ",");
   return digits;

@@ -123,6 +123,10 @@ PsoResult pso_minimize(const Objective& f, const Eigen::VectorXd& lower, const E
   res.best_history.push_back(s.pf[s.best]);
   double bs = 1.0;  // every personal best is new after the initial evaluation
   for (int it = 0; it < o.iterations; ++it) {
+    if (std::chrono::steady_clock::now() > o.deadline) {
+      res.stopped_by_deadline = true;
+      break;
+    }
     const double w = (o.w_max - o.w_min) * bs + o.w_min;
     const double c1 = o.a * bs + o.b, c2 = o.a * (1.0 - bs) + o.b;
     move_particles(s, w, c1, c2, lower, upper, rng);

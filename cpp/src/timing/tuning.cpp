@@ -3,6 +3,7 @@
 #include "shotcrete/timing/tuning.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <optional>
@@ -252,7 +253,8 @@ SearchBox search_box(const std::vector<Pass>& passes, const TimingConfig& timing
 }  // namespace
 
 TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
-                         const TimingConfig& timing, const RobotConfig& robot_config) {
+                         const TimingConfig& timing, const RobotConfig& robot_config, const ProgressFn& progress) {
+  const auto t_start = std::chrono::steady_clock::now();
   if (regions.empty()) throw std::invalid_argument("tune_timing: no regions");
   if (robot && q_start.size() != robot->dof()) throw std::invalid_argument("tune_timing: q_start does not match the robot");
   const TuningContext ctx{robot, timing, robot_config, NozzleLimits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2},
@@ -280,8 +282,14 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
     const SearchBox box = search_box(regions[r], timing, min_lead, max_lead);
     PsoOptions opt = PsoOptions::from_config(timing);
     opt.seed += r;
+    // Region r's share of the budget ends at (r + 1) / n of it: time a region leaves unused
+    // goes to the next ones.
+    const double share = timing.pso_time_budget_s * static_cast<double>(r + 1) / static_cast<double>(regions.size());
+    opt.deadline = t_start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(share));
+    if (progress) progress("tuning timing", static_cast<double>(r) / static_cast<double>(regions.size()));
     out.pso.push_back(pso_minimize([&](const Eigen::VectorXd& x) { return cost(params_of(x, timing), nullptr); },
                                    box.lo, box.hi, opt, {box.x0}));
+    out.regions_cut_by_budget += out.pso.back().stopped_by_deadline ? 1 : 0;
     // No feasible particle: the config's parameters, which time_plan eases where the arm needs it.
     out.feasible.push_back(out.pso.back().best_f < 1e6);
     out.params.push_back(out.feasible.back() ? params_of(out.pso.back().best_x, timing) : p0);
@@ -289,6 +297,7 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
     if (model) cost(out.feasible.back() ? out.params.back() : p0_region, &q_prev);
   }
   out.initial_duration_s = out.initial_feasible ? initial : std::numeric_limits<double>::infinity();
+  if (progress) progress("tuning timing", 1.0);
   return out;
 }
 

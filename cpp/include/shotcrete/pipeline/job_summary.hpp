@@ -77,6 +77,7 @@ struct SwarmSummary {
   double config_timing_duration_s = 0.0;
   std::optional<double> duration_s;  // of the trajectory kept
   int regions_tuned = 0, regions = 0, evaluations = 0;
+  int regions_cut_by_budget = 0;     // swarms stopped early by timing.pso_time_budget_s
   std::vector<TimingParams> params;  // per region
 };
 

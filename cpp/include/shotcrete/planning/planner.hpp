@@ -50,17 +50,18 @@ struct Round {
 };
 
 /// Why the rounds stopped.
-enum class StopKind { flush, no_progress, max_rounds, levelled };
-constexpr std::array<EnumName<StopKind>, 4> enum_names(StopKind) {
+enum class StopKind { flush, no_progress, max_rounds, levelled, time_budget };
+constexpr std::array<EnumName<StopKind>, 5> enum_names(StopKind) {
   return {{{StopKind::flush, "flush"},
            {StopKind::no_progress, "no progress"},
            {StopKind::max_rounds, "max rounds reached (planner.max_rounds)"},
-           {StopKind::levelled, "levelled"}}};
+           {StopKind::levelled, "levelled"},
+           {StopKind::time_budget, "time budget spent (planner.time_budget_s)"}}};
 }
 
 struct StopReason {
   StopKind kind = StopKind::flush;
-  std::string detail;  // what made no progress, or why levelling ends; empty for flush / max rounds
+  std::string detail;  // what made no progress, why levelling ends, or the time spent; empty for flush / max rounds
   /// "<kind>" or "<kind>: <detail>", as report.json prints it ("no progress: ...").
   std::string text() const { return detail.empty() ? std::string(enum_name(kind)) : enum_name(kind) + (": " + detail); }
 };

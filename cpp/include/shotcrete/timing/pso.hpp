@@ -3,6 +3,7 @@
 // section 7b): a seeded box-constrained minimiser.
 #include <Eigen/Core>
 #include <cstdint>
+#include <chrono>
 #include <functional>
 #include <vector>
 
@@ -16,6 +17,9 @@ struct PsoOptions {
   std::uint64_t seed = 1;
   double a = 2.05, b = 0.5;          // c1 = a Bs + b, c2 = a (1 - Bs) + b
   double w_min = 0.0, w_max = 1.0;   // w = (w_max - w_min) Bs + w_min
+  // No iteration starts after this point in time (the initial swarm is always evaluated);
+  // the default never stops early.
+  std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
   static PsoOptions from_config(const TimingConfig& config);
 };
 struct PsoResult {
@@ -24,6 +28,7 @@ struct PsoResult {
   std::vector<double> best_history;  // global best after each iteration (first = initial swarm)
   std::vector<double> success_history;  // Bs per iteration
   int evaluations = 0;
+  bool stopped_by_deadline = false;     // fewer iterations than options.iterations ran
 };
 /// Minimises f over the box [lower, upper]; `initial` particles (clamped) replace the first random
 /// ones. Deterministic for a given seed. Infeasible points should return +inf or a penalty.

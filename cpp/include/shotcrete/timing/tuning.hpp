@@ -79,8 +79,12 @@ struct TimingTuning {
                                      // previous one ends (+inf when they break a limit)
   bool initial_feasible = false;
   std::vector<PsoResult> pso;        // per region
+  int regions_cut_by_budget = 0;     // swarms stopped early by timing.pso_time_budget_s
 };
+/// The budget timing.pso_time_budget_s is shared out over the regions in order; progress gets
+/// stage "tuning timing" with the share of regions done.
 TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions_in_order,
-                         const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config);
+                         const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
+                         const ProgressFn& progress = {});
 
 }  // namespace shotcrete
