@@ -13,6 +13,7 @@
 #include <type_traits>
 
 #include "shotcrete/config_fields.hpp"
+#include "shotcrete/io/text.hpp"
 
 namespace shotcrete {
 namespace {
@@ -27,7 +28,7 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
       // A quoted "yes" is text, not a boolean (the Python loader says the same).
       if (!node.IsScalar() || node.Tag() == "!")
         throw std::invalid_argument("config key '" + key + "' must be true or false (a YAML boolean), got " +
-                                    (node.IsScalar() ? "the quoted text " : std::string()) + "'" + YAML::Dump(node) + "'");
+                                    (node.IsScalar() ? "the quoted text " : std::string()) + "'" + printable(YAML::Dump(node)) + "'");
       out = node.as<bool>();
     } else if constexpr (is_named_enum_v<T>) {
       if (!node.IsScalar()) throw std::invalid_argument("config key '" + key + "': expected one of " + enum_choices<T>());
@@ -42,7 +43,7 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
     }
   } catch (const YAML::Exception& e) {
     std::ostringstream msg;
-    msg << "config key '" << key << "': cannot read '" << YAML::Dump(node) << "' as "
+    msg << "config key '" << key << "': cannot read '" << printable(YAML::Dump(node)) << "' as "
         << (std::is_same_v<T, bool> ? "true/false" : std::is_same_v<T, std::string> || is_named_enum_v<T> ? "text" : "a number");
     throw std::invalid_argument(msg.str());
   }
@@ -59,7 +60,7 @@ std::set<std::string> mapping_keys(const YAML::Node& map, const std::string& pre
     const auto name = kv.first.as<std::string>();
     const int line = kv.first.Mark().line + 1;
     if (!first_line.emplace(name, line).second)
-      throw std::invalid_argument("config line " + std::to_string(line) + ": duplicate key '" + prefix + name +
+      throw std::invalid_argument("config line " + std::to_string(line) + ": duplicate key '" + prefix + printable(name) +
                                   "' (first on line " + std::to_string(first_line[name]) + ")");
     keys.insert(name);
   }
@@ -94,7 +95,7 @@ void apply_yaml(const YAML::Node& root, Config& config) {
   std::set<std::string> known_sections;
   fields::visit_sections([&](const char* name, auto section_ptr) { known_sections.insert(name); });
   for (const auto& name : mapping_keys(root, ""))
-    if (!known_sections.count(name)) throw std::invalid_argument("config: unknown section '" + name + "'");
+    if (!known_sections.count(name)) throw std::invalid_argument("config: unknown section '" + printable(name) + "'");
   fields::visit_sections([&](const char* section_name, auto section_ptr) {
     const YAML::Node node = root[section_name];
     if (!node || node.IsNull()) return;
@@ -108,7 +109,7 @@ void apply_yaml(const YAML::Node& root, Config& config) {
     });
     for (const auto& key : mapping_keys(node, std::string(section_name) + ".")) {
       if (!known.count(key))
-        throw std::invalid_argument(std::string("config: unknown key '") + section_name + "." + key + "'");
+        throw std::invalid_argument(std::string("config: unknown key '") + section_name + "." + printable(key) + "'");
     }
   });
   validate(config);
@@ -167,11 +168,24 @@ Config config_from_yaml(const std::string& text) {
     std::snprintf(byte, sizeof byte, "0x%02x", static_cast<unsigned char>(text[bad]));
     throw std::invalid_argument("config line " + std::to_string(line) + ": not UTF-8 text (byte " + byte + ")");
   }
+  // YAML allows no C0 control characters but tab and line breaks; yaml-cpp reads a leading NUL
+  // as a UTF-16/32 mark and a lone CR as part of a name.
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    const bool lone_cr = c == '\r' && (i + 1 == text.size() || text[i + 1] != '\n');
+    if ((c < 0x20 && c != '\t' && c != '\n' && c != '\r') || c == 0x7f || lone_cr) {
+      const auto line = std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(i), '\n') + 1;
+      char byte[8];
+      std::snprintf(byte, sizeof byte, "0x%02x", c);
+      throw std::invalid_argument("config line " + std::to_string(line) + ": control character " + byte +
+                                  (lone_cr ? " (a CR without LF)" : "") + " in the text");
+    }
+  }
   YAML::Node root;
   try {
     root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(std::string("config: malformed YAML: ") + e.what());
+    throw std::invalid_argument("config: malformed YAML: " + printable(e.what(), 200));
   }
   apply_yaml(root, config);
   return config;

@@ -7,7 +7,8 @@ from typing import Optional
 import typer
 
 from . import cli_deposition, cli_order, cli_robot, synthetic_cloud
-from .cli_common import cli_config, console, print_json, progress_reporter, refuse_overwrite, say, user_errors
+from .cli_common import (EXIT_NOT_EXECUTABLE, cli_config, console, print_json, progress_reporter, refuse_overwrite, say,
+                         user_errors)
 from .config import default_config_path
 from .io import read_cloud, write_cloud
 from .pipeline import run_job
@@ -25,6 +26,19 @@ def _emit(result: dict, as_json: bool, summary_keys: list[str]) -> None:
             console.print(f"{key}: {result[key]}", highlight=False)
 
 
+def _verdict(result: dict, out: Path, as_json: bool) -> None:
+    """The report's path, or, for a plan that is not right, each problem on its own line and exit
+    code 3: the outputs are written (the partial result, marked in report.json) but no success."""
+    if result.get("status", "ok") == "ok":
+        if not as_json:
+            say("report:", str(Path(out) / "report.html"), "green")
+        return
+    for problem in result["problems"]:
+        say("not executable:", f"{problem['message']} [{problem['code']}]", "red")
+    say("report:", f"{Path(out) / 'report.html'} (status {result['status']})", "red")
+    raise typer.Exit(EXIT_NOT_EXECUTABLE)
+
+
 def _run_job(cloud, config, out: Path, as_json: bool, inputs: dict) -> dict:
     with progress_reporter(disable=as_json) as progress:
         result = run_job(cloud, config, out, progress, inputs=inputs)
@@ -34,7 +48,7 @@ def _run_job(cloud, config, out: Path, as_json: bool, inputs: dict) -> dict:
 
 TUNE_HELP = ("tune the timing of every region by particle swarm (timing.tune_with_pso); kept when faster "
              "within the same joint limits")
-SUMMARY = ["local_origin_m", "cells", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
+SUMMARY = ["status", "local_origin_m", "cells", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
            "total_time_s", "spray_time_ratio", "report_html"]
 
 
@@ -67,8 +81,7 @@ def demo(out: Path = typer.Option(Path("out/demo"), "--out", help="output direct
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
         result = _run_job(lambda: synthetic_cloud(cfg), cfg, out, as_json, {"config": config or default_config_path()})
         _emit(result, as_json, SUMMARY)
-        if not as_json:
-            say("report:", str(Path(out) / "report.html"), "green")
+        _verdict(result, out, as_json)
 
 
 @app.command()
@@ -84,8 +97,7 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
         cfg.timing.tune_with_pso = cfg.timing.tune_with_pso or tune_timing
         result = _run_job(lambda: read_cloud(cloud_path), cfg, out, as_json, {"cloud": cloud_path, "config": config or default_config_path()})
         _emit(result, as_json, SUMMARY)
-        if not as_json:
-            say("report:", str(Path(out) / "report.html"), "green")
+        _verdict(result, out, as_json)
 
 
 # The stage tools, listed after synth, demo and plan.

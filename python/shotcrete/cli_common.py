@@ -20,6 +20,7 @@ from .io import UNIT_SCALES
 console = Console(stderr=True, soft_wrap=True, markup=False)
 
 EXIT_BAD_INPUT = 2
+EXIT_NOT_EXECUTABLE = 3  # planned, but the plan is not right (report.json status / problems)
 
 
 def say(label: str, message: str, style: str) -> None:

@@ -9,7 +9,7 @@ import typer
 
 from . import _core
 from .cli_common import cli_config, console, print_json, refuse_overwrite, user_errors
-from .deposition import fit_report, spacing_report, stroke_figure
+from .deposition import fit_report, read_stroke_csv, spacing_report, stroke_figure
 
 deposition_app = typer.Typer(add_completion=False, no_args_is_help=True,
                              help="Deposition model: stroke fit and pass spacing.")
@@ -39,7 +39,7 @@ def fit_cmd(csv: Path = typer.Argument(..., metavar="CSV", help="position_mm,thi
         refuse_overwrite(figure, force, "--figure")
         cfg = cli_config(config)
         rebound_fraction = cfg.deposition.rebound_fraction if rebound is None else rebound
-        data = _core.read_stroke_csv(str(csv), standoff_mm * 1e-3, speed_mm_s * 1e-3, rebound_fraction)
+        data = read_stroke_csv(csv, standoff_mm * 1e-3, speed_mm_s * 1e-3, rebound_fraction)
         fit = _core.fit_stroke(data)
         result = fit_report(fit, cfg.deposition.nominal_flow_m3ph, len(data))
         if figure is not None:

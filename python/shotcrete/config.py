@@ -11,6 +11,7 @@ from pathlib import Path
 import yaml
 
 from ._core import Config
+from .io import check_text
 
 _HERE = Path(__file__).resolve().parent
 
@@ -53,25 +54,32 @@ def _bool_keys() -> frozenset:
 
 
 def check_config_text(data: bytes, path: Path) -> None:
-    """ValueError naming the line unless ``data`` is UTF-8 YAML without duplicate keys, with a real
-    YAML boolean (true/false, not the text "yes") for every boolean key. The core checks the rest."""
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path} line {line}: not UTF-8 text (byte 0x{data[exc.start]:02x})") from None
+    """ValueError naming the line unless ``data`` is UTF-8 YAML (no control characters, no CR
+    without LF: io.check_text) without duplicate keys, with a real YAML boolean (true/false, not the
+    text "yes") for every boolean key. The core checks the rest."""
+    text = check_text(data, path)
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
+        _check_node(root, path, "")
     except yaml.YAMLError as exc:
         raise ValueError(f"{path}: malformed YAML: {' '.join(str(exc).split())}") from None
-    _check_node(root, path, "")
+    except RecursionError:  # PyYAML composes, and _check_node walks, nested collections recursively
+        raise ValueError(f"{path}: malformed YAML: collections nested too deeply for a config") from None
 
 
-def _check_node(node, path: Path, prefix: str) -> None:
+def _check_node(node, path: Path, prefix: str, seen: set | None = None) -> None:
+    if not isinstance(node, (yaml.SequenceNode, yaml.MappingNode)):
+        return
+    # An alias is its anchored node once more: walk each node once (per name while the name can still
+    # become a "section.key"), or nested aliases ("billion laughs") take exponential time.
+    seen = set() if seen is None else seen
+    visit = (id(node), prefix) if prefix.count(".") < 2 else id(node)
+    if visit in seen:
+        return
+    seen.add(visit)
     if isinstance(node, yaml.SequenceNode):
         for item in node.value:
-            _check_node(item, path, prefix)
-    if not isinstance(node, yaml.MappingNode):
+            _check_node(item, path, prefix, seen)
         return
     first_line: dict[str, int] = {}
     for key_node, value in node.value:
@@ -84,4 +92,4 @@ def _check_node(node, path: Path, prefix: str) -> None:
             shown = value.value if isinstance(value, yaml.ScalarNode) else type(value).__name__
             raise ValueError(f"{path} line {value.start_mark.line + 1}: config key '{name}' must be true or false "
                              f"(a YAML boolean), got {shown!r}")
-        _check_node(value, path, name + ".")
+        _check_node(value, path, name + ".", seen)

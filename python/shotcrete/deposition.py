@@ -2,7 +2,7 @@
 spacing, and the stroke figure (``shotcrete deposition`` and bench/bench_deposition.py).
 
 All numbers come from the C++ core (``read_stroke_csv``, ``fit_stroke``, ``pass_spacing``); this
-module only converts and draws them.
+module only checks the CSV is text, converts and draws them.
 """
 from __future__ import annotations
 
@@ -12,8 +12,19 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
+from .io import check_text
 
 PUBLISHED_STROKE_MSE_MM2 = 1.2  # the seed thesis' fit of the same stroke (reference to beat)
+
+
+def read_stroke_csv(path: Path, standoff_m: float, speed_mps: float, rebound_fraction: float):
+    """The core's ``read_stroke_csv`` of a file checked to be text first (io.check_text): the core
+    quotes a bad cell in its message, and a cell of non-UTF-8 bytes made an empty ValueError, a
+    carriage return inside a cell a line that overwrote itself."""
+    path = Path(path)
+    if path.is_file():  # else the core names the file it cannot open
+        check_text(path.read_bytes(), path)
+    return _core.read_stroke_csv(str(path), standoff_m, speed_mps, rebound_fraction)
 
 
 def fit_report(fit, nominal_flow_m3ph: float, rows: int) -> dict:

@@ -1,6 +1,7 @@
 """Cloud files: PCD/PLY/XYZ through the C++ core (PCL), LAS/LAZ through laspy, E57 through pye57."""
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 
@@ -15,6 +16,30 @@ def _one_line(exc: Exception) -> str:
     """The first non-empty line of a library's message (libE57 appends a multi-line debug dump)."""
     lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
     return lines[0] if lines else type(exc).__name__
+
+
+# Characters a text input may not hold: controls but tab and the line ends LF and CRLF, a CR alone, and
+# the Unicode line separators (NEL, U+2028/9).
+_NOT_TEXT = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\x85\u2028\u2029]|\r(?!\n)")
+
+
+def check_text(data: bytes, path: Path) -> str:
+    """``data`` decoded as UTF-8, or ValueError naming the line of a non-UTF-8 byte, a control
+    character or a lone carriage return. The core's text readers quote a bad cell or key in their
+    message: undecodable bytes there made an empty ValueError, a CR or a control character a message
+    that overwrites itself; and PyYAML reads a lone CR as a line break where yaml-cpp does not."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path} line {line}: not UTF-8 text (byte 0x{data[exc.start]:02x})") from None
+    bad = _NOT_TEXT.search(text)
+    if bad:
+        line = text.count("\n", 0, bad.start()) + 1
+        what = ("a carriage return without a line feed" if bad.group() == "\r"
+                else f"control character U+{ord(bad.group()):04X}")
+        raise ValueError(f"{path} line {line}: {what} (only tabs and LF or CRLF line ends are allowed)")
+    return text
 
 
 def _check_las_header(path: Path) -> None:

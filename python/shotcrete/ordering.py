@@ -10,6 +10,7 @@ Instance file (JSON)::
 from __future__ import annotations
 
 import json
+import reprlib
 from pathlib import Path
 
 import numpy as np
@@ -19,14 +20,22 @@ from . import _core
 METHODS = ("aco", "ga", "nn", "exact", "best")
 
 
+def _shown(value) -> str:
+    """``value``'s repr, shortened (reprlib: a few levels and items) so a message stays one readable line."""
+    return reprlib.repr(value)
+
+
 def _point(value, what: str) -> list[float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise ValueError(f"{what} must be a list of 3 numbers [x, y, z] in metres, got {value!r}")
+        raise ValueError(f"{what} must be a list of 3 numbers [x, y, z] in metres, got {_shown(value)}")
     out = []
     for v in value:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{what} must hold numbers, got {v!r}")
-        out.append(float(v))
+            raise ValueError(f"{what} must hold numbers, got {_shown(v)}")
+        try:
+            out.append(float(v))
+        except OverflowError:  # a JSON integer of 309 digits or more
+            raise ValueError(f"{what}: {_shown(v)} is beyond the range of a float") from None
     return out
 
 
@@ -62,9 +71,11 @@ def load_instance(path: Path) -> "_core.OrderingProblem":
     if not path.is_file():
         raise FileNotFoundError(f"instance file {path} not found")
     try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, an integer beyond 4300 digits
         raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    except RecursionError:  # json nests its decoder once per array or object level
+        raise ValueError(f"{path} is not valid JSON for an instance: arrays or objects nested too deeply") from None
     try:
         return problem_from_dict(data)
     except ValueError as exc:

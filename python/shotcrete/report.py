@@ -55,6 +55,12 @@ def write_html(out: Path, report: dict, figures: list[tuple[str, str]], title: s
         if isinstance(value, (dict, list)) and len(json.dumps(_jsonable(value))) > 200:
             continue
         rows.append(f"<tr><th>{html.escape(str(key))}</th><td>{html.escape(json.dumps(_jsonable(value)))}</td></tr>")
+    status = report.get("status", "ok")
+    if status == "ok":
+        banner = '<p class="ok">status: ok</p>'
+    else:  # a plan that is not right says so before any figure
+        items = "".join(f"<li>{html.escape(p['message'])} ({html.escape(p['code'])})</li>" for p in report.get("problems", []))
+        banner = f'<div class="bad"><b>status: {html.escape(status)}</b>: this plan is not executable as reported<ul>{items}</ul></div>'
     figs = "\n".join(
         f'<figure><img src="{html.escape(src)}" alt="{html.escape(cap)}"><figcaption>{html.escape(cap)}</figcaption></figure>'
         for cap, src in figures)
@@ -62,8 +68,9 @@ def write_html(out: Path, report: dict, figures: list[tuple[str, str]], title: s
 <html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;margin:2em;max-width:1200px}} table{{border-collapse:collapse}}
 th,td{{border:1px solid #ccc;padding:4px 8px;text-align:left;font-size:90%}} figure{{display:inline-block;margin:1em}}
-img{{max-height:650px}}</style></head>
+img{{max-height:650px}} .ok{{color:#070}} .bad{{border:2px solid #c00;padding:0.5em 1em;color:#900}}</style></head>
 <body><h1>{html.escape(title)}</h1>
+{banner}
 <p>Full numbers: <a href="report.json">report.json</a>.</p>
 <table>{''.join(rows)}</table>
 {figs}

@@ -128,9 +128,18 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("evaluations", &SwarmSummary::evaluations)
       .def_readonly("regions_cut_by_budget", &SwarmSummary::regions_cut_by_budget)
       .def_readonly("params", &SwarmSummary::params);
+  py::class_<PlanProblem>(m, "PlanProblem", "Why a plan is not one the machine can execute as reported.")
+      .def_readonly("code", &PlanProblem::code)
+      .def_readonly("message", &PlanProblem::message)
+      .def("__repr__", [](const PlanProblem& p) { return "PlanProblem(" + p.code + ": " + p.message + ")"; });
+  m.def("plan_problems", &plan_problems, py::arg("summary"),
+        "The problems of a JobSummary (empty: the plan is right): cells left above level 0 or unreachable, an arm "
+        "that cannot follow, joint or nozzle limits broken, a grid mostly made of holes.");
   py::class_<JobSummary>(m, "JobSummary",
                          "The summary of a job planned for the arm: report.json's figures, the ROS node's ~summary.")
       .def_readonly("mode", &JobSummary::mode)
+      .def_readonly("status", &JobSummary::status, "ok | not_executable (problems says why)")
+      .def_readonly("problems", &JobSummary::problems)
       .def_readonly("cells", &JobSummary::cells)
       .def_property_readonly("grid_shape", [](const JobSummary& s) { return py::make_tuple(s.grid_n_theta, s.grid_n_d); })
       .def_readonly("points_in", &JobSummary::points_in)

@@ -48,9 +48,9 @@ std::string cloud_from_msg(const sensor_msgs::PointCloud2& msg, const std::strin
   // No tf lookup: the planner works in the tunnel frame, so any other frame is refused rather
   // than silently misplaced.
   if (msg.header.frame_id != expected_frame) {
-    const std::string& f = msg.header.frame_id;  // a hostile name can be megabytes long
-    const std::string shown = f.size() <= 64 ? f : f.substr(0, 64) + "... (" + std::to_string(f.size()) + " bytes)";
-    return "frame '" + shown + "' is not the tunnel frame '" + expected_frame + "'";
+    const std::string& f = msg.header.frame_id;  // a hostile name can be megabytes long, or binary
+    return "frame '" + shotcrete::printable(f, 64) + "'" + (f.size() > 64 ? " (" + std::to_string(f.size()) + " bytes)" : "") +
+           " is not the tunnel frame '" + expected_frame + "'";
   }
   const std::size_t n = static_cast<std::size_t>(msg.width) * msg.height;
   if (n == 0) return "empty cloud (width * height = 0)";

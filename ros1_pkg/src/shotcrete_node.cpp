@@ -212,7 +212,9 @@ class ShotcreteNode {
     std_msgs::String msg;
     msg.data = summary;
     summary_pub_.publish(msg);
-    return true;
+    // A plan that is not right (summary status / problems) stays visible but is no success.
+    for (const auto& p : job.problems) ROS_WARN("plan not executable: %s [%s]", p.message.c_str(), p.code.c_str());
+    return job.status == "ok";
   }
 
   /// Streams the timed trajectory as /joint_states and deposits concrete on the cloud as it goes

@@ -246,6 +246,10 @@ TEST(Csv, BadInputsGiveClearErrors) {
   expect_error("position_mm,thickness_mm\n0,1\n1e300,1\n20,3\n30,1\n40,1\n",
                "line 3: position 1e300 mm is outside the physical range +-10000 mm");
   expect_error("position_mm,thickness_mm\n0,1\n10,1e400\n20,3\n30,1\n40,1\n", "non-numeric thickness '1e400'");
+  // Fuzz findings (the core alone): a cell with non-UTF-8 bytes or a CR was quoted raw (pybind11
+  // then raised an empty ValueError; a CR broke the line). Quoted cells are printable ASCII now.
+  expect_error("position_mm,thickness_mm\n0,1\n10,24\xc1\xb1J\n20,3\n30,1\n40,1\n", "line 3: non-numeric thickness '24??J'");
+  expect_error("position_mm,thickness_mm\n0,1\n10,3\r8\n20,3\n30,1\n40,1\n", "line 3: non-numeric thickness '3?8'");
   EXPECT_THROW(read_stroke_csv("/nonexistent/stroke.csv"), std::invalid_argument);
   // A valid file without header parses.
   const StrokeData ok = read_stroke_csv(write_tmp("ok.csv", "0,1\n10,2\n20,3\n30,1\n40,1\n"));

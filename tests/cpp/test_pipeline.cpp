@@ -183,9 +183,67 @@ TEST(JobSummary, WithoutATrajectoryTheErrorIsReported) {
   EXPECT_FALSE(s.cycle_time_s);
   EXPECT_FALSE(s.cycle_time_ratio);
   EXPECT_EQ(json.find("\"trajectory\""), std::string::npos);
+  // Planned but not executable: the status says so, and the reason is a problem.
+  EXPECT_EQ(s.status, "not_executable");
+  ASSERT_FALSE(s.problems.empty());
+  EXPECT_EQ(s.problems.back().code, "arm_cannot_follow");
+  EXPECT_EQ(s.problems.back().message, "the arm cannot follow the plan: region 2 waypoint 7: out of reach");
+  EXPECT_EQ(json.rfind("{\"mode\":\"optimal\",\"status\":\"not_executable\",\"problems\":[", 0), 0u) << json.substr(0, 120);
 
   // A plan of another grid is refused.
   EXPECT_THROW(summarise_job(surface, ArmPlan{}, robot, cfg), std::invalid_argument);
+}
+
+// plan_problems against summaries built by hand: each condition on its own, at and just past its
+// threshold, and a right plan without any.
+TEST(JobSummary, ProblemsNameEveryReasonAPlanIsNotRight) {
+  auto codes = [](const JobSummary& s) {
+    std::vector<std::string> out;
+    for (const auto& p : plan_problems(s)) out.push_back(p.code);
+    return out;
+  };
+  JobSummary ok;
+  ok.grid_n_theta = 10;
+  ok.grid_n_d = 10;
+  ok.cells = 50;  // exactly half the grid holds points
+  ok.levels_after = {{-1, 3}, {0, 47}};
+  ok.trajectory = TrajectorySummary{};
+  ok.trajectory->max_velocity_ratio = ok.trajectory->max_acceleration_ratio = 1.0 + kLimitRatioTolerance;
+  ok.trajectory->max_nozzle_speed_ratio = ok.trajectory->max_nozzle_accel_ratio = 1.0;
+  EXPECT_EQ(codes(ok), std::vector<std::string>{});
+
+  JobSummary s = ok;
+  s.cells = 49;
+  EXPECT_EQ(codes(s), std::vector<std::string>{"sparse_grid"});
+  EXPECT_EQ(plan_problems(s)[0].message,
+            "the scan covers 49 of the grid's 100 cells (less than 50 %): holes are neither graded nor sprayed");
+  s = ok;
+  s.levels_after = {{0, 40}, {1, 7}, {3, 3}};
+  s.unreachable_cells = 4;
+  s.stop_reason = "max rounds reached (planner.max_rounds)";
+  s.deposit_source = "executed";
+  EXPECT_EQ(codes(s), (std::vector<std::string>{"unreachable_cells", "cells_above_level_0"}));
+  EXPECT_EQ(plan_problems(s)[1].message,
+            "6 more cells are left above level 0 by the executed deposit (stop reason: max rounds reached (planner.max_rounds))");
+  s.unreachable_cells = 10;  // all of the cells above level 0 are unreachable: one problem
+  EXPECT_EQ(codes(s), std::vector<std::string>{"unreachable_cells"});
+  s = ok;
+  s.ik.untracked_regions = 2;
+  EXPECT_EQ(codes(s), std::vector<std::string>{"untracked_regions"});
+  s = ok;
+  s.trajectory->max_acceleration_ratio = 1.0 + 2 * kLimitRatioTolerance;
+  EXPECT_EQ(codes(s), std::vector<std::string>{"joint_limits"});
+  s = ok;
+  s.trajectory->max_position_violation_m = 0.01;
+  EXPECT_EQ(codes(s), std::vector<std::string>{"joint_limits"});
+  s = ok;
+  s.trajectory->max_nozzle_speed_ratio = 1.01;
+  EXPECT_EQ(codes(s), std::vector<std::string>{"nozzle_limits"});
+  s = ok;
+  s.ik.solved = false;
+  s.ik.error = "IK: waypoint 3 unreachable";
+  s.trajectory.reset();
+  EXPECT_EQ(codes(s), std::vector<std::string>{"arm_cannot_follow"});
 }
 
 TEST(JobSummary, NothingToSprayIsSolved) {
@@ -200,4 +258,5 @@ TEST(JobSummary, NothingToSprayIsSolved) {
   EXPECT_EQ(s.passes, 0);
   EXPECT_DOUBLE_EQ(s.link_length_m, 0.0);
   EXPECT_EQ(s.to_json().find("\"samples_checked\""), std::string::npos);
+  EXPECT_EQ(s.status, "ok");
 }

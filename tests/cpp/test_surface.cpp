@@ -369,6 +369,14 @@ TEST(Config, DuplicateKeysQuotedBooleansAndNonUtf8AreErrors) {
   EXPECT_EQ(message("planner: {max_rounds: 3} # \xe2\x82"), "config line 1: not UTF-8 text (byte 0xe2)");      // cut short
   EXPECT_EQ(config_from_yaml("# caf\xc3\xa9 \xe2\x82\xac \xf0\x9f\x98\x80\nplanner: {max_rounds: 3}").planner.max_rounds, 3);
   EXPECT_EQ(message("{[1, 2]: 3}"), "config: a key at the top level is not a plain name");
+  // Fuzz findings (tests/python/fuzz_readers.py, config target, the core alone): a leading NUL and
+  // a lone CR gave an empty message or one with a raw CR in it.
+  EXPECT_EQ(message(std::string("\0\xef\xbb\xbfsynth: {seed: 1}", 20)), "config line 1: control character 0x00 in the text");
+  EXPECT_EQ(message("planner: {max_rounds: 3}\nsynt\rh: {seed: 1}\n"),
+            "config line 2: control character 0x0d (a CR without LF) in the text");
+  EXPECT_EQ(config_from_yaml("planner:\r\n  max_rounds: 3\r\n").planner.max_rounds, 3);  // CRLF files are fine
+  EXPECT_EQ(message("planner: {mode: \"gr\\taded\\u00e9\"}"), "config key 'planner.mode' = 'gr?aded??': expected one of graded, optimal");
+  EXPECT_EQ(message("synth: {seed: \"\\r\"}").find('\r'), std::string::npos);
 }
 
 TEST(Config, UnknownKeysAndRangesAreErrors) {

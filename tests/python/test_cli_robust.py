@@ -111,9 +111,10 @@ def test_rerun_without_trajectory_leaves_no_stale_file(previous):
     cfg = out.parent / "noreach.yaml"
     cfg.write_text(NO_REACH)
     r = _cli("demo", "--out", out, "--config", cfg, "--json")
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 3, r.stderr  # planned, not executable: the set is written, no success
     report = json.loads((out / "report.json").read_text())
     assert report["ik"]["solved"] is False and "trajectory" not in report["files"]
+    assert report["status"] == "not_executable" and "arm_cannot_follow" in [p["code"] for p in report["problems"]]
     assert not (out / "trajectory.npz").exists()
     assert {f for f in _snapshot(out) if not f.startswith("figures/")} == {
         ".shotcrete-output", "report.json", "report.html", "plan.json", "surface.ply", "sprayed.ply"}
@@ -297,3 +298,158 @@ def test_strict_config_accepts_real_booleans(tmp_path):
     c = shotcrete.load_config(cfg)
     assert c.profile.estimate_axis is True and c.preprocess.crop_enabled is False and c.ordering.local_search
     shotcrete.load_config(shotcrete.default_config_path())
+
+
+# ---- findings of the fuzzer's text targets (tests/python/fuzz_readers.py): each input is refused
+# with one line naming the file and its line, exit 2 through the CLI --------------------------------
+
+@pytest.mark.parametrize("row, bad_row, message", [
+    # a cell of non-UTF-8 bytes: the core quotes the cell and pybind11 could not decode its message,
+    # which arrived as ValueError('')
+    (b"-100,24\n", b"-100,24\xc1\xb1J\n", "line 7: not UTF-8 text (byte 0xc1)"),
+    # a carriage return inside a cell: the core's message carried it and overwrote itself
+    (b"-20,38\n", b"-20,3\r8\n",
+     "line 11: a carriage return without a line feed (only tabs and LF or CRLF line ends are allowed)"),
+    (b"0,39\n", b"0,39\x00\n", "line 12: control character U+0000 (only tabs and LF or CRLF line ends are allowed)"),
+])
+def test_fuzz_finding_stroke_csv_that_is_not_text(tmp_path, row, bad_row, message):
+    from shotcrete.deposition import read_stroke_csv
+
+    csv = tmp_path / "stroke.csv"
+    csv.write_bytes(CSV.read_bytes().replace(row, bad_row))
+    with pytest.raises(ValueError) as err:
+        read_stroke_csv(csv, 1.0, 0.15, 0.08)
+    assert str(err.value) == f"{csv} {message}"
+    r = _cli("deposition", "fit", csv)
+    assert r.returncode == 2 and _one_error_line(r.stderr) == f"error: {csv} {message}"
+
+
+@pytest.mark.parametrize("text, message", [
+    # RecursionError in json.loads
+    ('{"regions": ' + "[" * 10000, "is not valid JSON for an instance: arrays or objects nested too deeply"),
+    # OverflowError in float(): a JSON integer of 400 digits
+    ('{"regions": [{"a": [' + "9" * 400 + ', 0, 0], "b": [1, 0, 0]}]}', "region 0 endpoint a: 9"),
+])
+def test_fuzz_finding_ordering_instance(tmp_path, text, message):
+    from shotcrete.ordering import load_instance
+
+    inst = tmp_path / "inst.json"
+    inst.write_text(text)
+    with pytest.raises(ValueError, match=re.escape(message)) as err:
+        load_instance(inst)
+    assert len(str(err.value)) < 200  # the 400 digits are shortened
+    r = _cli("order", inst)
+    assert r.returncode == 2 and _one_error_line(r.stderr) == f"error: {err.value}"
+
+
+@pytest.mark.parametrize("text, message", [
+    # RecursionError in yaml.compose
+    ("synth: " + "[" * 10000 + "\n", ": malformed YAML: collections nested too deeply for a config"),
+    # PyYAML read the CR as a line break, yaml-cpp as part of the key: "unknown section 'p\rofile'"
+    ("p\rofile:\n  estimate_axis: true\n", " line 1: a carriage return without a line feed"),
+    ("synth:\n  seed: 3\x1b[31m\n", " line 2: control character U+001B"),
+])
+def test_fuzz_finding_config(tmp_path, text, message):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_bytes(text.encode())
+    with pytest.raises(ValueError, match=re.escape(f"{cfg}{message}")):
+        shotcrete.load_config(cfg)
+    r = _cli("plan", tmp_path / "scan.pcd", "--out", tmp_path / "o", "--config", cfg)
+    assert r.returncode == 2 and _one_error_line(r.stderr).startswith(f"error: {cfg}{message}")
+    assert not (tmp_path / "o").exists()
+
+
+def test_config_with_nested_aliases_is_refused_in_time(tmp_path):
+    # "billion laughs": the strict check walked every alias again, 10**9 visits (found reading the
+    # check; the fuzzer's text mutations insert it since)
+    lines = ["synth:", "  seed: 1", "l0: &l0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    lines += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    cfg = tmp_path / "laughs.yaml"
+    cfg.write_text("\n".join(lines) + "\n")
+    t0 = time.perf_counter()
+    r = _cli("robot", "info", "--config", cfg, timeout=60)
+    assert r.returncode == 2 and _one_error_line(r.stderr) == f"error: {cfg}: config: unknown section 'l0'"
+    assert time.perf_counter() - t0 < 10
+
+
+def test_crlf_text_inputs_are_still_read(tmp_path):
+    # the text check refuses a CR alone, not the CRLF line ends of a Windows editor
+    cfg = tmp_path / "crlf.yaml"
+    cfg.write_bytes(b"synth:\r\n  seed: 3\r\n  pit_count: 2\r\n")
+    assert shotcrete.load_config(cfg).synth.seed == 3
+    csv = tmp_path / "crlf.csv"
+    csv.write_bytes(CSV.read_bytes().replace(b"\n", b"\r\n"))
+    r = _cli("deposition", "fit", csv, "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["rows"] == 21
+
+
+# ------------------------------------------------------------------ right or refused (exit 3)
+
+def _problems_from_report(report: dict) -> set:
+    """The problem codes a plan's report.json implies, re-derived here from its figures (independent
+    of the core's plan_problems), with the thresholds documented in the README."""
+    codes = set()
+    n_theta, n_d = report["grid_shape"]
+    if report["cells"] < 0.5 * n_theta * n_d:
+        codes.add("sparse_grid")
+    above = sum(n for level, n in report["levels_after"].items() if int(level) > 0)
+    if report["unreachable_cells"] > 0:
+        codes.add("unreachable_cells")
+    if above > report["unreachable_cells"]:
+        codes.add("cells_above_level_0")
+    if not report["ik"]["solved"]:
+        codes.add("arm_cannot_follow")
+    t = report.get("trajectory")
+    if report["ik"].get("untracked_regions", 0) > 0 or (t and t.get("untracked_regions", 0) > 0):
+        codes.add("untracked_regions")
+    if t:
+        if max(t["max_velocity_ratio"], t["max_acceleration_ratio"]) > 1.001 or \
+                t["max_position_violation_rad"] > 1e-9 or t["max_position_violation_m"] > 1e-9:
+            codes.add("joint_limits")
+        if max(t["max_nozzle_speed_ratio"], t["max_nozzle_accel_ratio"]) > 1.001:
+            codes.add("nozzle_limits")
+    return codes
+
+
+def test_right_plan_is_status_ok_exit_0(first_run):
+    out, _ = first_run
+    report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "ok" and report["problems"] == []
+    assert _problems_from_report(report) == set()
+    assert "status: ok" in (out / "report.html").read_text()
+
+
+def test_bay_at_the_invert_is_refused_with_exit_3(tmp_path):
+    """The invert (below the springlines) is out of the arm's reach: the plan is written, marked
+    not executable, each problem printed on its own line, exit code 3 (was: exit 0, success)."""
+    cfg = tmp_path / "invert.yaml"
+    cfg.write_text("synth: {theta_min_rad: -1.5, theta_max_rad: -0.6, length_m: 0.6, points_per_cell: 6}\n")
+    out = tmp_path / "inv"
+    r = _cli("demo", "--out", out, "--config", cfg)
+    assert r.returncode == 3, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    codes = [p["code"] for p in report["problems"]]
+    assert report["status"] == "not_executable" and "arm_cannot_follow" in codes
+    assert set(codes) == _problems_from_report(report)
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("not executable: ")]
+    assert [ln.rsplit("[", 1)[1].rstrip("]") for ln in lines] == codes
+    assert "Traceback" not in r.stderr and "status not_executable" in r.stderr
+    html = (out / "report.html").read_text()
+    assert "status: not_executable" in html and "the arm cannot follow the plan" in html
+    _assert_complete(out)
+
+
+def test_sparse_scan_is_refused_with_exit_3_and_json_still_printed(tmp_path):
+    """400 points spread over a 2 rad x 1.2 m wall: 7 % of the grid's cells hold a point."""
+    rng = np.random.default_rng(0)
+    theta, d = rng.uniform(0.5, 2.5, 400), rng.uniform(0.0, 1.2, 400)
+    cloud = tmp_path / "sparse.xyz"
+    np.savetxt(cloud, np.column_stack([d, 5.6 * np.cos(theta), 5.6 * np.sin(theta)]))
+    r = _cli("plan", cloud, "--out", tmp_path / "p", "--json")
+    assert r.returncode == 3, r.stderr
+    report = json.loads(r.stdout)  # --json still prints the whole report
+    assert report["status"] == "not_executable"
+    assert [p["code"] for p in report["problems"]] == ["sparse_grid"] == sorted(_problems_from_report(report))
+    n_theta, n_d = report["grid_shape"]
+    assert report["cells"] < 0.5 * n_theta * n_d

@@ -10,6 +10,8 @@
 #include <utility>
 #include <vector>
 
+#include "shotcrete/io/text.hpp"
+
 namespace shotcrete {
 
 /// Progress of a long stage: called between its steps with a stage name and the fraction done.
@@ -65,7 +67,7 @@ template <class E> std::string enum_choices() {
 template <class E> E parse_enum(const std::string& text, const std::string& what) {
   for (const auto& n : enum_names(E{}))
     if (text == n.name) return n.value;
-  throw std::invalid_argument(what + " = '" + text + "': expected one of " + enum_choices<E>());
+  throw std::invalid_argument(what + " = '" + printable(text) + "': expected one of " + enum_choices<E>());
 }
 
 }  // namespace shotcrete

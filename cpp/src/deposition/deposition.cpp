@@ -1,4 +1,5 @@
 #include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/io/text.hpp"
 
 #include <nlopt.hpp>
 
@@ -168,14 +169,14 @@ StrokeData read_stroke_csv(const std::string& path, double standoff_m, double sp
     if (cells.size() != 2)
       throw std::invalid_argument(where + "expected 2 columns (position_mm,thickness_mm), got " + std::to_string(cells.size()));
     double x, t;
-    if (!parse_number(cells[0], x)) throw std::invalid_argument(where + "non-numeric position '" + trim(cells[0]) + "'");
-    if (!parse_number(cells[1], t)) throw std::invalid_argument(where + "non-numeric thickness '" + trim(cells[1]) + "'");
-    if (t < 0) throw std::invalid_argument(where + "negative thickness " + trim(cells[1]) + " mm");
+    if (!parse_number(cells[0], x)) throw std::invalid_argument(where + "non-numeric position '" + printable(trim(cells[0])) + "'");
+    if (!parse_number(cells[1], t)) throw std::invalid_argument(where + "non-numeric thickness '" + printable(trim(cells[1])) + "'");
+    if (t < 0) throw std::invalid_argument(where + "negative thickness " + printable(trim(cells[1])) + " mm");
     if (std::abs(x) > kMaxStrokePosition_m * 1e3)
-      throw std::invalid_argument(where + "position " + trim(cells[0]) + " mm is outside the physical range +-" +
+      throw std::invalid_argument(where + "position " + printable(trim(cells[0])) + " mm is outside the physical range +-" +
                                   std::to_string(static_cast<int>(kMaxStrokePosition_m * 1e3)) + " mm");
     if (t > kMaxStrokeThickness_m * 1e3)
-      throw std::invalid_argument(where + "thickness " + trim(cells[1]) + " mm is above the physical limit of " +
+      throw std::invalid_argument(where + "thickness " + printable(trim(cells[1])) + " mm is above the physical limit of " +
                                   std::to_string(static_cast<int>(kMaxStrokeThickness_m * 1e3)) + " mm");
     data.position_m.push_back(x * 1e-3);
     data.thickness_m.push_back(t * 1e-3);

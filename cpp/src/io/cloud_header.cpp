@@ -206,12 +206,6 @@ void add_ply_property(const std::string& path, std::vector<PlyElement>& elements
 
 }  // namespace
 
-std::string printable(const std::string& text, std::size_t max) {
-  std::string out;
-  for (unsigned char c : text.substr(0, max)) out += (c >= 32 && c < 127) ? static_cast<char>(c) : '?';
-  return text.size() > max ? out + "..." : out;
-}
-
 void check_pcd_header(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   PcdHeader h = read_pcd_header(in, path);

@@ -4,6 +4,8 @@
 // and the mismatch, and every count is checked against the file size before anything is allocated.
 #include <string>
 
+#include "shotcrete/io/text.hpp"
+
 namespace shotcrete::detail {
 
 /// Throws std::invalid_argument "<path>: <what disagrees>" unless the PCD header is well formed
@@ -16,7 +18,6 @@ void check_pcd_header(const std::string& path);
 /// count (binary, elements of fixed size) or at least the smallest possible one (list properties).
 void check_ply_header(const std::string& path);
 
-/// `text` made safe for a one-line message: control and non-ASCII bytes become '?', at most `max` chars.
-std::string printable(const std::string& text, std::size_t max = 40);
+using shotcrete::printable;
 
 }  // namespace shotcrete::detail

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <sstream>
 #include <stdexcept>
 
 #include "shotcrete/io/json_writer.hpp"
@@ -337,12 +338,59 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
     if (plan.physical_limit_s > 0) s.cycle_time_ratio = *s.cycle_time_s / plan.physical_limit_s;
     if (arm_plan.tuning || !arm_plan.tuning_error.empty()) s.swarm = summarise_swarm(arm_plan);
   }
+  s.problems = plan_problems(s);
+  s.status = s.problems.empty() ? "ok" : "not_executable";
   return s;
+}
+
+std::vector<PlanProblem> plan_problems(const JobSummary& s) {
+  std::vector<PlanProblem> out;
+  auto fmt = [](double v, int digits) {
+    std::ostringstream o;
+    o.setf(std::ios::fixed);
+    o.precision(digits);
+    o << v;
+    return o.str();
+  };
+  const int cells_in_grid = s.grid_n_theta * s.grid_n_d;
+  if (cells_in_grid > 0 && s.cells < kMinGridCoverage * cells_in_grid)
+    out.push_back({"sparse_grid", "the scan covers " + std::to_string(s.cells) + " of the grid's " +
+                                      std::to_string(cells_in_grid) + " cells (less than " +
+                                      fmt(100.0 * kMinGridCoverage, 0) + " %): holes are neither graded nor sprayed"});
+  int above = 0;
+  for (const auto& [level, n] : s.levels_after)
+    if (level > 0) above += n;
+  if (s.unreachable_cells > 0)
+    out.push_back({"unreachable_cells", std::to_string(s.unreachable_cells) +
+                                            " cells above level 0 that no pass can fill (beyond the arm's reach or the bay's passes)"});
+  if (above > s.unreachable_cells)
+    out.push_back({"cells_above_level_0", std::to_string(above - std::max(0, s.unreachable_cells)) +
+                                              " more cells are left above level 0 by the " + s.deposit_source +
+                                              " deposit (stop reason: " + s.stop_reason + ")"});
+  if (!s.ik.solved) out.push_back({"arm_cannot_follow", "the arm cannot follow the plan: " + s.ik.error});
+  const int untracked = std::max(s.ik.untracked_regions, s.trajectory ? s.trajectory->untracked_regions : 0);
+  if (untracked > 0)
+    out.push_back({"untracked_regions", std::to_string(untracked) + " regions where the arm does not track the nozzle path"});
+  if (const auto& t = s.trajectory) {
+    const double limit = 1.0 + kLimitRatioTolerance;
+    if (t->max_velocity_ratio > limit || t->max_acceleration_ratio > limit || t->max_position_violation_rad > 1e-9 ||
+        t->max_position_violation_m > 1e-9)
+      out.push_back({"joint_limits", "the trajectory breaks joint limits: velocity " + fmt(t->max_velocity_ratio, 3) +
+                                         "x, acceleration " + fmt(t->max_acceleration_ratio, 3) + "x, position " +
+                                         fmt(t->max_position_violation_rad, 4) + " rad / " +
+                                         fmt(t->max_position_violation_m, 4) + " m outside"});
+    if (t->max_nozzle_speed_ratio > limit || t->max_nozzle_accel_ratio > limit)
+      out.push_back({"nozzle_limits", "the nozzle moves beyond its limits: speed " + fmt(t->max_nozzle_speed_ratio, 3) +
+                                          "x, acceleration " + fmt(t->max_nozzle_accel_ratio, 3) + "x"});
+  }
+  return out;
 }
 
 std::string JobSummary::to_json() const {
   JsonWriter w;
-  w.begin_object().field("mode", mode).field("cells", cells);
+  w.begin_object().field("mode", mode).field("status", status).key("problems").begin_array();
+  for (const auto& p : problems) w.begin_object().field("code", p.code).field("message", p.message).end_object();
+  w.end_array().field("cells", cells);
   w.key("grid_shape").begin_array().value(grid_n_theta).value(grid_n_d).end_array();
   w.field("points_in", points_in).field("points_used", points_used);
   w.field("design_radius_m", design_radius_m).field("axis_fit_rms_m", axis_fit_rms_m);

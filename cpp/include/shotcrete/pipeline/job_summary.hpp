@@ -94,6 +94,14 @@ struct ExecutedSummary {
 };
 ExecutedSummary summarise_executed(const ExecutedDeposit& executed);
 
+/// Why a plan is not one the machine can execute as reported (report.json `problems`; the CLI
+/// exits with code 3). code: unreachable_cells | cells_above_level_0 | arm_cannot_follow |
+/// untracked_regions | joint_limits | nozzle_limits | sparse_grid.
+struct PlanProblem {
+  std::string code;
+  std::string message;  // one line, with the figures
+};
+
 struct JobSummary {
   std::string mode;  // planner.mode
   int cells = 0;     // valid grid cells
@@ -128,11 +136,24 @@ struct JobSummary {
   double trajectory_rate_hz = 0.0;               // timing.trajectory_rate_hz
   double config_timing_duration_s = 0.0;         // trajectory duration with the config's timing
   std::optional<SwarmSummary> swarm;             // with a trajectory, when the swarm ran or failed
+  // "ok", or "not_executable" when problems is not empty (plan_problems).
+  std::string status = "ok";
+  std::vector<PlanProblem> problems;
 
   /// The JSON object report.json starts with (same keys, same order); total_time_s and cycle_time_s
   /// are the trajectory's duration, cycle_time_breakdown_s its parts (null without one). Compact, one line.
   std::string to_json() const;
 };
+
+/// Limits the status check allows: a joint or nozzle ratio up to 1 + limit_ratio_tolerance (the
+/// nozzle's come from finite differences of samples), and grids with at least
+/// min_grid_coverage of their cells holding points.
+constexpr double kLimitRatioTolerance = 1e-3;
+constexpr double kMinGridCoverage = 0.5;
+
+/// The problems of a summary (empty: the plan is right): cells it leaves above level 0 or cannot
+/// reach, an arm that cannot follow it, limits broken, a grid mostly made of holes.
+std::vector<PlanProblem> plan_problems(const JobSummary& summary);
 
 struct JobSummaryOptions {
   long points_in = 0;    // points of the raw cloud the surface was built from
