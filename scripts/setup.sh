@@ -8,7 +8,7 @@ VENV=${VENV:-.venv}
 
 APT_PACKAGES=(
   build-essential cmake ninja-build ccache python3-venv python3-dev pkg-config
-  libeigen3-dev libpcl-dev liborocos-kdl-dev libkdl-parser-dev liburdf-dev libnlopt-cxx-dev
+  libeigen3-dev libpcl-dev liborocos-kdl-dev libkdl-parser-dev liburdf-dev libnlopt-cxx-dev libfcl-dev
   libgtest-dev libyaml-cpp-dev
   catkin libroscpp-dev libsensor-msgs-dev libvisualization-msgs-dev libstd-srvs-dev
   libpcl-conversions-dev librostest-dev python3-rostest python3-rospy python3-roslaunch

@@ -1,5 +1,6 @@
 #include "bindings.hpp"
 #include "shotcrete/robot/robot.hpp"
+#include "shotcrete/collision/clearance.hpp"
 
 using namespace shotcrete;
 
@@ -39,6 +40,16 @@ void bind_robot(py::module_& m) {
       .def_property_readonly("base_pose", [](const Robot& r) { return Eigen::Matrix4d(r.base_pose().matrix()); })
       .def_property_readonly("shoulder_position", &Robot::shoulder_position)
       .def_property_readonly("max_reach_m", &Robot::max_reach_m)
+      .def(
+          "link_frames",
+          [](const Robot& r, const Eigen::VectorXd& q) {
+            std::vector<Eigen::Matrix4d> out;
+            for (const auto& f : r.link_frames(q)) out.push_back(f.matrix());
+            return out;
+          },
+          py::arg("q"), "4x4 world poses of base_link and of the link at the tip of every chain segment")
+      .def_property_readonly("link_names", &Robot::link_names)
+      .def_property_readonly("collision_shapes", &Robot::collision_shapes, "the links' URDF <collision> shapes")
       .def("fk", [](const Robot& r, const Eigen::VectorXd& q) { return Eigen::Matrix4d(r.fk(q).matrix()); },
            py::arg("q"), "4x4 pose of nozzle_tip in the tunnel frame; column 2 is the spray axis.")
       .def("jacobian", &Robot::jacobian, py::arg("q"), "6 x dof geometric Jacobian (linear; angular), tunnel frame.")

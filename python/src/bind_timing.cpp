@@ -457,7 +457,10 @@ void bind_timing(py::module_& m) {
       .def_readonly("tuning_error", &ArmPlan::tuning_error)
       .def_property_readonly("executed",
                              [](const ArmPlan& a) -> py::object { return a.executed ? py::cast(*a.executed) : py::none(); },
-                             "ExecutedDeposit of the trajectory kept, or None without a trajectory");
+                             "ExecutedDeposit of the trajectory kept, or None without a trajectory")
+      .def_property_readonly("clearance",
+                             [](const ArmPlan& a) -> py::object { return a.clearance ? py::cast(*a.clearance) : py::none(); },
+                             "ClearanceReport of the trajectory (clearance.enabled), or None");
   m.def(
       "plan_for_arm",
       [](const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {

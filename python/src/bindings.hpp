@@ -33,3 +33,4 @@ void bind_robot(py::module_& m);
 void bind_planner(py::module_& m);
 void bind_timing(py::module_& m);
 void bind_pipeline(py::module_& m);
+void bind_collision(py::module_& m);

@@ -9,5 +9,6 @@ PYBIND11_MODULE(_core, m) {
   bind_robot(m);
   bind_planner(m);
   bind_timing(m);
+  bind_collision(m);
   bind_pipeline(m);
 }

@@ -180,6 +180,18 @@ struct TimingConfig {
   bool tune_with_pso = false;  // plan_for_arm: tune the timing per region by swarm, keep it if faster
 };
 
+// Space allowance of the arm along its trajectory (collision/clearance): the links' URDF
+// collision shapes against an octree of the wall (scan and sprayed surface) and against each other.
+struct ClearanceConfig {
+  bool enabled = false;               // check every timed trajectory (report.json clearance); off
+                                      // by default until it is fast enough for every job
+  double octree_resolution_m = 0.05;  // leaf edge of the wall's octree (distances read up to
+                                      // half a leaf diagonal short: conservative)
+  double link_margin_m = 0.3;         // least distance of a link to the wall
+  double nozzle_margin_m = 0.5;       // least distance of the nozzle links (nozzle*) to the wall
+  double self_margin_m = 0.05;        // least distance between two links that are not neighbours
+};
+
 struct Config {
   IoConfig io;
   PreprocessConfig preprocess;
@@ -194,6 +206,7 @@ struct Config {
   OrderingConfig ordering;
   RobotConfig robot;
   TimingConfig timing;
+  ClearanceConfig clearance;
 };
 
 /// Defaults overridden by a YAML file; unknown sections/keys, wrong types and out-of-range values

@@ -142,6 +142,14 @@ template <class F> void visit(TimingConfig*, F&& f) {
 }
 
 // g(name, member pointer to the section) for every section of Config.
+template <class F> void visit(ClearanceConfig*, F&& f) {
+  f("enabled", &ClearanceConfig::enabled, 0, 0, "check the space allowance along every trajectory");
+  f("octree_resolution_m", &ClearanceConfig::octree_resolution_m, 0.005, 0.5, "leaf edge of the wall octree [m]");
+  f("link_margin_m", &ClearanceConfig::link_margin_m, 0.0, 5.0, "least link-to-wall distance [m]");
+  f("nozzle_margin_m", &ClearanceConfig::nozzle_margin_m, 0.0, 5.0, "least nozzle-to-wall distance (links nozzle*) [m]");
+  f("self_margin_m", &ClearanceConfig::self_margin_m, 0.0, 5.0, "least distance between non-neighbouring links [m]");
+}
+
 template <class G> void visit_sections(G&& g) {
   g("io", &Config::io);
   g("preprocess", &Config::preprocess);
@@ -156,6 +164,7 @@ template <class G> void visit_sections(G&& g) {
   g("ordering", &Config::ordering);
   g("robot", &Config::robot);
   g("timing", &Config::timing);
+  g("clearance", &Config::clearance);
 }
 
 }  // namespace shotcrete::fields

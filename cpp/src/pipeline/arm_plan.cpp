@@ -186,6 +186,19 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (progress) progress("executed deposit", 0.0);
   out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
   if (progress) progress("executed deposit", 1.0);
+  if (config.clearance.enabled) {
+    // The wall as scanned and as sprayed: concrete only grows toward the arm, so the union holds
+    // every surface the arm meets during the job.
+    const Points& scan = surface.cloud.xyz;
+    const Points& sprayed = out.executed->wall.surface.cloud.xyz;
+    Points wall(scan.rows() + sprayed.rows(), 3);
+    wall << scan, sprayed;
+    const WallOctree octree(wall, config.clearance.octree_resolution_m);
+    out.clearance = check_clearance(robot, *out.trajectory, octree, config.clearance,
+                                    progress ? ProgressFn([&](const std::string&, double f) { progress("clearance", f); })
+                                             : ProgressFn{});
+    out.clearance->wall_points = static_cast<std::size_t>(wall.rows());
+  }
   return out;
 }
 

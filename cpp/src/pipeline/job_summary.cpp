@@ -161,6 +161,31 @@ void write(JsonWriter& w, const TimingParams& p) {
   w.field("turn_accel_mps2", p.turn_accel_mps2).end_object();
 }
 
+// Minimum distances: null where nothing was measured (no pair to check).
+void write_distance(JsonWriter& w, double d) {
+  if (std::isfinite(d)) w.value(d);
+  else w.null();
+}
+
+void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m) {
+  w.begin_object().field("samples_below_margin", c.samples_below_margin()).field("samples", c.samples);
+  w.field("octree_resolution_m", c.octree_resolution_m).field("wall_points", static_cast<long>(c.wall_points));
+  w.field("octree_leaves", static_cast<long>(c.octree_leaves)).field("wall_queries", static_cast<long>(c.wall_queries));
+  w.field("self_queries", static_cast<long>(c.self_queries)).key("links").begin_array();
+  for (const auto& l : c.links) {
+    w.begin_object().field("link", l.link).field("margin_m", l.margin_m).key("min_m");
+    write_distance(w, l.min_m);
+    w.field("at_time_s", l.at_time_s).key("closest_m").begin_array();
+    for (int i = 0; i < 3; ++i) w.value(l.closest_m[i]);
+    w.end_array().field("samples_below_margin", l.samples_below_margin).end_object();
+  }
+  w.end_array().key("self").begin_object().field("link_a", c.self.link_a).field("link_b", c.self.link_b);
+  w.field("margin_m", self_margin_m).key("min_m");
+  write_distance(w, c.self.min_m);
+  w.field("at_time_s", c.self.at_time_s).field("samples_below_margin", c.self.samples_below_margin).end_object();
+  w.end_object();
+}
+
 void write(JsonWriter& w, const SwarmSummary& s) {
   w.begin_object().field("used", s.used).key("error");
   if (s.error.empty()) w.null();
@@ -338,6 +363,8 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
     if (plan.physical_limit_s > 0) s.cycle_time_ratio = *s.cycle_time_s / plan.physical_limit_s;
     if (arm_plan.tuning || !arm_plan.tuning_error.empty()) s.swarm = summarise_swarm(arm_plan);
   }
+  if (arm_plan.clearance) s.clearance = arm_plan.clearance;
+  s.self_margin_m = config.clearance.self_margin_m;
   s.problems = plan_problems(s);
   s.status = s.problems.empty() ? "ok" : "not_executable";
   return s;
@@ -382,6 +409,16 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
     if (t->max_nozzle_speed_ratio > limit || t->max_nozzle_accel_ratio > limit)
       out.push_back({"nozzle_limits", "the nozzle moves beyond its limits: speed " + fmt(t->max_nozzle_speed_ratio, 3) +
                                           "x, acceleration " + fmt(t->max_nozzle_accel_ratio, 3) + "x"});
+  }
+  if (const auto& c = s.clearance; c && c->samples_below_margin() > 0) {
+    std::string worst;
+    for (const auto& l : c->links)
+      if (l.samples_below_margin > 0)
+        worst += (worst.empty() ? "" : ", ") + l.link + " " + fmt(l.min_m, 2) + " m (margin " + fmt(l.margin_m, 2) + ")";
+    if (c->self.samples_below_margin > 0)
+      worst += (worst.empty() ? "" : ", ") + c->self.link_a + "-" + c->self.link_b + " " + fmt(c->self.min_m, 2) + " m";
+    out.push_back({"clearance", "the arm comes closer than its margins at " + std::to_string(c->samples_below_margin()) +
+                                    " link-samples: " + worst});
   }
   return out;
 }
@@ -437,6 +474,10 @@ std::string JobSummary::to_json() const {
   if (trajectory) {
     w.key("trajectory");
     write_report_trajectory(w, *this);
+  }
+  if (clearance) {
+    w.key("clearance");
+    write(w, *clearance, self_margin_m);
   }
   w.end_object();
   return w.str();

@@ -25,6 +25,8 @@ struct Robot::Impl {
   std::string path;
   Eigen::Vector3d shoulder_in_base{0, 0, 0};
   double max_reach_m = 0.0;
+  std::vector<std::string> link_names;  // base_link, then the child link of each chain segment
+  std::vector<CollisionShape> shapes;
 };
 
 namespace robot_detail {

@@ -209,6 +209,42 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
   }
   im.base = Eigen::Isometry3d::Identity();
   im.base.translation() = base_position_m;
+  // Collision geometry of base_link and of each segment's link (kdl_parser names segments after
+  // their child links).
+  im.link_names.push_back("base_link");
+  for (const auto& seg : im.chain.segments) im.link_names.push_back(seg.getName());
+  for (std::size_t f = 0; f < im.link_names.size(); ++f) {
+    const auto link = model.getLink(im.link_names[f]);
+    if (!link) continue;
+    for (const auto& col : link->collision_array) {
+      if (!col || !col->geometry) continue;
+      CollisionShape s;
+      s.link = im.link_names[f];
+      s.frame = static_cast<int>(f);
+      const auto& o = col->origin;
+      double qx, qy, qz, qw;
+      o.rotation.getQuaternion(qx, qy, qz, qw);
+      s.origin = Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz);
+      switch (col->geometry->type) {
+        case urdf::Geometry::CYLINDER: {
+          const auto* c = static_cast<const urdf::Cylinder*>(col->geometry.get());
+          s.kind = CollisionShape::Kind::cylinder, s.radius_m = c->radius, s.length_m = c->length;
+          break;
+        }
+        case urdf::Geometry::BOX: {
+          const auto* b = static_cast<const urdf::Box*>(col->geometry.get());
+          s.kind = CollisionShape::Kind::box, s.size_m = Eigen::Vector3d(b->dim.x, b->dim.y, b->dim.z);
+          break;
+        }
+        case urdf::Geometry::SPHERE:
+          s.kind = CollisionShape::Kind::sphere, s.radius_m = static_cast<const urdf::Sphere*>(col->geometry.get())->radius;
+          break;
+        default:
+          throw std::invalid_argument("URDF: link '" + s.link + "' has collision geometry other than a cylinder, box or sphere");
+      }
+      im.shapes.push_back(s);
+    }
+  }
   return robot;
 }
 
@@ -231,6 +267,24 @@ Eigen::Isometry3d Robot::fk(const Eigen::VectorXd& q) const {
   if (solver.JntToCart(to_kdl(q), f) < 0) throw std::runtime_error("KDL forward kinematics failed");
   return impl_->base * to_eigen(f);
 }
+
+std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q) const {
+  check_q(*this, q, "q");
+  std::vector<Eigen::Isometry3d> out;
+  out.reserve(impl_->link_names.size());
+  out.push_back(impl_->base);
+  KDL::Frame f = KDL::Frame::Identity();
+  int j = 0;
+  for (const auto& seg : impl_->chain.segments) {
+    const bool moving = seg.getJoint().getType() != KDL::Joint::None;
+    f = f * seg.pose(moving ? q[j++] : 0.0);
+    out.push_back(impl_->base * to_eigen(f));
+  }
+  return out;
+}
+
+const std::vector<std::string>& Robot::link_names() const { return impl_->link_names; }
+const std::vector<CollisionShape>& Robot::collision_shapes() const { return impl_->shapes; }
 
 Eigen::MatrixXd Robot::jacobian(const Eigen::VectorXd& q) const {
   check_q(*this, q, "q");

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "shotcrete/collision/clearance.hpp"
 #include "shotcrete/pipeline/executed_deposit.hpp"
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/timing/timing.hpp"
@@ -47,6 +48,9 @@ struct ArmPlan {
   double config_duration_s = 0.0;
   bool tuned_timing_used = false;
   std::string tuning_error;  // why the swarm or its timing failed (the config's timing stands)
+  // With clearance.enabled and a trajectory: the space allowance of every link along it, against
+  // the wall as scanned and as sprayed (check_clearance).
+  std::optional<ClearanceReport> clearance;
 };
 
 /// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the

@@ -96,7 +96,7 @@ ExecutedSummary summarise_executed(const ExecutedDeposit& executed);
 
 /// Why a plan is not one the machine can execute as reported (report.json `problems`; the CLI
 /// exits with code 3). code: unreachable_cells | cells_above_level_0 | arm_cannot_follow |
-/// untracked_regions | joint_limits | nozzle_limits | sparse_grid.
+/// untracked_regions | joint_limits | nozzle_limits | sparse_grid | clearance.
 struct PlanProblem {
   std::string code;
   std::string message;  // one line, with the figures
@@ -136,6 +136,8 @@ struct JobSummary {
   double trajectory_rate_hz = 0.0;               // timing.trajectory_rate_hz
   double config_timing_duration_s = 0.0;         // trajectory duration with the config's timing
   std::optional<SwarmSummary> swarm;             // with a trajectory, when the swarm ran or failed
+  std::optional<ClearanceReport> clearance;      // with a trajectory and clearance.enabled
+  double self_margin_m = 0.0;                    // clearance.self_margin_m
   // "ok", or "not_executable" when problems is not empty (plan_problems).
   std::string status = "ok";
   std::vector<PlanProblem> problems;

@@ -17,6 +17,18 @@ namespace shotcrete {
 /// Path of the manipulator URDF bundled with the sources (data/shotcrete_manipulator.urdf).
 std::string bundled_urdf_path();
 
+/// One <collision> element of a link on the chain (URDF geometry: cylinders along their z axis,
+/// boxes, spheres), in the frame of its link.
+struct CollisionShape {
+  enum class Kind { cylinder, box, sphere };
+  std::string link;
+  int frame = 0;  // index into Robot::link_frames(): 0 = base_link, k = the k-th segment of the chain
+  Kind kind = Kind::cylinder;
+  Eigen::Isometry3d origin = Eigen::Isometry3d::Identity();  // <collision><origin> in the link frame
+  double radius_m = 0.0, length_m = 0.0;                      // cylinder; sphere: radius_m
+  Eigen::Vector3d size_m = Eigen::Vector3d::Zero();           // box edges
+};
+
 /// Serial chain base_link -> nozzle_tip read from a URDF. Joint order is the chain order.
 /// Acceleration limits (URDF has none) come from `<shotcrete:limits joint=".." acceleration=".."
 /// [neutral=".."]/>` elements of the same file; every movable joint must have one.
@@ -51,6 +63,13 @@ class Robot {
 
   /// nozzle_tip in the tunnel frame; its z axis is the spray direction. q must have dof() entries.
   Eigen::Isometry3d fk(const Eigen::VectorXd& q) const;
+  /// World pose of base_link (index 0) and of the link at the tip of every chain segment (index k
+  /// = segment k, the last one nozzle_tip): the frames CollisionShape::frame refers to.
+  std::vector<Eigen::Isometry3d> link_frames(const Eigen::VectorXd& q) const;
+  const std::vector<std::string>& link_names() const;  // one per link_frames() entry
+  /// The <collision> shapes of base_link and of every link on the chain (unsupported geometry,
+  /// such as meshes, is an error at load time).
+  const std::vector<CollisionShape>& collision_shapes() const;
   /// 6 x dof geometric Jacobian of nozzle_tip in the tunnel frame (rows: linear, angular).
   Eigen::MatrixXd jacobian(const Eigen::VectorXd& q) const;
   /// Ready posture (the `neutral` attribute of <shotcrete:limits>, else mid-range): default IK seed.

@@ -1,0 +1,208 @@
+// Clearance: point-shape distances in closed form, the FCL octree query against a brute-force
+// minimum over the wall's points, the self-check pairs, and check_clearance's bounded skipping
+// against a check of every sample.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <map>
+#include <random>
+
+#include "shotcrete/collision/clearance.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/timing/trajectory.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+CollisionShape cylinder(double r, double len, const Eigen::Isometry3d& origin = Eigen::Isometry3d::Identity()) {
+  CollisionShape s;
+  s.kind = CollisionShape::Kind::cylinder;
+  s.radius_m = r;
+  s.length_m = len;
+  s.origin = origin;
+  return s;
+}
+
+// Points on a half cylinder of radius R about the x axis (theta in [0, pi]), d in [0, L].
+Points half_cylinder(double R, double L, int n_theta, int n_d) {
+  Points p(n_theta * n_d, 3);
+  for (int i = 0; i < n_theta; ++i)
+    for (int j = 0; j < n_d; ++j) {
+      const double th = M_PI * (i + 0.5) / n_theta;
+      p.row(i * n_d + j) << L * (j + 0.5) / n_d, R * std::cos(th), R * std::sin(th);
+    }
+  return p;
+}
+
+double brute_force(const Points& wall, const CollisionShape& s, const Eigen::Isometry3d& pose) {
+  double best = std::numeric_limits<double>::infinity();
+  for (Eigen::Index i = 0; i < wall.rows(); ++i)
+    best = std::min(best, point_shape_distance(wall.row(i).transpose(), s, pose));
+  return best;
+}
+
+}  // namespace
+
+TEST(Clearance, PointShapeDistanceClosedForms) {
+  const CollisionShape c = cylinder(0.2, 2.0);  // along z, |z| <= 1
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+  EXPECT_NEAR(point_shape_distance({1.0, 0, 0}, c, I), 0.8, 1e-12);        // beside the mantle
+  EXPECT_NEAR(point_shape_distance({0, 0, 3.0}, c, I), 2.0, 1e-12);        // beyond the cap
+  EXPECT_NEAR(point_shape_distance({0.5, 0, 1.4}, c, I), 0.5, 1e-12);      // off the rim: hypot(0.3, 0.4)
+  EXPECT_EQ(point_shape_distance({0.1, 0, 0.5}, c, I), 0.0);               // inside
+  // The same cylinder laid along x by its origin, the link moved by 5 m along y.
+  const CollisionShape cx = cylinder(0.2, 2.0, Eigen::Isometry3d(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY())));
+  const Eigen::Isometry3d moved(Eigen::Translation3d(0, 5, 0));
+  EXPECT_NEAR(point_shape_distance({0.9, 5.0, 1.2}, cx, moved), 1.0, 1e-12);
+  CollisionShape b;
+  b.kind = CollisionShape::Kind::box;
+  b.size_m = {2, 2, 2};
+  EXPECT_NEAR(point_shape_distance({2, 2, 1}, b, I), std::sqrt(2.0), 1e-12);
+  // FCL's shape-shape distance agrees with the closed form of two parallel cylinders.
+  const Eigen::Isometry3d beside(Eigen::Translation3d(1.0, 0, 0));
+  EXPECT_NEAR(shape_distance(c, I, c, beside), 0.6, 1e-6);
+  EXPECT_EQ(shape_distance(c, I, c, Eigen::Isometry3d(Eigen::Translation3d(0.3, 0, 0))), 0.0);
+}
+
+// The octree query reads at most the leaf's diagonal short of the true distance to the points,
+// never long, on random cylinders around a half-cylinder wall.
+TEST(Clearance, OctreeDistanceAgainstBruteForce) {
+  const Points wall = half_cylinder(5.6, 1.2, 400, 24);
+  for (double res : {0.05, 0.02}) {
+    const WallOctree tree(wall, res);
+    EXPECT_GT(tree.occupied_leaves(), 1000u);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> U(0.0, 1.0);
+    double worst_short = 0.0;
+    int touching = 0;
+    for (int k = 0; k < 200; ++k) {
+      const CollisionShape s = cylinder(0.05 + 0.2 * U(rng), 0.2 + 2.0 * U(rng));
+      const Eigen::Vector3d axis = Eigen::Vector3d(U(rng) - 0.5, U(rng) - 0.5, U(rng) - 0.5).normalized();
+      const double r = 3.0 + 3.0 * U(rng), th = M_PI * U(rng);
+      Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+      pose.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+      pose.translation() = Eigen::Vector3d(0.6, r * std::cos(th), r * std::sin(th));
+      const double exact = brute_force(wall, s, pose);
+      Eigen::Vector3d closest;
+      const double d = tree.distance(s, pose, &closest);
+      EXPECT_LE(d, exact + 1e-6) << "octree read long at pose " << k;
+      if (exact > std::sqrt(3.0) * res) {
+        EXPECT_GE(d, exact - std::sqrt(3.0) * res - 1e-6) << "pose " << k;
+        worst_short = std::max(worst_short, exact - d);
+        // The closest point lies on the wall's leaves: within a leaf diagonal of radius 5.6.
+        EXPECT_NEAR(std::hypot(closest.y(), closest.z()), 5.6, std::sqrt(3.0) * res + 1e-6);
+      } else {
+        ++touching;
+      }
+    }
+    EXPECT_LT(touching, 200);
+    RecordProperty("worst_short_mm_at_" + std::to_string(res), std::to_string(worst_short * 1e3));
+  }
+  EXPECT_THROW(WallOctree(Points(0, 3), 0.05), std::invalid_argument);
+  EXPECT_THROW(WallOctree(wall, 0.0), std::invalid_argument);
+  Points bad = wall;
+  bad(3, 1) = std::nan("");
+  EXPECT_THROW(WallOctree(bad, 0.05), std::invalid_argument);
+}
+
+TEST(Clearance, RobotShapesFramesAndSelfPairs) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const auto& shapes = robot.collision_shapes();
+  ASSERT_EQ(shapes.size(), 9u);  // base_link, turret, boom, boom_extension, boom_head, arm, arm_extension, nozzle_head, nozzle
+  EXPECT_EQ(shapes.front().link, "base_link");
+  EXPECT_EQ(shapes.back().link, "nozzle");
+  const Eigen::VectorXd q = robot.neutral();
+  const auto frames = robot.link_frames(q);
+  ASSERT_EQ(frames.size(), robot.link_names().size());
+  EXPECT_EQ(robot.link_names().back(), "nozzle_tip");
+  EXPECT_TRUE(frames.back().isApprox(robot.fk(q), 1e-12));  // the last frame is the tool
+  // The nozzle cylinder ends at the tip: the tip point is on its cap (distance 0), a point 1 m
+  // beyond the tip along the spray axis is 1 m away.
+  const CollisionShape& nozzle = shapes.back();
+  const Eigen::Isometry3d& nozzle_frame = frames[nozzle.frame];
+  EXPECT_NEAR(point_shape_distance(frames.back().translation(), nozzle, nozzle_frame), 0.0, 1e-9);
+  const Eigen::Vector3d ahead = frames.back().translation() + frames.back().linear().col(2);
+  EXPECT_NEAR(point_shape_distance(ahead, nozzle, nozzle_frame), 1.0, 1e-9);
+  // Self pairs: no neighbours, none that touch at neutral (the telescopes inside their booms).
+  const auto pairs = self_check_pairs(robot);
+  EXPECT_FALSE(pairs.empty());
+  for (const auto& [a, b] : pairs) {
+    EXPECT_GT(std::abs(shapes[a].frame - shapes[b].frame), 1);
+    EXPECT_GT(shape_distance(shapes[a], frames[shapes[a].frame], shapes[b], frames[shapes[b].frame]), 0.0);
+  }
+}
+
+// check_clearance's skipping gives the minima and counts of a check of every sample.
+TEST(Clearance, BoundedSkippingEqualsEverySample) {
+  const Robot robot = Robot::load(RobotConfig{});
+  // The arm swept by the slew and the boom: 400 samples at 50 Hz.
+  TimedTrajectory traj;
+  const Eigen::VectorXd q0 = robot.neutral();
+  for (int k = 0; k < 400; ++k) {
+    Eigen::VectorXd q = q0;
+    q[0] += 1.2 * std::sin(k * 0.02);
+    q[1] = std::clamp(q0[1] + 0.6 * std::sin(k * 0.013), robot.lower_limits()[1], robot.upper_limits()[1]);
+    q[2] = std::clamp(1.5 + 1.5 * std::sin(k * 0.03), robot.lower_limits()[2], robot.upper_limits()[2]);
+    traj.t_s.push_back(k * 0.02);
+    traj.q.push_back(q);
+  }
+  // A wall close enough that some samples fall below the margins: half cylinder of 4.5 m about
+  // an axis at the base's height.
+  Points wall = half_cylinder(4.5, 6.0, 300, 60);
+  wall.col(0).array() -= 3.0;
+  const WallOctree tree(wall, 0.05);
+  ClearanceConfig cfg;
+  cfg.link_margin_m = 1.0;
+  const ClearanceReport rep = check_clearance(robot, traj, tree, cfg);
+  // Every sample, every shape, no skipping.
+  const auto& shapes = robot.collision_shapes();
+  std::map<std::string, double> min_m;
+  std::map<std::string, int> below;
+  for (std::size_t k = 0; k < traj.size(); ++k) {
+    const auto frames = robot.link_frames(traj.q[k]);
+    std::map<std::string, bool> b;
+    for (const auto& s : shapes) {
+      const double d = tree.distance(s, frames[s.frame]);
+      min_m[s.link] = min_m.count(s.link) ? std::min(min_m[s.link], d) : d;
+      const double margin = s.link.rfind("nozzle", 0) == 0 ? cfg.nozzle_margin_m : cfg.link_margin_m;
+      b[s.link] = b[s.link] || d < margin;
+    }
+    for (const auto& [l, v] : b) below[l] += v ? 1 : 0;
+  }
+  int total_below = 0;
+  for (const auto& lc : rep.links) {
+    EXPECT_GE(lc.min_m, min_m.at(lc.link) - 1e-12) << lc.link;  // a sample it skipped may be closer,
+    EXPECT_LE(lc.min_m, min_m.at(lc.link) + 0.01) << lc.link;   // by less than the tolerance
+    EXPECT_EQ(lc.samples_below_margin, below.at(lc.link)) << lc.link;
+    total_below += lc.samples_below_margin;
+  }
+  EXPECT_GT(total_below, 0);                                       // the test exercises the count
+  EXPECT_LT(rep.wall_queries, static_cast<long long>(traj.size() * shapes.size()));  // and the skipping
+  EXPECT_EQ(rep.samples, 400);
+}
+
+// A pose that puts the boom through the wall reads 0 for the boom and counts below the margin.
+TEST(Clearance, CollidingPoseIsFound) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const Eigen::VectorXd q = robot.neutral();
+  const auto frames = robot.link_frames(q);
+  const auto& shapes = robot.collision_shapes();
+  const auto boom = std::find_if(shapes.begin(), shapes.end(), [](const CollisionShape& s) { return s.link == "boom"; });
+  ASSERT_NE(boom, shapes.end());
+  // A small plane of points through the middle of the boom's cylinder.
+  const Eigen::Vector3d mid = frames[boom->frame] * boom->origin * Eigen::Vector3d::Zero();
+  Points plane(21 * 21, 3);
+  for (int i = 0; i < 21; ++i)
+    for (int j = 0; j < 21; ++j) plane.row(i * 21 + j) = (mid + Eigen::Vector3d(0, 0.05 * (i - 10), 0.05 * (j - 10))).transpose();
+  const WallOctree tree(plane, 0.05);
+  TimedTrajectory traj;
+  traj.t_s = {0.0};
+  traj.q = {q};
+  const ClearanceReport rep = check_clearance(robot, traj, tree, ClearanceConfig{});
+  const auto it = std::find_if(rep.links.begin(), rep.links.end(), [](const LinkClearance& l) { return l.link == "boom"; });
+  ASSERT_NE(it, rep.links.end());
+  EXPECT_EQ(it->min_m, 0.0);
+  EXPECT_EQ(it->samples_below_margin, 1);
+  EXPECT_GE(rep.samples_below_margin(), 1);
+}
