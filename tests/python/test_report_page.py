@@ -269,3 +269,26 @@ def test_the_browser_check_fails_on_broken_pages(job, tmp_path):
     assert rc == 1 and any("blank" in e for e in result["errors"])
     assert any("'#verdict' missing" in e for e in result["errors"])
     assert any("text not rendered: 'Concrete to spray'" in e for e in result["errors"])
+
+
+@pytest.mark.parametrize("which", ["job", "no_reach_job"])
+def test_where_cells_are_off_covers_them_all(which, request):
+    """The summary's 'where' of the over-filled and missing cells (groups with d and s ranges and a
+    cell count, up to four named) against cells.csv: the counts add up and every off cell lies in a
+    named group's box."""
+    out, rep, rows, _ = request.getfixturevalue(which)
+    html = (out / "report.html").read_text()
+    for label, off in (("over-filled by more than", lambda lv: lv == -1), ("missing more than", lambda lv: lv >= 1)):
+        cell_rows = [r for r in rows if off(int(r["level"]))]
+        row = re.search(rf"<th>Cells {label} 50 mm</th><td>(.*?)</td>", html).group(1)
+        groups = [tuple(map(float, g[:4])) + (int(g[4]),) for g in
+                  re.findall(r"d ([\d.]+)–([\d.]+) m, s ([\d.]+)–([\d.]+) m \((\d+) cells?", row)]
+        if "more groups" in row:
+            assert len(groups) == 4 and sum(g[4] for g in groups) < len(cell_rows)
+        else:
+            assert sum(g[4] for g in groups) == len(cell_rows)
+            for r in cell_rows:
+                d, s = float(r["d_m"]), float(r["s_m"])
+                assert any(g[0] - 1e-3 <= d <= g[1] + 1e-3 and g[2] - 1e-3 <= s <= g[3] + 1e-3 for g in groups), r
+        assert bool(groups) == bool(cell_rows)
+    assert which == "job" or rep["levels_after"].get("-1", 0) > 0  # the test sees over-filled cells
