@@ -125,7 +125,7 @@ def level_map(grid, levels, path: Path, title: str = "Priority levels") -> Path:
     fig, ax, extent = _unrolled_axes(grid, title)
     im = ax.imshow(np.ma.masked_invalid(lv), origin="lower", extent=extent, aspect="auto", cmap=cmap, norm=norm,
                    interpolation="nearest")
-    cb = fig.colorbar(im, ax=ax, ticks=keys, label="level (0 = within +-50 mm; 7 = 7 and above)")
+    cb = fig.colorbar(im, ax=ax, ticks=keys, label="level (0 = within ±50 mm; 7 = 7 and above)")
     cb.ax.set_yticklabels([str(k) for k in keys])
     return save(fig, path)
 
