@@ -29,8 +29,9 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
     """Run the whole chain on ``cloud`` (or the cloud a loader returns, called once ``out`` is
     locked, so a second job on ``out`` fails before reading anything) and write report.json,
     report.html (with plotly.min.js and figures/ beside it), plan.json, cells.csv and the clouds to
-    ``out`` (locked, written beside it and moved into place when complete: ``outdir.job_output``). ``inputs``: the files the job read by role ("cloud", "config"), hashed
-    into report.json's ``provenance``. Returns the report as a dict: the core's job summary
+    ``out`` (locked, written beside it and moved into place when complete: ``outdir.job_output``).
+    ``inputs``: the files the job read by role ("cloud", "config"), hashed into report.json's
+    ``provenance``. Returns the report as a dict: the core's job summary
     (``_core.summarise_job``) plus ``timings_s``, ``files`` and ``provenance``."""
     progress = progress or _no_progress
     inputs = {k: Path(v) for k, v in (inputs or {}).items() if v is not None}
