@@ -303,7 +303,8 @@ def summary_html(report: dict, facts: PageFacts) -> str:
         ("TD before spraying", " · ".join(
             f"{name} {_v('td_before_' + k, fmt_mm(report['td_before_mm'][k]))}"
             for k, name in (("mean", "mean"), ("min", "min"), ("max", "max")))),
-        ("Bay length (grid along the axis)", _v("bay_length", f"{length:.2f} m")),
+        ("Bay length (grid along the axis)", _v("bay_length", f"{length:.2f} m")
+         + f" ({round(length / facts.cell_size_m)} cells of {facts.cell_size_m * 100:g} cm)"),
         ("Concrete missing (required)", _volume("required", report["required_volume_m3"], length)),
     ]
     if ex:
