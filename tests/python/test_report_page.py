@@ -292,3 +292,11 @@ def test_where_cells_are_off_covers_them_all(which, request):
                 assert any(g[0] - 1e-3 <= d <= g[1] + 1e-3 and g[2] - 1e-3 <= s <= g[3] + 1e-3 for g in groups), r
         assert bool(groups) == bool(cell_rows)
     assert which == "job" or rep["levels_after"].get("-1", 0) > 0  # the test sees over-filled cells
+
+
+def test_number_formats_round_to_what_they_mean():
+    assert [report.fmt_sig(v) for v in (5.4512, 0.027509, 436.4, 1234.5, 0.0)] == ["5.45", "0.0275", "436", "1234", "0"]
+    assert [report.fmt_duration(s) for s in (4985.33, 369.4, 59.6, 0.2)] == ["1 h 23 min 05 s", "6 min 09 s", "1 min 00 s", "0 s"]
+    assert [report.fmt_pct(*a) for a in ((8439, 8448), (8447.9, 8448), (1, 30000), (0, 5), (5, 5))] == [
+        "99.9 %", "&gt;99.9 %", "&lt;0.1 %", "0.0 %", "100.0 %"]
+    assert [report.fmt_mm(v) for v in (9.16, -59.4, 0.449)] == ["9.2 mm", "-59 mm", "0.4 mm"]
