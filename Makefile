@@ -4,13 +4,18 @@ PY := $(VENV)/bin/python
 OUT ?= out/demo
 export CMAKE_CXX_COMPILER_LAUNCHER := ccache
 
-.PHONY: setup demo test test-cpp test-python test-ros test-asan screenshot bench regression clean
+.PHONY: setup demo report-check test test-cpp test-python test-ros test-asan screenshot bench regression clean
 
 setup:
 	bash scripts/setup.sh
 
 demo: setup
 	$(VENV)/bin/shotcrete demo --out $(OUT)
+
+# The demo's report.html in headless Chromium (fails on a broken page); first screen in out/report_demo.png.
+report-check: demo
+	$(PY) scripts/check_report_page.py $(OUT)/report.html --screenshot out/report_demo.png \
+	  --first-screen "#verdict" --first-screen ".cards" --first-screen "#summary-table" --click ".updatemenu-button"
 
 # ctest (C++ core) + pytest (bindings, CLI) + rostest (ROS node); fails if any suite fails or runs nothing.
 test: setup

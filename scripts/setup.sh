@@ -14,6 +14,7 @@ APT_PACKAGES=(
   libpcl-conversions-dev librostest-dev python3-rostest python3-rospy python3-roslaunch
   ros-robot-state-publisher python3-sensor-msgs python3-visualization-msgs python3-std-srvs
   python3-tf2-msgs libtf2-msgs-dev rviz xvfb xauth imagemagick
+  chromium  # the report page's browser test (scripts/check_report_page.py)
 )
 
 missing=()
@@ -38,7 +39,7 @@ if [ ! -f "$stamp" ]; then
   echo "[setup] installing Python dependencies"
   "$VENV/bin/pip" install -q --upgrade pip
   "$VENV/bin/pip" install -q "scikit-build-core>=0.10" "pybind11>=2.12" \
-    numpy pyyaml typer rich matplotlib laspy lazrs pye57 pytest
+    numpy pyyaml typer rich matplotlib plotly laspy lazrs pye57 pytest
   touch "$stamp"
 fi
 

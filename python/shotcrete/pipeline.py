@@ -1,6 +1,6 @@
 """The end-to-end job behind ``shotcrete demo`` and ``shotcrete plan``, in named steps:
 scan -> surface -> plan for the arm -> summary (the core's JobSummary) -> figures -> files
-(report.json, report.html, plan.json, trajectory.npz, clouds)."""
+(report.json, report.html, plan.json, trajectory.npz, cells.csv, clouds)."""
 from __future__ import annotations
 
 import json
@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import _core, plots, report
+from . import _core, plots, report, view3d
 from .io import write_cloud
 from .outdir import job_output
 from .planning import plan_surface
@@ -27,10 +27,11 @@ def _no_progress(stage: str, fraction: float) -> None:
 def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config, out: Path,
             progress: Progress | None = None, inputs: dict[str, Path] | None = None) -> dict:
     """Run the whole chain on ``cloud`` (or the cloud a loader returns, called once ``out`` is
-    locked, so a second job on ``out`` fails before reading anything) and write report.json, report.html, plan.json, figures and
-    the sprayed cloud to ``out`` (locked, written beside it and moved into place when complete:
-    ``outdir.job_output``). ``inputs``: the files the job read by role ("cloud", "config"), hashed
-    into report.json's ``provenance``. Returns the report as a dict: the core's job summary
+    locked, so a second job on ``out`` fails before reading anything) and write report.json,
+    report.html (with plotly.min.js and figures/ beside it), plan.json, cells.csv and the clouds to
+    ``out`` (locked, written beside it and moved into place when complete: ``outdir.job_output``).
+    ``inputs``: the files the job read by role ("cloud", "config"), hashed into report.json's
+    ``provenance``. Returns the report as a dict: the core's job summary
     (``_core.summarise_job``) plus ``timings_s``, ``files`` and ``provenance``."""
     progress = progress or _no_progress
     inputs = {k: Path(v) for k, v in (inputs or {}).items() if v is not None}
@@ -51,13 +52,14 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         t_report = time.perf_counter()
         figures = figures_step(tmp / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
         files = files_step(tmp, surface, arm_plan, frame, robot)
+        facts = page_step(tmp, surface, arm_plan, config, robot)
         timings["report"] = time.perf_counter() - t_report
         timings["total"] = time.perf_counter() - t0
         result["timings_s"] = timings
         result["files"] = files
         result["provenance"] = report.provenance(given_config, given_cloud, inputs)
         report.write_json(tmp / "report.json", result)
-        report.write_html(tmp, result, [(cap, str(p.relative_to(tmp))) for cap, p in figures])
+        report.write_html(tmp, result, [(g, cap, str(p.relative_to(tmp))) for g, cap, p in figures], facts)
     progress("report", 1.0)
     return result
 
@@ -82,51 +84,77 @@ def plan_step(surface, config, robot, progress: Progress, timings: dict):
     return arm_plan
 
 
-def figures_step(figs_dir: Path, surface, plan, summary, executed=None) -> list[tuple[str, Path]]:
-    """The report's figures as (caption, file): TD and levels before, each round's passes, TD and
-    levels after it (the planner's estimate), cells per level per round, speeds, the residual (of
-    the executed deposit when there is one: ``executed``, an ExecutedDeposit) and the planner's."""
+def figures_step(figs_dir: Path, surface, plan, summary, executed=None) -> list[tuple[str, str, Path]]:
+    """The report's figures as (group, caption, file), group "summary" | "before" | "round N" |
+    "after": the thickness classes after spraying, TD and levels before, each round's passes, TD
+    and levels after it (the planner's estimate), then the residual (of the executed deposit when
+    there is one: ``executed``, an ExecutedDeposit) and the planner's, cells per level per round,
+    speeds. Every TD map on one colour scale (plots.TD_BOUNDS_MM)."""
     figs_dir.mkdir(parents=True, exist_ok=True)
     grid = surface.grid
     valid = np.asarray(grid.valid).reshape(-1)
     td_before = np.asarray(grid.td_m).reshape(-1)
-    vmax = max(50.0, float(np.nanmax(np.abs(td_before[valid]))) * 1000.0)
+
+    def levels_of(td):
+        return [_core.level_of_td_mm(x * 1000.0) if ok else _core.NO_DATA_LEVEL for x, ok in zip(td, valid)]
+
+    td_final = np.asarray(executed.td_after_m if executed is not None else plan.td_after_m)
+    which = "executed" if executed is not None else "planned"
+    tol = report.LEVEL0_TOLERANCE_MM
     figures = [
-        ("TD before spraying", plots.td_map(grid, figs_dir / "td_before.png", "TD before spraying", vmax)),
-        ("Levels before spraying", plots.level_map(grid, surface.levels, figs_dir / "levels_before.png",
-                                                   "Levels before spraying")),
+        ("summary", f"Thickness classes after spraying ({which}): missing more than {tol:.0f} mm, within "
+                    f"±{tol:.0f} mm, over-filled by more than {tol:.0f} mm",
+         plots.class_map(grid, levels_of(td_final), figs_dir / "classes_after.png",
+                         f"Thickness after spraying ({which})", tol)),
+        ("before", "TD before spraying", plots.td_map(grid, figs_dir / "td_before.png", "TD before spraying")),
+        ("before", "Levels before spraying", plots.level_map(grid, surface.levels, figs_dir / "levels_before.png",
+                                                             "Levels before spraying")),
     ]
     counts, labels = [dict(summary.levels_before)], ["before"]
     for i, rnd in enumerate(plan.rounds):
         n = i + 1
+        group = f"round {n} ({rnd.kind}, level {rnd.level})"
         tracks = _pass_tracks(rnd, surface)
         td_round_before = td_before if i == 0 else np.asarray(plan.rounds[i - 1].td_after_m)
-        figures.append((f"Round {n} ({rnd.kind}, level {rnd.level}): passes over the TD map before it",
+        figures.append((group, f"Round {n} ({rnd.kind}, level {rnd.level}): passes over the TD map before it",
                         plots.passes_map(grid, td_round_before, tracks, figs_dir / f"round{n}_passes.png",
-                                         f"Round {n}: {len(tracks)} passes", vmax)))
+                                         f"Round {n}: {len(tracks)} passes")))
         td_after = np.asarray(rnd.td_after_m)
-        figures.append((f"TD after round {n}", plots.td_map_flat(grid, td_after, figs_dir / f"round{n}_td_after.png",
-                                                                 f"TD after round {n}", vmax)))
-        lv = [_core.level_of_td_mm(x * 1000.0) if ok else _core.NO_DATA_LEVEL for x, ok in zip(td_after, valid)]
-        figures.append((f"Levels after round {n}",
-                        plots.level_map(grid, lv, figs_dir / f"round{n}_levels.png", f"Levels after round {n}")))
+        figures.append((group, f"TD after round {n}", plots.td_map_flat(grid, td_after, figs_dir / f"round{n}_td_after.png",
+                                                                        f"TD after round {n}")))
+        figures.append((group, f"Levels after round {n}",
+                        plots.level_map(grid, levels_of(td_after), figs_dir / f"round{n}_levels.png",
+                                        f"Levels after round {n}")))
         counts.append(dict(rnd.levels_after))
         labels.append(f"after round {n}")
-    figures.append(("Cells per level, per round", plots.level_counts_chart(counts, labels, figs_dir / "level_counts.png")))
-    if plan.rounds:
-        figures.append(("Nozzle speed per pass", plots.speeds_chart(plan, figs_dir / "speeds.png")))
     if executed is not None:
-        figures.append(("Residual after spraying, executed along the trajectory with the pump's flow (TD, mm)",
+        figures.append(("after", "Residual after spraying, executed along the trajectory with the pump's flow (TD, mm)",
                         plots.td_map_flat(grid, np.asarray(executed.td_after_m), figs_dir / "td_after.png",
-                                          "Residual TD after spraying (executed)", 50.0)))
-        figures.append(("Residual the planner estimated (TD, mm)",
+                                          "Residual TD after spraying (executed)")))
+        figures.append(("after", "Residual the planner estimated (TD, mm)",
                         plots.td_map_flat(grid, np.asarray(plan.td_after_m), figs_dir / "td_after_planned.png",
-                                          "Residual TD after spraying (planned)", 50.0)))
+                                          "Residual TD after spraying (planned)")))
     else:
-        figures.append(("Residual after spraying, the planner's estimate: no trajectory (TD, mm)",
+        figures.append(("after", "Residual after spraying, the planner's estimate: no trajectory (TD, mm)",
                         plots.td_map_flat(grid, np.asarray(plan.td_after_m), figs_dir / "td_after.png",
-                                          "Residual TD after spraying (planned)", 50.0)))
+                                          "Residual TD after spraying (planned)")))
+    figures.append(("after", "Cells per level, per round",
+                    plots.level_counts_chart(counts, labels, figs_dir / "level_counts.png")))
+    if plan.rounds:
+        figures.append(("after", "Nozzle speed per pass", plots.speeds_chart(plan, figs_dir / "speeds.png")))
     return figures
+
+
+def page_step(out: Path, surface, arm_plan, config, robot=None) -> report.PageFacts:
+    """What report.html shows beside report.json: the summary's per-cell facts (report.page_facts)
+    and the 3-D view (view3d, writes plotly.min.js into ``out``)."""
+    executed = arm_plan.executed
+    table = report.cell_table(surface, arm_plan.plan, executed)
+    td_after = executed.td_after_m if executed is not None else arm_plan.plan.td_after_m
+    base = np.asarray(robot.base_pose)[:3, 3] if robot is not None else None
+    view = view3d.figure_html(out, surface, arm_plan.plan, td_after, arm_plan.trajectory, base,
+                              "after spraying" if executed is not None else "after spraying (planned)")
+    return report.page_facts(surface, table, config, view)
 
 
 def _pass_tracks(plan_round, surface):
@@ -143,8 +171,8 @@ def _pass_tracks(plan_round, surface):
 
 
 def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, robot=None) -> dict:
-    """plan.json, trajectory.npz (when timed), surface.ply and sprayed.ply (the executed deposit's
-    wall when timed), every coordinate in the input's frame (``frame``'s origin added back);
+    """plan.json, trajectory.npz (when timed), cells.csv (report.write_cells_csv), surface.ply and
+    sprayed.ply (the executed deposit's wall when timed), every coordinate in the input's frame (``frame``'s origin added back);
     returns report.json's ``files`` entry."""
     plan, trajectory = arm_plan.plan, arm_plan.trajectory
     frame = frame or LocalFrame(np.zeros(3))
@@ -157,6 +185,9 @@ def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, ro
                             spraying=trajectory.spraying, pass_index=trajectory.pass_index,
                             region_index=trajectory.region_index)
         files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle
+    # Per cell, for surveyors' own tools: TD before, planned and executed deposit, residual, level.
+    report.write_cells_csv(out / "cells.csv", report.cell_table(surface, plan, arm_plan.executed))
+    files["cells"] = "cells.csv"
     write_cloud(out / "surface.ply", frame.cloud_to_input(surface.cloud),
                 _core.point_td(surface.cloud, surface.axis, surface.profile))
     # The wall as the trajectory sprays it; the planner's estimate without a trajectory.

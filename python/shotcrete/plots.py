@@ -30,6 +30,22 @@ def grid_extent(grid) -> list[float]:
     return [grid.d0_m, grid.d0_m + grid.n_d * grid.cell_size_m, s0, s0 + grid.n_theta * grid.cell_size_m]
 
 
+# Where the crown and the springlines lie on the unrolled wall: theta [rad] from the right springline.
+WALL_MARKS = ((0.0, "right springline"), (np.pi / 2, "crown"), (np.pi, "left springline"))
+
+
+def _mark_wall(ax, grid, extent) -> None:
+    """Dashed lines at the crown and springlines that fall on the map (s = theta * r_design)."""
+    r = grid.profile.radius_m
+    for theta, name in WALL_MARKS:
+        s = theta * r
+        if extent[2] - 1e-9 <= s <= extent[3] + 1e-9:
+            ax.axhline(s, color="k", lw=0.8, ls="--", alpha=0.7)
+            below = s > 0.5 * (extent[2] + extent[3])  # labels stay inside the map
+            ax.text(extent[0], s, f" {name}", ha="left", va="top" if below else "bottom", fontsize=7,
+                    bbox={"facecolor": "white", "alpha": 0.6, "edgecolor": "none", "pad": 0.5})
+
+
 def _unrolled_axes(grid, title: str):
     extent = grid_extent(grid)
     height = 7.0
@@ -38,21 +54,61 @@ def _unrolled_axes(grid, title: str):
     ax.set_xlabel("d along the axis [m]")
     ax.set_ylabel("s along the wall from the right springline [m]")
     ax.set_title(title)
+    _mark_wall(ax, grid, extent)
     return fig, ax, extent
 
 
-def td_map(grid, path: Path, title: str = "TD (to-spray thickness)", vmax_mm: float | None = None) -> Path:
+# One TD colour scale for every map of a report (before, each round, after; the 3-D view too):
+# bands in mm, fine around the level-0 band (-50, 50) so residuals show on the same scale as the
+# scan; beyond the outer bounds the end colours.
+TD_BOUNDS_MM = (-100.0, -50.0, -20.0, -5.0, 5.0, 20.0, 50.0, 100.0, 150.0, 200.0, 300.0)
+
+
+def td_colours() -> list[str]:
+    """One colour per TD band: below the first bound, between bounds, above the last (hex)."""
+    cmap = plt.get_cmap("RdYlBu_r")
+    n = len(TD_BOUNDS_MM) + 1
+    return [matplotlib.colors.to_hex(cmap((i + 0.5) / n)) for i in range(n)]
+
+
+def _td_norm():
+    colours = td_colours()
+    cmap = ListedColormap(colours[1:-1]).with_extremes(under=colours[0], over=colours[-1])
+    return cmap, BoundaryNorm(TD_BOUNDS_MM, cmap.N)
+
+
+def td_map(grid, path: Path, title: str = "TD (to-spray thickness)") -> Path:
+    """TD map on the report's one TD scale (TD_BOUNDS_MM)."""
     td_mm = np.asarray(grid.td_m) * 1000.0
     fig, ax, extent = _unrolled_axes(grid, title)
-    finite = td_mm[np.isfinite(td_mm)]
-    vmax = vmax_mm if vmax_mm is not None else (max(50.0, float(np.nanmax(np.abs(finite)))) if finite.size else 50.0)
+    cmap, norm = _td_norm()
     im = ax.imshow(np.ma.masked_invalid(td_mm), origin="lower", extent=extent, aspect="auto",
-                   cmap="RdYlBu_r", vmin=-vmax, vmax=vmax, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="TD [mm] (positive: concrete missing)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+                   cmap=cmap, norm=norm, interpolation="nearest")
+    fig.colorbar(im, ax=ax, extend="both", ticks=TD_BOUNDS_MM, label="TD [mm] (positive: concrete missing)")
+    return save(fig, path)
+
+
+# Thickness classes of the finished wall (the core's levels: -1 over-filled, 0 within, >= 1 missing).
+CLASS_COLOURS = {"missing": "#d7191c", "within": "#1a9641", "over": "#74add1"}
+
+
+def class_map(grid, levels, path: Path, title: str, tolerance_mm: float) -> Path:
+    """Three classes per cell from its level: missing (level >= 1: TD >= tolerance), within
+    (level 0), over-filled (level -1: TD < -tolerance); grey where the scan has no data."""
+    lv = np.asarray(levels, dtype=float).reshape(grid.n_theta, grid.n_d)
+    cls = np.full(lv.shape, np.nan)
+    cls[lv == -1] = 0
+    cls[lv == 0] = 1
+    cls[(lv >= 1) & (lv != _core.NO_DATA_LEVEL)] = 2
+    cmap = ListedColormap([CLASS_COLOURS["over"], CLASS_COLOURS["within"], CLASS_COLOURS["missing"]]).with_extremes(
+        bad="#bbbbbb")
+    fig, ax, extent = _unrolled_axes(grid, title)
+    im = ax.imshow(np.ma.masked_invalid(cls), origin="lower", extent=extent, aspect="auto", cmap=cmap,
+                   vmin=-0.5, vmax=2.5, interpolation="nearest")
+    cb = fig.colorbar(im, ax=ax, ticks=[0, 1, 2])
+    t = f"{tolerance_mm:.0f}"
+    cb.ax.set_yticklabels([f"over-filled\n> {t} mm", f"within\n±{t} mm", f"missing\n> {t} mm"])
+    return save(fig, path)
 
 
 LEVEL_COLOURS = {-1: "#2c7bb6", 0: "#1a9641", 1: "#a6d96a", 2: "#ffffbf", 3: "#fdae61", 4: "#f46d43",
@@ -69,12 +125,9 @@ def level_map(grid, levels, path: Path, title: str = "Priority levels") -> Path:
     fig, ax, extent = _unrolled_axes(grid, title)
     im = ax.imshow(np.ma.masked_invalid(lv), origin="lower", extent=extent, aspect="auto", cmap=cmap, norm=norm,
                    interpolation="nearest")
-    cb = fig.colorbar(im, ax=ax, ticks=keys, label="level (0 = within +-50 mm; 7 = 7 and above)")
+    cb = fig.colorbar(im, ax=ax, ticks=keys, label="level (0 = within ±50 mm; 7 = 7 and above)")
     cb.ax.set_yticklabels([str(k) for k in keys])
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def level_counts_chart(rounds: list[dict[int, int]], labels: list[str], path: Path) -> Path:
@@ -95,7 +148,7 @@ def level_counts_chart(rounds: list[dict[int, int]], labels: list[str], path: Pa
     return path
 
 
-def td_map_flat(grid, td_flat_m, path: Path, title: str, vmax_mm: float | None = None) -> Path:
+def td_map_flat(grid, td_flat_m, path: Path, title: str) -> Path:
     """TD map from a flat per-cell array (row * n_d + col), as the planner returns it."""
 
     class _View:
@@ -105,15 +158,17 @@ def td_map_flat(grid, td_flat_m, path: Path, title: str, vmax_mm: float | None =
     for name in ("profile", "theta0_rad", "d0_m", "n_d", "n_theta", "cell_size_m"):
         setattr(view, name, getattr(grid, name))
     view.td_m = np.asarray(td_flat_m).reshape(grid.n_theta, grid.n_d)
-    return td_map(view, path, title, vmax_mm)
+    return td_map(view, path, title)
 
 
-def passes_map(grid, td_flat_m, tracks, path: Path, title: str, vmax_mm: float) -> Path:
+def passes_map(grid, td_flat_m, tracks, path: Path, title: str) -> Path:
     """Pass tracks (d, s) over the TD map, coloured by nozzle speed."""
     fig, ax, extent = _unrolled_axes(grid, title)
     td = np.asarray(td_flat_m).reshape(grid.n_theta, grid.n_d) * 1000.0
-    ax.imshow(np.ma.masked_invalid(td), origin="lower", extent=extent, aspect="auto", cmap="Greys",
-              vmin=-vmax_mm, vmax=vmax_mm, interpolation="nearest")
+    # The TD underneath in grey on the report's TD bands (the colours are the speeds').
+    grey = ListedColormap(plt.get_cmap("Greys")(np.linspace(0.05, 0.6, len(TD_BOUNDS_MM) + 1)))
+    ax.imshow(np.ma.masked_invalid(td), origin="lower", extent=extent, aspect="auto", cmap=grey,
+              norm=BoundaryNorm(TD_BOUNDS_MM, grey.N, extend="both"), interpolation="nearest")
     if tracks:
         speeds = np.array([t[2] for t in tracks])
         norm = matplotlib.colors.Normalize(vmin=speeds.min(), vmax=max(speeds.max(), speeds.min() + 1e-3))

@@ -117,7 +117,8 @@ def test_rerun_without_trajectory_leaves_no_stale_file(previous):
     assert report["status"] == "not_executable" and "arm_cannot_follow" in [p["code"] for p in report["problems"]]
     assert not (out / "trajectory.npz").exists()
     assert {f for f in _snapshot(out) if not f.startswith("figures/")} == {
-        ".shotcrete-output", "report.json", "report.html", "plan.json", "surface.ply", "sprayed.ply"}
+        ".shotcrete-output", "report.json", "report.html", "plotly.min.js", "cells.csv", "plan.json", "surface.ply",
+        "sprayed.ply"}
     assert _snapshot(out.with_name("demo.prev")) == snap
     assert _leftovers(out) == []
     _assert_complete(out)
