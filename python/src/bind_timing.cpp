@@ -462,6 +462,16 @@ void bind_timing(py::module_& m) {
                              [](const ArmPlan& a) -> py::object { return a.clearance ? py::cast(*a.clearance) : py::none(); },
                              "ClearanceReport of the trajectory (clearance.enabled), or None");
   m.def(
+      "arm_clearance",
+      [](const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed, const Robot& robot,
+         const ClearanceConfig& config, const ProgressFn& progress) {
+        py::gil_scoped_release release;
+        return arm_clearance(surface, trajectory, executed, robot, config, progress);
+      },
+      py::arg("surface"), py::arg("trajectory"), py::arg("executed"), py::arg("robot"), py::arg("config"),
+      py::arg("progress") = nullptr,
+      "check_clearance of the trajectory against the wall as scanned and as sprayed (ArmPlan.clearance).");
+  m.def(
       "plan_for_arm",
       [](const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
         return plan_for_arm(surface, config, robot, progress);

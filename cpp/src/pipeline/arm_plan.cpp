@@ -141,6 +141,20 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
 
 }  // namespace
 
+ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed,
+                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress) {
+  // The wall as scanned and as sprayed: concrete only grows toward the arm, so the union holds
+  // every surface the arm meets during the job.
+  const Points& scan = surface.cloud.xyz;
+  const Points& sprayed = executed.wall.surface.cloud.xyz;
+  Points wall(scan.rows() + sprayed.rows(), 3);
+  wall << scan, sprayed;
+  const WallOctree octree(wall, config.octree_resolution_m);
+  ClearanceReport rep = check_clearance(robot, trajectory, octree, config, progress);
+  rep.wall_points = static_cast<std::size_t>(wall.rows());
+  return rep;
+}
+
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
   ArmPlan out;
   // The arm's caps depend on a pass's geometry only: the lines of a round repeat across re-plans,
@@ -186,19 +200,8 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (progress) progress("executed deposit", 0.0);
   out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
   if (progress) progress("executed deposit", 1.0);
-  if (config.clearance.enabled) {
-    // The wall as scanned and as sprayed: concrete only grows toward the arm, so the union holds
-    // every surface the arm meets during the job.
-    const Points& scan = surface.cloud.xyz;
-    const Points& sprayed = out.executed->wall.surface.cloud.xyz;
-    Points wall(scan.rows() + sprayed.rows(), 3);
-    wall << scan, sprayed;
-    const WallOctree octree(wall, config.clearance.octree_resolution_m);
-    out.clearance = check_clearance(robot, *out.trajectory, octree, config.clearance,
-                                    progress ? ProgressFn([&](const std::string&, double f) { progress("clearance", f); })
-                                             : ProgressFn{});
-    out.clearance->wall_points = static_cast<std::size_t>(wall.rows());
-  }
+  if (config.clearance.enabled)
+    out.clearance = arm_clearance(surface, *out.trajectory, *out.executed, robot, config.clearance, progress);
   return out;
 }
 

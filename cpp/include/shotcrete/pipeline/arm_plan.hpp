@@ -66,4 +66,9 @@ struct ArmPlan {
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
 
+/// The space allowance of `trajectory` against the wall as scanned (surface) and as sprayed
+/// (executed): what plan_for_arm stores in ArmPlan::clearance with clearance.enabled.
+ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed,
+                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress = {});
+
 }  // namespace shotcrete
