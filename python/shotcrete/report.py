@@ -264,8 +264,12 @@ def summary_html(report: dict, facts: PageFacts) -> str:
     source = "executed trajectory with the pump's flow" if report.get("deposit_source") == "executed" \
         else "planner's estimate (no trajectory)"
     if done:
+        # Executable as far as it was checked: without clearance.enabled nobody looked at the arm
+        # against the wall, and the page must not suggest otherwise.
+        checked = ("within the joint limits and clear of the wall by its margins" if report.get("clearance")
+                   else "within the joint limits; its clearance to the wall was not checked (clearance.enabled)")
         verdict = (f"{_v('verdict', 'Done', 'b')}: after spraying no cell of the bay misses more than {tol:.0f} mm "
-                   f"of concrete; the plan is executable as reported")
+                   f"of concrete; the plan is executable as reported, {checked}")
     elif n_missing:
         verdict = (f"{_v('verdict', 'Not done', 'b')}: {n_missing} cells still miss more than {tol:.0f} mm of concrete"
                    f"{_where(facts.missing_regions, 2)}")

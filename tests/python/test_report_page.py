@@ -152,6 +152,9 @@ def test_summary_figures_are_report_json_figures(which, request):
         checked.add(key)
 
     check("verdict", lambda t: t == ("Done" if rep["status"] == "ok" and missing == 0 else "Not done"))
+    if rep["status"] == "ok" and missing == 0:  # "done" never hides what was not checked
+        html_text = (out / "report.html").read_text()
+        assert ("clearance to the wall was not checked" in html_text) == ("clearance" not in rep)
     check("status", lambda t: t == rep["status"])
     check("cells", lambda t: int(t) == cells)
     check("cells_within", lambda t: int(t) == lv.get(0, 0))
