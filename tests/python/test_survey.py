@@ -50,6 +50,11 @@ def test_config_left_at_the_origin_is_refused_naming_the_key():
     cfg.robot.base_position_m = OFFSET
     with pytest.raises(ValueError, match=r"profile\.axis_origin_m"):
         LocalFrame.of(shotcrete.Cloud(xyz), cfg).to_local(shotcrete.Cloud(xyz), cfg)
+    cfg.profile.estimate_axis = True  # fitted: the origin is not used ...
+    LocalFrame.of(shotcrete.Cloud(xyz), cfg).to_local(shotcrete.Cloud(xyz), cfg)
+    cfg.profile.estimate_axis_origin = False  # ... unless it is kept (a surveyed point on the axis)
+    with pytest.raises(ValueError, match=r"profile\.axis_origin_m"):
+        LocalFrame.of(shotcrete.Cloud(xyz), cfg).to_local(shotcrete.Cloud(xyz), cfg)
 
 
 def _write_double_ply(path, xyz):
