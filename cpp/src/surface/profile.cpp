@@ -179,10 +179,13 @@ AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile) {
   if (patches.rows() >= 50) quantile_cylinder(patches, fit_origin, kAxisFitPatchQuantile, origin, ex, radius);
   if (!ex.allFinite() || !origin.allFinite() || !std::isfinite(radius))
     throw std::invalid_argument("axis fit: no cylinder fits the cloud");
-  if (fit_origin) {  // on the axis where the scan starts: grid columns then begin at the scan's edge
-    double d_min = std::numeric_limits<double>::infinity();
-    for (Eigen::Index i = 0; i < n; ++i) d_min = std::min(d_min, (cloud.xyz.row(i).transpose() - origin).dot(ex));
-    origin += d_min * ex;
+  if (fit_origin) {  // on the axis where the scan starts (its 0.5 % quantile along the axis, not one
+                     // stray point): the grid's columns begin at the scan's edge
+    std::vector<double> d(static_cast<std::size_t>(n));
+    for (Eigen::Index i = 0; i < n; ++i) d[static_cast<std::size_t>(i)] = (cloud.xyz.row(i).transpose() - origin).dot(ex);
+    const auto k = static_cast<std::ptrdiff_t>(0.005 * static_cast<double>(n));
+    std::nth_element(d.begin(), d.begin() + k, d.end());
+    origin += d[static_cast<std::size_t>(k)] * ex;
   }
 
   AxisFit fit;

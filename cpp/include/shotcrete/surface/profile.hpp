@@ -31,7 +31,7 @@ TunnelAxis axis_from_config(const ProfileConfig& config);
 
 /// The axis fitted to a cloud with normals (docs/architecture.md §3, "Axis estimation").
 struct AxisFit {
-  TunnelAxis axis;          // origin: on the axis where the scan starts along it (or the given origin)
+  TunnelAxis axis;          // origin: on the axis where the scan starts (0.5 % quantile), or the given one
   double radius_m = 0.0;    // mean distance of the points to the fitted axis
   double rms_m = 0.0;       // RMS distance of the points to the coaxial cylinder of radius_m
   double arc_rad = 0.0;     // arc the points cover around the axis (2 pi minus the largest gap)
