@@ -47,6 +47,7 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         summary = _core.summarise_job(surface, arm_plan, robot, config, points_in=len(cloud))
         result = summary.to_dict()
         result["local_origin_m"] = frame.origin_m.tolist()  # outputs are in the input's frame
+        result["axis"]["origin_m"] = (np.asarray(result["axis"]["origin_m"]) + frame.origin_m).tolist()
         for link in (result.get("clearance") or {}).get("links", []):
             link["closest_m"] = (link["closest_m"] + frame.origin_m).tolist()
 

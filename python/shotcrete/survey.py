@@ -75,6 +75,8 @@ class LocalFrame:
         checks = [("robot.base_position_m", np.linalg.norm(base - self.origin_m))]
         if not config.profile.estimate_axis:
             checks.append(("profile.axis_origin_m", np.linalg.norm(rel - rel.dot(axis_d) * axis_d)))
+        elif not config.profile.estimate_axis_origin:  # a surveyed origin kept, the direction fitted
+            checks.append(("profile.axis_origin_m", np.linalg.norm(rel)))
         for key, dist in checks:
             if dist > FAR_M:
                 raise ValueError(f"the cloud lies in survey coordinates around ({where}) m but {key} is "

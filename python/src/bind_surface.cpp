@@ -67,9 +67,13 @@ void bind_surface(py::module_& m) {
   py::class_<AxisFit>(m, "AxisFit")
       .def_readonly("axis", &AxisFit::axis)
       .def_readonly("radius_m", &AxisFit::radius_m)
-      .def_readonly("rms_m", &AxisFit::rms_m);
-  m.def("fit_axis", &fit_axis, py::arg("cloud"), py::arg("direction_hint") = Eigen::Vector3d(1, 0, 0),
-        "Fit the tunnel axis (normals) and circle centre/radius (points) to a cloud with normals.");
+      .def_readonly("rms_m", &AxisFit::rms_m)
+      .def_readonly("arc_rad", &AxisFit::arc_rad)
+      .def_readonly("points", &AxisFit::points)
+      .def_readonly("origin_fitted", &AxisFit::origin_fitted);
+  m.def("fit_axis", &fit_axis, py::arg("cloud"), py::arg("profile") = ProfileConfig(),
+        "Fit the tunnel axis to a cloud with normals (direction from the normals, refined with the centre by a "
+        "lower-envelope cylinder fit); ValueError, one line, when the cloud is not a tunnel wall.");
   m.def("estimate_normals", &estimate_normals, py::arg("cloud"), py::arg("k_neighbors"), py::arg("axis"),
         "PCL k-NN normals oriented toward the tunnel axis.");
 
@@ -102,6 +106,8 @@ void bind_surface(py::module_& m) {
       .def("__len__", &Grid::size);
   m.def("build_grid", &build_grid, py::arg("cloud"), py::arg("axis"), py::arg("profile"), py::arg("config"),
         py::arg("max_deviation_m"));
+  m.def("missing_volume_m3", &missing_volume_m3, py::arg("grid"),
+        "Volume [m^3] between the wall and the design line over the valid cells with TD > 0 (the required volume).");
   m.def("point_td", &point_td, py::arg("cloud"), py::arg("axis"), py::arg("profile"), "Per-point TD [m].");
   m.def("level_of_td_mm", &level_of_td_mm, py::arg("td_mm"), "Priority level of a TD in millimetres.");
   m.def("cell_levels", &cell_levels, py::arg("grid"), "Level per cell (NO_DATA_LEVEL where empty).");
@@ -138,6 +144,7 @@ void bind_surface(py::module_& m) {
       .def_readonly("axis", &Surface::axis)
       .def_readonly("profile", &Surface::profile)
       .def_readonly("axis_fit_rms_m", &Surface::axis_fit_rms_m)
+      .def_readonly("axis_fit", &Surface::axis_fit, "AxisFit, or None when the axis came from the config")
       .def_readonly("grid", &Surface::grid)
       .def_readonly("levels", &Surface::levels)
       .def_readonly("timings_s", &Surface::timings_s);

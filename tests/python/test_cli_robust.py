@@ -497,3 +497,29 @@ def test_clearance_in_the_report_against_an_exact_distance(tmp_path):
         exact = _exact_link_distance(link, robot, traj["q"][k], wall)
         assert link["min_m"] <= exact + 1e-6, link
         assert link["min_m"] >= exact - leaf_diagonal - 1e-6, (link, exact)
+
+
+@pytest.mark.parametrize("shape, reason", [
+    ("plane", "axis fit: the normals are (nearly) parallel; the cloud looks like a plane, not a tunnel wall"),
+    ("strip", "axis fit: the wall covers 40.0 deg around the fitted axis, less than profile.min_fit_arc_rad = 150.0 deg; give the axis instead (profile.axis_origin_m, axis_direction)"),
+    ("few", "axis fit: need at least 100 points, got 60"),
+])
+def test_estimate_axis_refuses_a_non_tunnel_in_one_line_exit_2(tmp_path, shape, reason):
+    """Issue 16: with profile.estimate_axis a cloud that cannot define a tunnel axis is refused by
+    the surface stage, naming the reason, before any plan is made."""
+    cfg = tmp_path / "fit.yaml"
+    cfg.write_text("profile: {estimate_axis: true}\npreprocess: {voxel_size_m: 0, outlier_neighbors: 0}\n")
+    if shape == "plane":  # a flat sheet at crown height
+        d, y = np.meshgrid(np.arange(0, 1.2, 0.02), np.arange(-1.5, 1.5, 0.02))
+        xyz = np.column_stack([d.ravel(), y.ravel(), np.full(d.size, 5.6)])
+    else:  # the design cylinder over 40 degrees (or 60 points of it)
+        t, d = np.meshgrid(np.linspace(1.22, 1.92, 80, endpoint=False) + 0.35 / 80, np.arange(0.01, 1.2, 0.02))
+        xyz = np.column_stack([d.ravel(), 5.6 * np.cos(t.ravel()), 5.6 * np.sin(t.ravel())])
+        if shape == "few":
+            xyz = xyz[:: len(xyz) // 60][:60]
+    cloud = tmp_path / f"{shape}.xyz"
+    np.savetxt(cloud, xyz)
+    r = _cli("plan", cloud, "--out", tmp_path / "o", "--config", cfg)
+    assert r.returncode == 2, r.stderr
+    assert _one_error_line(r.stderr) == f"error: {reason}"
+    assert not (tmp_path / "o").exists()

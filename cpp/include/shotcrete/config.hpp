@@ -53,7 +53,9 @@ struct ProfileConfig {
   double design_radius_m = 5.6;                 // radius of the circular design profile
   Eigen::Vector3d axis_origin_m{0.0, 0.0, 0.0};  // a point on the tunnel axis
   Eigen::Vector3d axis_direction{1.0, 0.0, 0.0};  // advance direction (normalised on use)
-  bool estimate_axis = false;                   // fit the axis and radius centre to the cloud
+  bool estimate_axis = false;                   // fit the axis to the cloud (docs/architecture.md §3)
+  bool estimate_axis_origin = true;  // with estimate_axis: fit the centre too; false keeps axis_origin_m
+  double min_fit_arc_rad = 2.618;    // a fitted axis needs the wall to cover this arc around it (150 deg)
   double max_deviation_m = 1.0;  // points farther than this from the design line are ignored
 };
 

@@ -29,7 +29,9 @@ template <class F> void visit(ProfileConfig*, F&& f) {
   f("design_radius_m", &ProfileConfig::design_radius_m, 0.5, 50.0, "design profile radius [m]");
   f("axis_origin_m", &ProfileConfig::axis_origin_m, 0, 0, "a point on the tunnel axis [m]");
   f("axis_direction", &ProfileConfig::axis_direction, 0, 0, "axis direction (unit-free)");
-  f("estimate_axis", &ProfileConfig::estimate_axis, 0, 0, "fit axis and centre to the cloud");
+  f("estimate_axis", &ProfileConfig::estimate_axis, 0, 0, "fit the axis to the cloud");
+  f("estimate_axis_origin", &ProfileConfig::estimate_axis_origin, 0, 0, "with estimate_axis: fit the centre too (false: keep axis_origin_m)");
+  f("min_fit_arc_rad", &ProfileConfig::min_fit_arc_rad, 0.05, 6.2832, "arc the wall must cover around a fitted axis [rad]");
   f("max_deviation_m", &ProfileConfig::max_deviation_m, 0.01, 10.0, "band around the design line kept for the grid [m]");
 }
 template <class F> void visit(NormalsConfig*, F&& f) {

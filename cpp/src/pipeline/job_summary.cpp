@@ -316,6 +316,13 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.points_used = static_cast<long>(surface.cloud.size());
   s.design_radius_m = surface.profile.radius_m;
   s.axis_fit_rms_m = surface.axis_fit_rms_m;
+  s.axis_estimated = surface.axis_fit.has_value();
+  s.axis_origin_m = surface.axis.origin_m;
+  s.axis_direction = surface.axis.ex;
+  if (surface.axis_fit) {
+    s.axis_fit_arc_deg = surface.axis_fit->arc_rad * 180.0 / M_PI;
+    s.axis_fit_points = surface.axis_fit->points;
+  }
   s.levels_before = level_counts(surface.levels);
   s.td_before_mm = td_stats_mm(grid.td_m, grid.valid);
 
@@ -431,6 +438,16 @@ std::string JobSummary::to_json() const {
   w.key("grid_shape").begin_array().value(grid_n_theta).value(grid_n_d).end_array();
   w.field("points_in", points_in).field("points_used", points_used);
   w.field("design_radius_m", design_radius_m).field("axis_fit_rms_m", axis_fit_rms_m);
+  w.key("axis").begin_object().field("estimated", axis_estimated).key("origin_m").begin_array();
+  for (int k = 0; k < 3; ++k) w.value(axis_origin_m[k]);
+  w.end_array().key("direction").begin_array();
+  for (int k = 0; k < 3; ++k) w.value(axis_direction[k]);
+  w.end_array().key("fit_arc_deg");
+  write_optional(w, axis_fit_arc_deg);
+  w.key("fit_points");
+  if (axis_fit_points) w.value(*axis_fit_points);
+  else w.null();
+  w.end_object();
   w.key("levels_before");
   write(w, levels_before);
   w.key("td_before_mm");

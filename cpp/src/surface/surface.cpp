@@ -37,9 +37,10 @@ Surface build_surface(const Cloud& raw, const Config& config) {
   cloud = estimate_normals(cloud, config.normals.k_neighbors, s.axis);
   timer.lap("normals");
   if (config.profile.estimate_axis) {
-    const AxisFit fit = fit_axis(cloud, s.axis.ex);
+    const AxisFit fit = fit_axis(cloud, config.profile);
     s.axis = fit.axis;
     s.axis_fit_rms_m = fit.rms_m;
+    s.axis_fit = fit;
     orient_normals_toward_axis(cloud, s.axis);  // orientation depends on where the axis is
     timer.lap("axis_fit");
   }

@@ -108,6 +108,12 @@ struct JobSummary {
   int grid_n_theta = 0, grid_n_d = 0;
   long points_in = 0, points_used = 0;  // raw cloud, preprocessed cloud
   double design_radius_m = 0.0, axis_fit_rms_m = 0.0;
+  // report.json `axis`: the axis the TD was measured from (the job's frame; the CLI adds
+  // local_origin_m back) and, when profile.estimate_axis, how well it fitted.
+  bool axis_estimated = false;
+  Eigen::Vector3d axis_origin_m{0, 0, 0}, axis_direction{1, 0, 0};
+  std::optional<double> axis_fit_arc_deg;  // arc the wall covers around the fitted axis
+  std::optional<long> axis_fit_points;     // points the fit used
   std::map<int, int> levels_before;
   TdStatsMm td_before_mm;
   // Of the executed deposit (the trajectory with the pump's flow) when there is a trajectory,

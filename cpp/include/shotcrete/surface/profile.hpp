@@ -29,14 +29,33 @@ struct DesignProfile {
 /// The axis from the config, or fitted to the cloud when profile.estimate_axis is set.
 TunnelAxis axis_from_config(const ProfileConfig& config);
 
-/// Fits the tunnel axis to a cloud with normals: the direction is the one most perpendicular to
-/// all normals, the centre comes from an algebraic circle fit refined by Gauss-Newton on the
-/// points projected across the axis. Throws std::invalid_argument when the cloud cannot define it.
+/// The axis fitted to a cloud with normals (docs/architecture.md §3, "Axis estimation").
 struct AxisFit {
-  TunnelAxis axis;
-  double radius_m = 0.0;
-  double rms_m = 0.0;  // RMS distance of the points to the fitted cylinder
+  TunnelAxis axis;          // origin: on the axis where the scan starts (0.5 % quantile), or the given one
+  double radius_m = 0.0;    // mean distance of the points to the fitted axis
+  double rms_m = 0.0;       // RMS distance of the points to the coaxial cylinder of radius_m
+  double arc_rad = 0.0;     // arc the points cover around the axis (2 pi minus the largest gap)
+  long points = 0;          // points used
+  bool origin_fitted = true;  // false: the centre line goes through the given profile.axis_origin_m
 };
-AxisFit fit_axis(const Cloud& cloud, const Eigen::Vector3d& direction_hint);
+
+/// Points needed for an axis fit.
+constexpr long kMinAxisFitPoints = 100;
+/// Largest fit RMS accepted, as a fraction of the fitted radius.
+constexpr double kMaxAxisFitRmsFraction = 0.05;
+/// Quantile of the radial distances the cylinder is fitted to: the intact contour (least
+/// over-break) of the wall, not its mean, which dig pits pull outward.
+constexpr double kAxisFitQuantile = 0.005;
+/// The same, refitted on the means of 7.5 cm patches (less noise, so a looser quantile).
+constexpr double kAxisFitPatchQuantile = 0.01;
+
+/// Fits the tunnel axis: the direction starts as the one most perpendicular to the normals (with
+/// the most tilted normals dropped) and is refined with the centre by a quantile (lower envelope)
+/// cylinder fit of the points; profile.axis_direction orients it, profile.axis_origin_m is kept
+/// when profile.estimate_axis_origin is false. Throws std::invalid_argument, one line, when the
+/// cloud is not a tunnel wall: too few points, no curvature (a plane), a radius more than
+/// profile.max_deviation_m from the design radius, an arc below profile.min_fit_arc_rad, or an RMS
+/// above kMaxAxisFitRmsFraction of the radius.
+AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile);
 
 }  // namespace shotcrete

@@ -2,6 +2,7 @@
 // Stage 1 of the pipeline: raw scan -> checked, preprocessed cloud with normals -> axis ->
 // graded 50 mm grid with priority levels.
 #include <map>
+#include <optional>
 #include <string>
 
 #include "shotcrete/config.hpp"
@@ -15,6 +16,7 @@ struct Surface {
   TunnelAxis axis;
   DesignProfile profile;
   double axis_fit_rms_m = 0.0;  // 0 when the axis came from the config
+  std::optional<AxisFit> axis_fit;  // when profile.estimate_axis
   Grid grid;
   std::vector<int> levels;  // per cell
   std::map<std::string, double> timings_s;  // per stage
