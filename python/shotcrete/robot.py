@@ -42,7 +42,7 @@ def robot_summary(robot) -> dict:
                        "lower": float(robot.lower_limits[i]), "upper": float(robot.upper_limits[i]),
                        "velocity": float(robot.velocity_limits[i]),
                        "acceleration": float(robot.acceleration_limits[i]),
-                       "neutral": float(robot.neutral()[i])})
+                       "neutral": float(robot.neutral()[i]), "stow": float(robot.stow()[i])})
     return {"urdf": robot.urdf_path, "dof": robot.dof, "max_reach_m": robot.max_reach_m, "joints": joints}
 
 

@@ -54,6 +54,7 @@ void bind_robot(py::module_& m) {
            py::arg("q"), "4x4 pose of nozzle_tip in the tunnel frame; column 2 is the spray axis.")
       .def("jacobian", &Robot::jacobian, py::arg("q"), "6 x dof geometric Jacobian (linear; angular), tunnel frame.")
       .def("neutral", &Robot::neutral, "Ready posture, the default IK seed.")
+      .def("stow", &Robot::stow, "Folded posture every trajectory starts from (URDF stow=, default neutral).")
       .def("within_limits", &Robot::within_limits, py::arg("q"), py::arg("slack") = 1e-9);
 
   py::class_<IkResult>(m, "IkResult")

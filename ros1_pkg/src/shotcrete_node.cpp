@@ -111,7 +111,7 @@ class ShotcreteNode {
 
     robot_ = std::make_unique<shotcrete::Robot>(
         shotcrete::Robot::load_file(urdf_path_, config_.robot.base_position_m));
-    q_current_ = robot_->neutral();
+    q_current_ = robot_->stow();  // where every trajectory starts
 
     cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("cloud", 1, true);
     levels_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("grid_levels", 1, true);

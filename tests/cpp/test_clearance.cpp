@@ -10,6 +10,7 @@
 #include "shotcrete/collision/clearance.hpp"
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/timing/trajectory.hpp"
+#include "timing_fixtures.hpp"
 
 using namespace shotcrete;
 
@@ -205,4 +206,28 @@ TEST(Clearance, CollidingPoseIsFound) {
   EXPECT_EQ(it->min_m, 0.0);
   EXPECT_EQ(it->samples_below_margin, 1);
   EXPECT_GE(rep.samples_below_margin(), 1);
+}
+
+// The posture a job starts from: the URDF's stow, within the limits; on the default wall (a 5.6 m
+// design circle with 0.15 m over-break) the ready posture reaches into the crown, stow is clear of
+// it by every margin, and time_plan's first sample is stow.
+TEST(Clearance, StowPostureIsClearWhereTheNeutralIsNot) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const Eigen::VectorXd stow = robot.stow();
+  EXPECT_TRUE(robot.within_limits(stow));
+  EXPECT_FALSE(stow.isApprox(robot.neutral()));
+  const Points wall = half_cylinder(5.75, 1.2, 600, 24);
+  const WallOctree tree(wall, 0.05);
+  auto least = [&](const Eigen::VectorXd& q) {
+    const auto frames = robot.link_frames(q);
+    double d = std::numeric_limits<double>::infinity();
+    for (const auto& s : robot.collision_shapes()) d = std::min(d, tree.distance(s, frames[s.frame]));
+    return d;
+  };
+  EXPECT_LT(least(robot.neutral()), 0.3);  // the ready posture is no place to start a job from
+  EXPECT_GT(least(stow), 0.5);
+  const auto passes = shotcrete::test::axial_region(4, 0.8, 0.2, 0.2, 1.3, {0.3});
+  const TimedTrajectory tr = time_plan(robot, {passes}, robot.stow(), TimingConfig{}, RobotConfig{});
+  ASSERT_GT(tr.size(), 1u);
+  EXPECT_TRUE(tr.q.front().isApprox(stow, 1e-12));
 }

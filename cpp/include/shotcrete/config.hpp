@@ -185,8 +185,7 @@ struct TimingConfig {
 // Space allowance of the arm along its trajectory (collision/clearance): the links' URDF
 // collision shapes against an octree of the wall (scan and sprayed surface) and against each other.
 struct ClearanceConfig {
-  bool enabled = false;               // check every timed trajectory (report.json clearance); off
-                                      // by default until it is fast enough for every job
+  bool enabled = true;                // check every timed trajectory (report.json clearance)
   double octree_resolution_m = 0.05;  // leaf edge of the wall's octree (distances read up to
                                       // half a leaf diagonal short: conservative)
   double link_margin_m = 0.3;         // least distance of a link to the wall

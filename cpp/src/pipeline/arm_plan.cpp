@@ -105,13 +105,13 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
                         const Robot& robot, const ProgressFn& progress) {
   if (progress) progress("timing swarm", 0.0);
   try {
-    out.tuning = tune_timing(&robot, regions, robot.neutral(), config.timing, config.robot,
+    out.tuning = tune_timing(&robot, regions, robot.stow(), config.timing, config.robot,
                              progress ? ProgressFn([&](const std::string&, double f) { progress("timing swarm", 0.8 * f); })
                                       : ProgressFn{});
     const TimedTrajectory& cur = *out.trajectory;
     auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
     std::vector<TimingParams> params = out.tuning->params;
-    TimedTrajectory tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
+    TimedTrajectory tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params);
     // The swarm judges the leads and turns on its model; elsewhere the arm reaches the passes in
     // slightly other postures than the re-plans saw. Regions that came out worse keep the
     // config's parameters, and that mix is timed once more.
@@ -123,7 +123,7 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
       if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), used[r] = 0, mixed = true;
     if (mixed) {
       if (progress) progress("timing swarm", 0.9);
-      tuned = time_plan(robot, regions, robot.neutral(), config.timing, config.robot, params);
+      tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params);
     }
     if (tuned.duration_s < cur.duration_s && no_worse(tuned.max_velocity_ratio, cur.max_velocity_ratio) &&
         no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
@@ -185,7 +185,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     out.timing_error.clear();
     if (regions.empty()) break;
     try {
-      out.trajectory = time_plan(robot, regions, robot.neutral(), config.timing, config.robot);
+      out.trajectory = time_plan(robot, regions, robot.stow(), config.timing, config.robot);
     } catch (const std::exception& e) {
       out.timing_error = e.what();
       break;

@@ -20,7 +20,7 @@ struct Robot::Impl {
   KDL::Chain chain;
   std::vector<std::string> names;
   std::vector<bool> prismatic;
-  Eigen::VectorXd lower, upper, velocity, acceleration, neutral;
+  Eigen::VectorXd lower, upper, velocity, acceleration, neutral, stow;
   Eigen::Isometry3d base = Eigen::Isometry3d::Identity();
   std::string path;
   Eigen::Vector3d shoulder_in_base{0, 0, 0};

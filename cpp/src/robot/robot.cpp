@@ -65,6 +65,7 @@ std::string read_text(const std::string& path) {
 struct ExtraLimits {
   double acceleration = 0.0;
   double neutral = NAN;  // optional ready posture; NaN = mid-range
+  double stow = NAN;     // optional posture a job starts from; NaN = neutral
 };
 
 double parse_number(const std::string& joint, const char* what, const std::string& text) {
@@ -86,11 +87,12 @@ std::map<std::string, ExtraLimits> parse_extra_limits(const std::string& text) {
   static const std::regex attr(R"re((\w+)\s*=\s*"([^"]*)")re");
   for (auto it = std::sregex_iterator(xml.begin(), xml.end(), elem); it != std::sregex_iterator(); ++it) {
     const std::string body = (*it)[1].str();
-    std::string joint, acc, neutral;
+    std::string joint, acc, neutral, stow;
     for (auto a = std::sregex_iterator(body.begin(), body.end(), attr); a != std::sregex_iterator(); ++a) {
       if ((*a)[1] == "joint") joint = (*a)[2];
       if ((*a)[1] == "acceleration") acc = (*a)[2];
       if ((*a)[1] == "neutral") neutral = (*a)[2];
+      if ((*a)[1] == "stow") stow = (*a)[2];
     }
     if (joint.empty() || acc.empty())
       throw std::invalid_argument("URDF: <shotcrete:limits> needs joint=\"..\" and acceleration=\"..\"");
@@ -98,6 +100,7 @@ std::map<std::string, ExtraLimits> parse_extra_limits(const std::string& text) {
     e.acceleration = parse_number(joint, "acceleration limit", acc);
     if (!(e.acceleration > 0.0)) throw std::invalid_argument("URDF: acceleration limit of joint '" + joint + "' must be > 0");
     if (!neutral.empty()) e.neutral = parse_number(joint, "neutral position", neutral);
+    if (!stow.empty()) e.stow = parse_number(joint, "stow position", stow);
     out[joint] = e;
   }
   return out;
@@ -157,6 +160,7 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
   im.velocity.resize(n);
   im.acceleration.resize(n);
   im.neutral.resize(n);
+  im.stow.resize(n);
   int j = 0;
   bool past_first = false;
   for (const auto& seg : im.chain.segments) {
@@ -184,6 +188,9 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
     im.neutral(j) = std::isnan(it->second.neutral) ? 0.5 * (im.lower(j) + im.upper(j)) : it->second.neutral;
     if (im.neutral(j) < im.lower(j) || im.neutral(j) > im.upper(j))
       throw std::invalid_argument("URDF: neutral position of joint '" + name + "' is outside its limits");
+    im.stow(j) = std::isnan(it->second.stow) ? im.neutral(j) : it->second.stow;
+    if (im.stow(j) < im.lower(j) || im.stow(j) > im.upper(j))
+      throw std::invalid_argument("URDF: stow position of joint '" + name + "' is outside its limits");
     // Reach bound measured from the first joint's origin: every later offset plus full strokes.
     // Each segment's tip is the next joint origin, so the offsets after the first joint bound
     // the distance from that joint's origin (triangle inequality).
@@ -297,6 +304,7 @@ Eigen::MatrixXd Robot::jacobian(const Eigen::VectorXd& q) const {
 }
 
 Eigen::VectorXd Robot::neutral() const { return impl_->neutral; }
+Eigen::VectorXd Robot::stow() const { return impl_->stow; }
 
 bool Robot::within_limits(const Eigen::VectorXd& q, double slack) const {
   if (q.size() != dof() || !q.allFinite()) return false;

@@ -74,6 +74,9 @@ class Robot {
   Eigen::MatrixXd jacobian(const Eigen::VectorXd& q) const;
   /// Ready posture (the `neutral` attribute of <shotcrete:limits>, else mid-range): default IK seed.
   Eigen::VectorXd neutral() const;
+  /// The folded posture a job starts from (the trajectory's first sample; <shotcrete:limits
+  /// stow=".."/>, default the neutral posture). The neutral posture stays the IK's preference.
+  Eigen::VectorXd stow() const;
   /// True when every entry of q is within the limits (plus slack).
   bool within_limits(const Eigen::VectorXd& q, double slack = 1e-9) const;
   /// Boom lift pivot in the tunnel frame and an upper bound of the distance from it to the nozzle
