@@ -202,11 +202,14 @@ class ShotcreteNode {
                                              : "no trajectory: " + job.ik.error;
     ROS_INFO("plan in %.1f s: %d rounds, %d passes, spray %.0f s, %s (summary on %s)", seconds_since(t0),
              job.rounds, job.passes, job.spray_time_s, timed.c_str(), summary_pub_.getTopic().c_str());
+    std::string problems;
+    for (const auto& p : job.problems) problems += (problems.empty() ? "" : "; ") + p.message + " [" + p.code + "]";
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       plan_ = plan;
       trajectory_ = trajectory;
       executed_ = executed;
+      plan_problems_ = problems;
     }
     publish_passes(*surface, *plan);
     std_msgs::String msg;
@@ -238,6 +241,11 @@ class ShotcreteNode {
       plan = plan_;
       if (!plan_) {
         summary = "no plan: call " + pnh_.resolveName("plan") + " first";
+        return false;
+      }
+      // A plan that is not right (a collision, limits broken, cells unreachable) is shown, never run.
+      if (!plan_problems_.empty()) {
+        summary = "the plan is not executable: " + plan_problems_;
         return false;
       }
     }
@@ -338,6 +346,7 @@ class ShotcreteNode {
       surface_ = surface;
       points_in_ = static_cast<long>(cloud.size());
       plan_.reset();
+      plan_problems_.clear();
       trajectory_.reset();
     }
     const Eigen::VectorXd td = shotcrete::point_td(surface->cloud, surface->axis, surface->profile);
@@ -567,6 +576,7 @@ class ShotcreteNode {
   std::shared_ptr<const Surface> surface_;
   long points_in_ = 0;  // points of the cloud surface_ was built from
   std::shared_ptr<const Plan> plan_;
+  std::string plan_problems_;  // of plan_ (JobSummary problems); ~execute refuses while not empty
   std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
   std::shared_ptr<const shotcrete::ExecutedDeposit> executed_;  // of trajectory_
 

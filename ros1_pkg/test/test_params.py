@@ -77,6 +77,35 @@ class Params(unittest.TestCase):
         self.assertIn("strip.xyz.missing.xyz", out)
 
 
+    def test_plan_that_is_not_right_is_refused(self):
+        """The arm's base 6 m below its place: the bay is out of reach. ~plan answers success false
+        with the summary's status and problems, and ~execute refuses that plan."""
+        import json
+
+        from std_srvs.srv import Trigger
+
+        name = "far_node"
+        for k, v in {"synthetic": True, "synth/length_m": 0.3, "synth/theta_min_rad": 1.2,
+                     "synth/theta_max_rad": 1.5, "synth/pit_count": 1, "synth/points_per_cell": 4.0,
+                     "robot/base_position_m": [0.6, 0.0, -7.2]}.items():
+            rospy.set_param("/%s/%s" % (name, k), v)
+        exe = roslib.packages.find_node("shotcrete_ros", "shotcrete_node")[0]
+        node = subprocess.Popen([exe, "__name:=" + name], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            rospy.wait_for_service("/%s/plan" % name, timeout=60)
+            res = rospy.ServiceProxy("/%s/plan" % name, Trigger)()
+            self.assertFalse(res.success, res.message)
+            summary = json.loads(res.message)
+            self.assertEqual(summary["status"], "not_executable")
+            self.assertIn("arm_cannot_follow", [p["code"] for p in summary["problems"]])
+            ex = rospy.ServiceProxy("/%s/execute" % name, Trigger)()
+            self.assertFalse(ex.success)
+            self.assertIn("not executable", ex.message)
+        finally:
+            node.terminate()
+            node.wait(timeout=20)
+
+
 if __name__ == "__main__":
     rospy.init_node("test_params")
     rostest.rosrun("shotcrete_ros", "params", Params, sys.argv)

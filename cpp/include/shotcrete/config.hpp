@@ -189,7 +189,8 @@ struct ClearanceConfig {
   double octree_resolution_m = 0.05;  // leaf edge of the wall's octree (distances read up to
                                       // half a leaf diagonal short: conservative)
   double link_margin_m = 0.3;         // least distance of a link to the wall
-  double nozzle_margin_m = 0.5;       // least distance of the nozzle links (nozzle*) to the wall
+  double nozzle_margin_m = 0.4;       // least distance of the nozzle links (nozzle*) to the wall;
+                                      // the tip faces it at the standoff less the layers to come
   double self_margin_m = 0.05;        // least distance between two links that are not neighbours
 };
 
