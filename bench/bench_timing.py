@@ -183,7 +183,7 @@ def demo_plan_timing(cfg, robot, mode):
     t0 = time.perf_counter()
     free = _core.plan_bay(surface, cfg)
     regions = [list(r.passes) for rnd in free.rounds for r in rnd.regions]
-    tr_free = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
+    tr_free = _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot)
     without = figures(free, tr_free, time.perf_counter() - t0)
     t0 = time.perf_counter()
     arm = _core.plan_for_arm(surface, cfg, robot)

@@ -180,7 +180,8 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     regions = [list(r.passes) for rnd in arm.plan.rounds for r in rnd.regions]
     tun = arm.tuning
     assert len(tun.params) == len(tun.feasible) == len(tun.pso) == len(regions)
-    config = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot)
+    # plan_for_arm times from the stow posture (where every job starts).
+    config = _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot)
     assert arm.config_duration_s == pytest.approx(config.duration_s, rel=1e-9)
     tr = arm.trajectory
     # On this bay the swarm's timing is shorter (measured 1824 s against 2167 s) and kept.
@@ -189,7 +190,7 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     assert tr.max_velocity_ratio <= max(config.max_velocity_ratio, 1.0) + 1e-9
     assert tr.max_acceleration_ratio <= max(config.max_acceleration_ratio, 1.0) + 1e-9
     # The kept trajectory is time_plan's with the reported parameters.
-    again = _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot, tun.params)
+    again = _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot, tun.params)
     assert again.duration_s == pytest.approx(tr.duration_s, rel=1e-12)
     # Regions without a feasible particle (one here) keep the config's parameters.
     default = _core.TimingParams.from_config(cfg.timing).to_dict()
@@ -200,4 +201,4 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
         else:
             assert p.to_dict() != pytest.approx(default)
     with pytest.raises(ValueError, match="timing parameter sets"):
-        _core.time_plan(robot, regions, robot.neutral(), cfg.timing, cfg.robot, [tun.params[0]] * (len(regions) + 1))
+        _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot, [tun.params[0]] * (len(regions) + 1))
