@@ -52,7 +52,6 @@ template <class T> void read_value(const YAML::Node& node, const std::string& ke
 // The names of a mapping's keys; a key given twice is an error naming both lines (yaml-cpp keeps
 // both entries and node[key] would silently take the first).
 std::set<std::string> mapping_keys(const YAML::Node& map, const std::string& prefix) {
-  std::set<std::string> keys;
   std::map<std::string, int> first_line;
   for (const auto& kv : map) {
     if (!kv.first.IsScalar())
@@ -62,9 +61,18 @@ std::set<std::string> mapping_keys(const YAML::Node& map, const std::string& pre
     if (!first_line.emplace(name, line).second)
       throw std::invalid_argument("config line " + std::to_string(line) + ": duplicate key '" + prefix + printable(name) +
                                   "' (first on line " + std::to_string(first_line[name]) + ")");
-    keys.insert(name);
   }
+  std::set<std::string> keys;
+  for (const auto& [name, line] : first_line) keys.insert(name);
   return keys;
+}
+
+// Throws "config line N: <what>0xNN<extra>" for the byte at `at` of `text`.
+[[noreturn]] void text_error(const std::string& text, std::size_t at, const std::string& what, const std::string& extra = "") {
+  const auto line = std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(at), '\n') + 1;
+  char byte[8];
+  std::snprintf(byte, sizeof byte, "0x%02x", static_cast<unsigned char>(text[at]));
+  throw std::invalid_argument("config line " + std::to_string(line) + ": " + what + byte + extra);
 }
 
 // Index of the first byte that is not part of valid UTF-8, or npos.
@@ -162,24 +170,15 @@ void validate(const Config& config) {
 
 Config config_from_yaml(const std::string& text) {
   Config config;
-  if (const std::size_t bad = first_non_utf8(text); bad != std::string::npos) {
-    const auto line = std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(bad), '\n') + 1;
-    char byte[8];
-    std::snprintf(byte, sizeof byte, "0x%02x", static_cast<unsigned char>(text[bad]));
-    throw std::invalid_argument("config line " + std::to_string(line) + ": not UTF-8 text (byte " + byte + ")");
-  }
+  if (const std::size_t bad = first_non_utf8(text); bad != std::string::npos)
+    text_error(text, bad, "not UTF-8 text (byte ", ")");
   // YAML allows no C0 control characters but tab and line breaks; yaml-cpp reads a leading NUL
   // as a UTF-16/32 mark and a lone CR as part of a name.
   for (std::size_t i = 0; i < text.size(); ++i) {
     const auto c = static_cast<unsigned char>(text[i]);
     const bool lone_cr = c == '\r' && (i + 1 == text.size() || text[i + 1] != '\n');
-    if ((c < 0x20 && c != '\t' && c != '\n' && c != '\r') || c == 0x7f || lone_cr) {
-      const auto line = std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(i), '\n') + 1;
-      char byte[8];
-      std::snprintf(byte, sizeof byte, "0x%02x", c);
-      throw std::invalid_argument("config line " + std::to_string(line) + ": control character " + byte +
-                                  (lone_cr ? " (a CR without LF)" : "") + " in the text");
-    }
+    if ((c < 0x20 && c != '\t' && c != '\n' && c != '\r') || c == 0x7f || lone_cr)
+      text_error(text, i, "control character ", std::string(lone_cr ? " (a CR without LF)" : "") + " in the text");
   }
   YAML::Node root;
   try {

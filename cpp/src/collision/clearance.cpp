@@ -201,11 +201,9 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
 
   std::vector<std::array<Eigen::Vector3d, 8>> corners;
   for (const auto& s : shapes) corners.push_back(box_corners(s));
-  // Per shape: distance at its last exact query minus the motion since (a lower bound).
+  // Per shape and per pair: the distance at the last query less the motion since (a lower bound).
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<double> wall_bound(shapes.size(), -inf), moved(shapes.size(), 0.0);
-  std::vector<double> pair_bound(pairs.size(), -inf);
-  std::vector<double> pair_moved(pairs.size(), 0.0);
+  std::vector<double> wall_lower(shapes.size(), -inf), pair_lower(pairs.size(), -inf);
   std::vector<Eigen::Isometry3d> prev;
   std::vector<char> below(rep.links.size());
   const std::size_t report_every = std::max<std::size_t>(1, n / 100);
@@ -219,8 +217,7 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
     std::fill(below.begin(), below.end(), 0);
     for (std::size_t s = 0; s < shapes.size(); ++s) {
       LinkClearance& lc = rep.links[static_cast<std::size_t>(link_of[s])];
-      moved[s] += step[s];
-      const double lower = wall_bound[s] - moved[s];
+      const double lower = wall_lower[s] -= step[s];
       // Skipped when it can be neither below the margin nor more than the tolerance below the
       // least distance so far: counts exact, minima within kMinTolerance_m.
       if (lower >= lc.margin_m && lower >= lc.min_m - kMinTolerance_m) continue;
@@ -231,8 +228,7 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
       Eigen::Vector3d closest;
       const double d = wall.distance(shapes[s], frames[shapes[s].frame], &closest, at_most);
       ++rep.wall_queries;
-      wall_bound[s] = d;
-      moved[s] = 0.0;
+      wall_lower[s] = d;
       if (d < lc.min_m) lc.min_m = d, lc.at_time_s = trajectory.t_s[k], lc.closest_m = closest;
       if (d < lc.margin_m) below[static_cast<std::size_t>(link_of[s])] = 1;
     }
@@ -240,13 +236,11 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
     bool self_below = false;
     for (std::size_t p = 0; p < pairs.size(); ++p) {
       const auto [a, b] = pairs[p];
-      pair_moved[p] += step[static_cast<std::size_t>(a)] + step[static_cast<std::size_t>(b)];
-      const double lower = pair_bound[p] - pair_moved[p];
+      const double lower = pair_lower[p] -= step[static_cast<std::size_t>(a)] + step[static_cast<std::size_t>(b)];
       if (lower >= config.self_margin_m && lower >= rep.self.min_m - kMinTolerance_m) continue;
       const double d = shape_distance(shapes[a], frames[shapes[a].frame], shapes[b], frames[shapes[b].frame]);
       ++rep.self_queries;
-      pair_bound[p] = d;
-      pair_moved[p] = 0.0;
+      pair_lower[p] = d;
       if (d < rep.self.min_m)
         rep.self.min_m = d, rep.self.at_time_s = trajectory.t_s[k], rep.self.link_a = shapes[a].link, rep.self.link_b = shapes[b].link;
       self_below = self_below || d < config.self_margin_m;
