@@ -68,8 +68,6 @@ double fcl_distance(const fcl::CollisionObjectd& a, const fcl::CollisionObjectd&
   return std::max(0.0, result.min_distance);
 }
 
-bool is_nozzle_link(const std::string& name) { return name.rfind("nozzle", 0) == 0; }
-
 // The reported minima may be this much above the exact ones (a sample is not checked when it
 // could only lower a minimum by less); the counts below the margins are exact.
 constexpr double kMinTolerance_m = 0.01;
@@ -149,6 +147,10 @@ double point_shape_distance(const Eigen::Vector3d& p_world, const CollisionShape
   throw std::logic_error("point_shape_distance: unknown shape kind");
 }
 
+double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config) {
+  return shape.link.rfind("nozzle", 0) == 0 ? config.nozzle_margin_m : config.link_margin_m;
+}
+
 std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot) {
   const auto& shapes = robot.collision_shapes();
   const auto frames = robot.link_frames(robot.neutral());
@@ -188,7 +190,7 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
     if (it == rep.links.end()) {
       LinkClearance l;
       l.link = shapes[s].link;
-      l.margin_m = is_nozzle_link(l.link) ? config.nozzle_margin_m : config.link_margin_m;
+      l.margin_m = shape_margin_m(shapes[s], config);
       l.min_m = std::numeric_limits<double>::infinity();
       rep.links.push_back(l);
       it = rep.links.end() - 1;

@@ -48,6 +48,9 @@ double shape_distance(const CollisionShape& a, const Eigen::Isometry3d& pose_a, 
 /// the octree query is checked against.
 double point_shape_distance(const Eigen::Vector3d& p, const CollisionShape& shape, const Eigen::Isometry3d& link_pose);
 
+/// The wall margin of a shape: nozzle_margin_m for links named nozzle*, else link_margin_m.
+double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config);
+
 /// Shape pairs checked against each other: every pair on links that are not neighbours on the
 /// chain (frames more than one apart) and do not already touch at the neutral posture (a
 /// telescope inside its boom; such pairs are allowed contact, as in a MoveIt allowed-collision matrix).
