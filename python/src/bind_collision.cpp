@@ -31,8 +31,18 @@ void bind_collision(py::module_& m) {
             return py::make_tuple(d, closest);
           },
           py::arg("shape"), py::arg("link_pose"),
-          "(distance m, the wall's closest point) of a shape at its link's 4x4 world pose; reads at most half a "
-          "leaf diagonal short, never long");
+          "(distance m, the wall's closest point) of a shape at its link's 4x4 world pose; reads at most a leaf "
+          "diagonal short, never long")
+      .def(
+          "exact_distance",
+          [](const WallOctree& w, const CollisionShape& s, const Eigen::Matrix4d& link_pose) {
+            Eigen::Vector3d closest;
+            const double d = w.exact_distance(s, Eigen::Isometry3d(link_pose), &closest);
+            return py::make_tuple(d, closest);
+          },
+          py::arg("shape"), py::arg("link_pose"),
+          "(distance m, the nearest wall point): the octree's answer refined over the points within its bound "
+          "(KD-tree): the minimum over every point");
   m.def(
       "point_shape_distance",
       [](const Eigen::Vector3d& p, const CollisionShape& s, const Eigen::Matrix4d& link_pose) {
