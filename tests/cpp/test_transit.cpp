@@ -214,3 +214,31 @@ TEST(Transit, ProtrusionInTheTransitIsRerouted) {
   EXPECT_EQ(kept.failed, rep.rerouted);
   EXPECT_EQ(kept.detour_time_s, 0.0);
 }
+
+// A rock at the goal of the transit (where the next region starts spraying): no route can help, the
+// move stays as it was and is reported with the reason.
+TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig timing;
+  const ClearanceConfig cfg;
+  TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  const auto moves = joint_moves(tr);
+  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  ASSERT_NE(it, moves.end());
+  const Eigen::Vector3d goal = tr.nozzle[it->end].position_m;  // 1 m from the wall, facing it
+  const Points wall = wall_with_protrusion(-0.6, 2.0, goal.x(), std::atan2(goal.z(), goal.y()), 0.8, 0.8);
+  const WallOctree octree(wall, cfg.octree_resolution_m);
+  const auto pairs = self_check_pairs(robot);
+  ASSERT_LT(brute_allowance(robot, tr.q[it->end], wall, cfg, pairs), 0.0);
+  const TimedTrajectory before = tr;
+  const TransitReport rep = clear_transits(robot, tr, octree, cfg, timing);
+  const int index = static_cast<int>(it - moves.begin());
+  const auto d = std::find_if(rep.detours.begin(), rep.detours.end(), [&](const TransitDetour& x) { return x.move == index; });
+  ASSERT_NE(d, rep.detours.end());
+  EXPECT_FALSE(d->rerouted);
+  EXPECT_EQ(d->reason, "its start or goal posture is itself closer than the margins");
+  EXPECT_EQ(d->optimisations, 0);
+  EXPECT_EQ(d->duration_s, d->straight_duration_s);
+  EXPECT_GE(rep.failed, 1);
+  if (rep.rerouted == 0) EXPECT_EQ(tr.duration_s, before.duration_s);  // nothing changed
+}
