@@ -1,5 +1,7 @@
 #include "bindings.hpp"
 #include "shotcrete/collision/clearance.hpp"
+#include "shotcrete/collision/transit.hpp"
+#include "shotcrete/robot/robot.hpp"
 #include "shotcrete/timing/trajectory.hpp"
 
 using namespace shotcrete;
@@ -29,8 +31,18 @@ void bind_collision(py::module_& m) {
             return py::make_tuple(d, closest);
           },
           py::arg("shape"), py::arg("link_pose"),
-          "(distance m, the wall's closest point) of a shape at its link's 4x4 world pose; reads at most half a "
-          "leaf diagonal short, never long");
+          "(distance m, the wall's closest point) of a shape at its link's 4x4 world pose; reads at most a leaf "
+          "diagonal short, never long")
+      .def(
+          "exact_distance",
+          [](const WallOctree& w, const CollisionShape& s, const Eigen::Matrix4d& link_pose) {
+            Eigen::Vector3d closest;
+            const double d = w.exact_distance(s, Eigen::Isometry3d(link_pose), &closest);
+            return py::make_tuple(d, closest);
+          },
+          py::arg("shape"), py::arg("link_pose"),
+          "(distance m, the nearest wall point): the octree's answer refined over the points within its bound "
+          "(KD-tree): the minimum over every point");
   m.def(
       "point_shape_distance",
       [](const Eigen::Vector3d& p, const CollisionShape& s, const Eigen::Matrix4d& link_pose) {
@@ -71,5 +83,47 @@ void bind_collision(py::module_& m) {
       py::arg("robot"), py::arg("trajectory"), py::arg("wall"), py::arg("config"), py::arg("progress") = nullptr,
       "Least distance of every link to the wall and between non-neighbouring links along the trajectory, and "
       "the samples below the margins (exact: samples are skipped only where a motion bound proves them clear).");
+  m.def("shape_margin_m", &shape_margin_m, py::arg("shape"), py::arg("config"),
+        "Wall margin of a shape: nozzle_margin_m for links named nozzle*, else link_margin_m.");
+  m.def("self_check_pairs", &self_check_pairs, py::arg("robot"),
+        "Shape index pairs checked against each other (not neighbours, not touching at neutral).");
+  m.def(
+      "posture_allowance",
+      [](const Robot& robot, const Eigen::VectorXd& q, const WallOctree& wall, const ClearanceConfig& config, double cap_m) {
+        return posture_allowance(robot, q, wall, config, self_check_pairs(robot), cap_m);
+      },
+      py::arg("robot"), py::arg("q"), py::arg("wall"), py::arg("config"), py::arg("cap_m") = 10.0,
+      "Least distance less margin of posture q over the link shapes (wall) and link pairs, at most cap_m [m].");
+  py::class_<TransitDetour>(m, "TransitDetour", "A joint move that came closer than the margins.")
+      .def_readonly("move", &TransitDetour::move, "index among the trajectory's joint moves (0 = from the start)")
+      .def_readonly("region_index", &TransitDetour::region_index, "-1 between regions, else a stop-and-go move")
+      .def_readonly("start_time_s", &TransitDetour::start_time_s)
+      .def_readonly("straight_samples_below", &TransitDetour::straight_samples_below)
+      .def_readonly("straight_worst", &TransitDetour::straight_worst)
+      .def_readonly("straight_min_allowance_m", &TransitDetour::straight_min_allowance_m)
+      .def_readonly("rerouted", &TransitDetour::rerouted)
+      .def_readonly("reason", &TransitDetour::reason)
+      .def_readonly("vias", &TransitDetour::vias)
+      .def_readonly("via_allowance_m", &TransitDetour::via_allowance_m)
+      .def_readonly("min_allowance_m", &TransitDetour::min_allowance_m)
+      .def_readonly("straight_duration_s", &TransitDetour::straight_duration_s)
+      .def_readonly("duration_s", &TransitDetour::duration_s)
+      .def_readonly("optimisations", &TransitDetour::optimisations);
+  py::class_<TransitReport>(m, "TransitReport", "The joint moves of a trajectory checked and re-routed.")
+      .def_readonly("moves_checked", &TransitReport::moves_checked)
+      .def_readonly("rerouted", &TransitReport::rerouted)
+      .def_readonly("failed", &TransitReport::failed)
+      .def_readonly("detour_time_s", &TransitReport::detour_time_s)
+      .def_readonly("detours", &TransitReport::detours)
+      .def_readonly("seconds", &TransitReport::seconds);
+  m.def(
+      "clear_transits",
+      [](const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall, const ClearanceConfig& config,
+         const TimingConfig& timing) {
+        py::gil_scoped_release release;
+        return clear_transits(robot, trajectory, wall, config, timing);
+      },
+      py::arg("robot"), py::arg("trajectory"), py::arg("wall"), py::arg("config"), py::arg("timing"),
+      "Checks every joint move of the trajectory and re-routes (in place) those closer than the margins through "
+      "via postures of maximum space allowance.");
 }
-

@@ -460,7 +460,21 @@ void bind_timing(py::module_& m) {
                              "ExecutedDeposit of the trajectory kept, or None without a trajectory")
       .def_property_readonly("clearance",
                              [](const ArmPlan& a) -> py::object { return a.clearance ? py::cast(*a.clearance) : py::none(); },
-                             "ClearanceReport of the trajectory (clearance.enabled), or None");
+                             "ClearanceReport of the trajectory (clearance.enabled), or None")
+      .def_property_readonly("transits",
+                             [](const ArmPlan& a) -> py::object { return a.transits ? py::cast(*a.transits) : py::none(); },
+                             "TransitReport of its joint moves (clearance.enabled), or None");
+  m.def(
+      "joint_moves",
+      [](const TimedTrajectory& tr) {
+        std::vector<std::tuple<std::size_t, std::size_t, int>> out;
+        for (const auto& mv : joint_moves(tr)) out.emplace_back(mv.start, mv.end, mv.region_index);
+        return out;
+      },
+      py::arg("trajectory"),
+      "The rest-to-rest joint moves as (start, end, region_index): samples (start, end], region -1 between regions.");
+  m.def("arm_wall", &arm_wall, py::arg("surface"), py::arg("executed"),
+        "The wall the arm meets: the scan's points and the executed deposit's surface (n x 3).");
   m.def(
       "arm_clearance",
       [](const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed, const Robot& robot,

@@ -5,6 +5,8 @@
 //            in report.json), ~execute (success + a one-line summary).
 // Published: ~cloud (PointCloud2, TD as intensity and rgb; republished while concrete is deposited),
 //            ~grid_levels, ~passes (MarkerArray), ~summary (String: the plan's JSON summary),
+//            ~clearance (MarkerArray: each link's collision shapes at the posture of its least
+//            distance to the wall, red when closer than its margin, and the wall's closest point),
 //            /joint_states, /tf_static.
 // Config:    ~config (YAML; default the repository's config/default.yaml), and every
 //            ~<section>/<key> of the config field table overrides that one value.
@@ -29,6 +31,7 @@
 #include <thread>
 
 #include "ros_conversions.hpp"
+#include "shotcrete/collision/clearance.hpp"
 #include "shotcrete/pipeline/arm_plan.hpp"
 #include "shotcrete/pipeline/executed_deposit.hpp"
 #include "shotcrete/pipeline/job_summary.hpp"
@@ -116,6 +119,7 @@ class ShotcreteNode {
     cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("cloud", 1, true);
     levels_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("grid_levels", 1, true);
     passes_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("passes", 1, true);
+    clearance_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("clearance", 1, true);
     summary_pub_ = pnh_.advertise<std_msgs::String>("summary", 1, true);
     joint_pub_ = nh_.advertise<sensor_msgs::JointState>("joint_states", 10);
     tf_static_pub_ = nh_.advertise<tf2_msgs::TFMessage>("tf_static", 1, true);
@@ -212,6 +216,8 @@ class ShotcreteNode {
       plan_problems_ = problems;
     }
     publish_passes(*surface, *plan);
+    if (job.clearance && trajectory) publish_clearance(*job.clearance, *trajectory);
+    else clearance_pub_.publish(visualization_msgs::MarkerArray{});
     std_msgs::String msg;
     msg.data = summary;
     summary_pub_.publish(msg);
@@ -538,6 +544,63 @@ class ShotcreteNode {
     passes_pub_.publish(arr);
   }
 
+  /// Per link with collision geometry: its shapes at the trajectory sample of its least distance to
+  /// the wall (ns "clearance_links", red when closer than its margin, green otherwise), a sphere at
+  /// the wall's closest point then (ns "clearance_closest") and a label with the distance
+  /// (ns "clearance_text").
+  void publish_clearance(const shotcrete::ClearanceReport& rep, const shotcrete::TimedTrajectory& traj) {
+    visualization_msgs::MarkerArray arr;
+    arr.markers.push_back(delete_all());
+    if (traj.size() == 0) return clearance_pub_.publish(arr);
+    const auto& shapes = robot_->collision_shapes();
+    int id = 0;
+    for (std::size_t l = 0; l < rep.links.size(); ++l) {
+      const auto& lc = rep.links[l];
+      if (!std::isfinite(lc.min_m)) continue;
+      const bool below = lc.min_m < lc.margin_m;
+      std_msgs::ColorRGBA color;
+      color.r = below ? 1.0f : 0.1f, color.g = below ? 0.1f : 0.8f, color.b = 0.1f, color.a = below ? 0.9f : 0.5f;
+      const auto k = static_cast<std::size_t>(
+          std::lower_bound(traj.t_s.begin(), traj.t_s.end(), lc.at_time_s) - traj.t_s.begin());
+      const auto frames = robot_->link_frames(traj.q[std::min(k, traj.size() - 1)]);
+      for (const auto& s : shapes) {
+        if (s.link != lc.link) continue;
+        using M = visualization_msgs::Marker;
+        auto m = marker("clearance_links", id++,
+                        s.kind == shotcrete::CollisionShape::Kind::cylinder ? M::CYLINDER
+                        : s.kind == shotcrete::CollisionShape::Kind::box   ? M::CUBE
+                                                                           : M::SPHERE);
+        const Eigen::Isometry3d T = frames[s.frame] * s.origin;
+        const Eigen::Quaterniond q(T.linear());
+        m.pose.position = point_msg(T.translation());
+        m.pose.orientation.x = q.x(), m.pose.orientation.y = q.y(), m.pose.orientation.z = q.z(), m.pose.orientation.w = q.w();
+        if (s.kind == shotcrete::CollisionShape::Kind::cylinder)
+          m.scale.x = m.scale.y = 2.0 * s.radius_m, m.scale.z = s.length_m;
+        else if (s.kind == shotcrete::CollisionShape::Kind::box)
+          m.scale.x = s.size_m.x(), m.scale.y = s.size_m.y(), m.scale.z = s.size_m.z();
+        else
+          m.scale.x = m.scale.y = m.scale.z = 2.0 * s.radius_m;
+        m.color = color;
+        arr.markers.push_back(m);
+      }
+      auto dot = marker("clearance_closest", static_cast<int>(l), visualization_msgs::Marker::SPHERE);
+      dot.pose.position = point_msg(lc.closest_m);
+      dot.scale.x = dot.scale.y = dot.scale.z = 0.08;
+      dot.color = color, dot.color.a = 1.0f;
+      arr.markers.push_back(dot);
+      auto text = marker("clearance_text", static_cast<int>(l), visualization_msgs::Marker::TEXT_VIEW_FACING);
+      text.pose.position = point_msg(lc.closest_m + Eigen::Vector3d(0, 0, -0.15));
+      text.scale.z = 0.1;
+      text.color = dot.color;
+      std::ostringstream t;
+      t << std::fixed << std::setprecision(2) << lc.link << " " << lc.min_m << " m (margin " << lc.margin_m << ") at "
+        << std::setprecision(0) << lc.at_time_s << " s";
+      text.text = t.str();
+      arr.markers.push_back(text);
+    }
+    clearance_pub_.publish(arr);
+  }
+
   /// Outline of a region's bounding box of cells, drawn on the design line (arcs along theta).
   static void add_region_outline(const shotcrete::Grid& grid, const shotcrete::Region& region,
                                  visualization_msgs::Marker& m) {
@@ -580,7 +643,7 @@ class ShotcreteNode {
   std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
   std::shared_ptr<const shotcrete::ExecutedDeposit> executed_;  // of trajectory_
 
-  ros::Publisher cloud_pub_, levels_pub_, passes_pub_, summary_pub_, joint_pub_, tf_static_pub_;
+  ros::Publisher cloud_pub_, levels_pub_, passes_pub_, clearance_pub_, summary_pub_, joint_pub_, tf_static_pub_;
   ros::Subscriber cloud_sub_;
   ros::ServiceServer plan_srv_, execute_srv_;
   ros::WallTimer idle_timer_;

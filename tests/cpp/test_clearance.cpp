@@ -88,6 +88,11 @@ TEST(Clearance, OctreeDistanceAgainstBruteForce) {
       Eigen::Vector3d closest;
       const double d = tree.distance(s, pose, &closest);
       EXPECT_LE(d, exact + 1e-6) << "octree read long at pose " << k;
+      // Refined over the points near the shape (KD-tree): the brute force's minimum, at a wall point.
+      Eigen::Vector3d point;
+      EXPECT_NEAR(tree.exact_distance(s, pose, &point), exact, 1e-9) << "pose " << k;
+      EXPECT_NEAR(point_shape_distance(point, s, pose), exact, 1e-9);
+      EXPECT_NEAR(std::hypot(point.y(), point.z()), 5.6, 1e-9);
       if (exact > std::sqrt(3.0) * res) {
         EXPECT_GE(d, exact - std::sqrt(3.0) * res - 1e-6) << "pose " << k;
         worst_short = std::max(worst_short, exact - d);

@@ -105,6 +105,12 @@ struct SynthConfig {
   double noise_m = 0.005;         // scanner noise (std dev, radial)
   double points_per_cell = 20.0;  // mean points per 50 mm x 50 mm cell
   std::uint64_t seed = 1;
+  // Opt-in rock protrusion (0 = none): a bump of the pits' shape standing protrusion_height_m out
+  // of the wall toward the axis, centred at (protrusion_d_m, protrusion_theta_rad).
+  double protrusion_height_m = 0.0;
+  double protrusion_d_m = 0.6;
+  double protrusion_theta_rad = 1.5708;
+  double protrusion_radius_m = 0.6;  // D of the bump (on the unrolled wall)
 };
 
 struct DepositionConfig {
@@ -210,6 +216,10 @@ struct ClearanceConfig {
   double nozzle_margin_m = 0.4;       // least distance of the nozzle links (nozzle*) to the wall;
                                       // the tip faces it at the standoff less the layers to come
   double self_margin_m = 0.05;        // least distance between two links that are not neighbours
+  bool reroute_transits = true;       // joint moves closer than the margins go through a via posture
+                                      // of maximum space allowance (clear_transits)
+  double via_allowance_m = 0.3;       // allowance beyond the margins sought at a via posture; past
+                                      // it the posture nearest the straight move wins
 };
 
 struct Config {

@@ -65,6 +65,10 @@ template <class F> void visit(SynthConfig*, F&& f) {
   f("noise_m", &SynthConfig::noise_m, 0.0, 0.1, "radial scanner noise std dev [m]");
   f("points_per_cell", &SynthConfig::points_per_cell, 0.1, 10000.0, "mean points per grid cell");
   f("seed", &SynthConfig::seed, 0, 0, "random seed");
+  f("protrusion_height_m", &SynthConfig::protrusion_height_m, 0.0, 2.0, "rock protrusion toward the axis (0 = none) [m]");
+  f("protrusion_d_m", &SynthConfig::protrusion_d_m, -10.0, 30.0, "protrusion centre along the bay [m]");
+  f("protrusion_theta_rad", &SynthConfig::protrusion_theta_rad, -3.2, 3.2, "protrusion centre angle [rad]");
+  f("protrusion_radius_m", &SynthConfig::protrusion_radius_m, 0.01, 10.0, "protrusion radius on the unrolled wall [m]");
 }
 template <class F> void visit(DepositionConfig*, F&& f) {
   f("reference_standoff_m", &DepositionConfig::reference_standoff_m, 0.1, 5.0, "H0 of the spot model [m]");
@@ -156,6 +160,8 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("link_margin_m", &ClearanceConfig::link_margin_m, 0.0, 5.0, "least link-to-wall distance [m]");
   f("nozzle_margin_m", &ClearanceConfig::nozzle_margin_m, 0.0, 5.0, "least nozzle-to-wall distance (links nozzle*) [m]");
   f("self_margin_m", &ClearanceConfig::self_margin_m, 0.0, 5.0, "least distance between non-neighbouring links [m]");
+  f("reroute_transits", &ClearanceConfig::reroute_transits, 0, 0, "re-route joint moves closer than the margins through a via posture of maximum space allowance");
+  f("via_allowance_m", &ClearanceConfig::via_allowance_m, 0.0, 5.0, "allowance beyond the margins sought at a via posture [m]");
 }
 
 template <class G> void visit_sections(G&& g) {

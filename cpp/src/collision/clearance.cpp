@@ -3,12 +3,15 @@
 #include <fcl/fcl.h>
 #include <fcl/geometry/octree/octree.h>
 #include <octomap/OcTree.h>
+#include <pcl/kdtree/kdtree_flann.h>
+#include <pcl/point_types.h>
 
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
 
 #include "shotcrete/timing/trajectory.hpp"
@@ -68,8 +71,6 @@ double fcl_distance(const fcl::CollisionObjectd& a, const fcl::CollisionObjectd&
   return std::max(0.0, result.min_distance);
 }
 
-bool is_nozzle_link(const std::string& name) { return name.rfind("nozzle", 0) == 0; }
-
 // The reported minima may be this much above the exact ones (a sample is not checked when it
 // could only lower a minimum by less); the counts below the margins are exact.
 constexpr double kMinTolerance_m = 0.01;
@@ -88,6 +89,20 @@ struct WallOctree::Impl {
   std::size_t leaves = 0;
   std::shared_ptr<fcl::OcTreed> geometry;
   std::unique_ptr<fcl::CollisionObjectd> object;
+  Points points;  // the wall's points, for exact distances
+  std::once_flag kd_built;
+  pcl::KdTreeFLANN<pcl::PointXYZ> kd;
+  const pcl::KdTreeFLANN<pcl::PointXYZ>& kdtree() {
+    std::call_once(kd_built, [&] {
+      auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+      cloud->resize(static_cast<std::size_t>(points.rows()));
+      for (Eigen::Index i = 0; i < points.rows(); ++i)
+        (*cloud)[static_cast<std::size_t>(i)] = pcl::PointXYZ(static_cast<float>(points(i, 0)), static_cast<float>(points(i, 1)),
+                                                              static_cast<float>(points(i, 2)));
+      kd.setInputCloud(cloud);
+    });
+    return kd;
+  }
 };
 
 WallOctree::WallOctree(const Points& xyz_m, double resolution_m) : impl_(std::make_unique<Impl>()) {
@@ -102,6 +117,7 @@ WallOctree::WallOctree(const Points& xyz_m, double resolution_m) : impl_(std::ma
                      true, true);  // lazy: inner nodes once below
   tree->updateInnerOccupancy();
   impl_->resolution_m = resolution_m;
+  impl_->points = xyz_m;
   impl_->leaves = tree->getNumLeafNodes();
   impl_->geometry = std::make_shared<fcl::OcTreed>(tree);
   impl_->object = std::make_unique<fcl::CollisionObjectd>(impl_->geometry, fcl::Transform3d::Identity());
@@ -126,6 +142,42 @@ double WallOctree::distance(const CollisionShape& shape, const Eigen::Isometry3d
   return d;
 }
 
+double WallOctree::exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
+                                  Eigen::Vector3d* closest_m) const {
+  // Every point of the nearest leaf lies within a leaf diagonal of the shape's distance to it.
+  const double upper = distance(shape, link_pose) + std::sqrt(3.0) * impl_->resolution_m;
+  // Spheres that cover every point within `upper` of the shape: along a cylinder's axis, spaced at
+  // most the tube's radius apart; one about a box's or a sphere's centre.
+  const Eigen::Isometry3d T = link_pose * shape.origin;
+  std::vector<std::pair<Eigen::Vector3d, double>> balls;
+  if (shape.kind == CollisionShape::Kind::cylinder) {
+    const double tube = shape.radius_m + upper;
+    const int m = std::max(1, static_cast<int>(std::ceil(shape.length_m / tube)));
+    const double h = shape.length_m / m;
+    for (int k = 0; k <= m; ++k)
+      balls.emplace_back(T * Eigen::Vector3d(0, 0, -0.5 * shape.length_m + k * h), std::hypot(0.5 * h, tube));
+  } else {
+    const double r = shape.kind == CollisionShape::Kind::box ? 0.5 * shape.size_m.norm() : shape.radius_m;
+    balls.emplace_back(T.translation(), r + upper);
+  }
+  const auto& kd = impl_->kdtree();
+  double best = std::numeric_limits<double>::infinity();
+  Eigen::Index best_i = -1;
+  std::vector<int> idx;
+  std::vector<float> d2;
+  for (const auto& [c, r] : balls) {
+    kd.radiusSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())),
+                    r + 1e-4, idx, d2);  // (float coordinates: a hair wider)
+    for (int i : idx) {
+      const double d = point_shape_distance(impl_->points.row(i).transpose(), shape, link_pose);
+      if (d < best) best = d, best_i = i;
+    }
+  }
+  if (best_i < 0) throw std::logic_error("WallOctree::exact_distance: no point within the octree's bound");
+  if (closest_m) *closest_m = impl_->points.row(best_i).transpose();
+  return best;
+}
+
 double shape_distance(const CollisionShape& a, const Eigen::Isometry3d& pose_a, const CollisionShape& b,
                       const Eigen::Isometry3d& pose_b) {
   const fcl::CollisionObjectd oa(fcl_shape(a), to_fcl(pose_a * a.origin));
@@ -147,6 +199,10 @@ double point_shape_distance(const Eigen::Vector3d& p_world, const CollisionShape
       return std::max(0.0, p.norm() - shape.radius_m);
   }
   throw std::logic_error("point_shape_distance: unknown shape kind");
+}
+
+double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config) {
+  return shape.link.rfind("nozzle", 0) == 0 ? config.nozzle_margin_m : config.link_margin_m;
 }
 
 std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot) {
@@ -188,7 +244,7 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
     if (it == rep.links.end()) {
       LinkClearance l;
       l.link = shapes[s].link;
-      l.margin_m = is_nozzle_link(l.link) ? config.nozzle_margin_m : config.link_margin_m;
+      l.margin_m = shape_margin_m(shapes[s], config);
       l.min_m = std::numeric_limits<double>::infinity();
       rep.links.push_back(l);
       it = rep.links.end() - 1;

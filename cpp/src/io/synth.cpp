@@ -33,6 +33,11 @@ double SyntheticBay::td_at(double d_m, double theta_rad) const {
     const double q = ((d_m - p.d_m) * (d_m - p.d_m) + (s - p.s_m) * (s - p.s_m)) / (p.radius_m * p.radius_m);
     if (q < 1.0) td += p.depth_m * std::pow(1.0 - q, config.pit_shape_alpha);
   }
+  if (config.protrusion_height_m > 0.0) {
+    const double ds = s - config.protrusion_theta_rad * config.design_radius_m, dd = d_m - config.protrusion_d_m;
+    const double q = (dd * dd + ds * ds) / (config.protrusion_radius_m * config.protrusion_radius_m);
+    if (q < 1.0) td -= config.protrusion_height_m * std::pow(1.0 - q, config.pit_shape_alpha);
+  }
   return td;
 }
 

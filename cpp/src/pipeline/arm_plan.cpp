@@ -141,18 +141,29 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
 
 }  // namespace
 
-ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed,
-                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress) {
+Points arm_wall(const Surface& surface, const ExecutedDeposit& executed) {
   // The wall as scanned and as sprayed: concrete only grows toward the arm, so the union holds
   // every surface the arm meets during the job.
   const Points& scan = surface.cloud.xyz;
   const Points& sprayed = executed.wall.surface.cloud.xyz;
   Points wall(scan.rows() + sprayed.rows(), 3);
   wall << scan, sprayed;
+  return wall;
+}
+
+ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed,
+                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress) {
+  const Points wall = arm_wall(surface, executed);
   const WallOctree octree(wall, config.octree_resolution_m);
   ClearanceReport rep = check_clearance(robot, trajectory, octree, config, progress);
   rep.wall_points = static_cast<std::size_t>(wall.rows());
   return rep;
+}
+
+TransitReport arm_transits(const Surface& surface, TimedTrajectory& trajectory, const ExecutedDeposit& executed,
+                           const Robot& robot, const ClearanceConfig& config, const TimingConfig& timing) {
+  const WallOctree octree(arm_wall(surface, executed), config.octree_resolution_m);
+  return clear_transits(robot, trajectory, octree, config, timing);
 }
 
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
@@ -200,8 +211,22 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (progress) progress("executed deposit", 0.0);
   out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
   if (progress) progress("executed deposit", 1.0);
-  if (config.clearance.enabled)
-    out.clearance = arm_clearance(surface, *out.trajectory, *out.executed, robot, config.clearance, progress);
+  if (config.clearance.enabled) {
+    if (progress) progress("transits", 0.0);
+    Points wall = arm_wall(surface, *out.executed);
+    auto octree = std::make_unique<WallOctree>(wall, config.clearance.octree_resolution_m);
+    out.transits = clear_transits(robot, *out.trajectory, *octree, config.clearance, config.timing);
+    if (progress) progress("transits", 1.0);
+    // A re-route spreads the samples after it in time: the pump's flow (off-gaps it bridges) is
+    // laid again on the trajectory kept, and the wall it leaves is the one checked.
+    if (out.transits->rerouted > 0) {
+      out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
+      wall = arm_wall(surface, *out.executed);
+      octree = std::make_unique<WallOctree>(wall, config.clearance.octree_resolution_m);
+    }
+    out.clearance = check_clearance(robot, *out.trajectory, *octree, config.clearance, progress);
+    out.clearance->wall_points = static_cast<std::size_t>(wall.rows());
+  }
   return out;
 }
 

@@ -167,7 +167,32 @@ void write_distance(JsonWriter& w, double d) {
   else w.null();
 }
 
-void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m) {
+void write(JsonWriter& w, const TransitReport& t) {
+  w.begin_object().field("checked", t.moves_checked).field("rerouted", t.rerouted).field("failed", t.failed);
+  w.field("detour_time_s", t.detour_time_s).key("detours").begin_array();
+  for (const auto& d : t.detours) {
+    w.begin_object().field("move", d.move).field("region_index", d.region_index).field("start_time_s", d.start_time_s);
+    w.field("straight_samples_below", d.straight_samples_below).field("straight_worst", d.straight_worst);
+    w.field("straight_min_allowance_m", d.straight_min_allowance_m).field("rerouted", d.rerouted).key("reason");
+    if (d.reason.empty()) w.null();
+    else w.value(d.reason);
+    w.key("vias").begin_array();
+    for (const auto& v : d.vias) {
+      w.begin_array();
+      for (Eigen::Index j = 0; j < v.size(); ++j) w.value(v[j]);
+      w.end_array();
+    }
+    w.end_array().key("via_allowance_m").begin_array();
+    for (double a : d.via_allowance_m) w.value(a);
+    w.end_array().key("min_allowance_m");
+    if (d.rerouted) w.value(d.min_allowance_m);
+    else w.null();
+    w.field("straight_duration_s", d.straight_duration_s).field("duration_s", d.duration_s).end_object();
+  }
+  w.end_array().end_object();
+}
+
+void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m, const std::optional<TransitReport>& transits) {
   w.begin_object().field("samples_below_margin", c.samples_below_margin()).field("samples", c.samples);
   w.field("octree_resolution_m", c.octree_resolution_m).field("wall_points", static_cast<long>(c.wall_points));
   w.field("octree_leaves", static_cast<long>(c.octree_leaves)).field("wall_queries", static_cast<long>(c.wall_queries));
@@ -183,6 +208,10 @@ void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m) {
   w.field("margin_m", self_margin_m).key("min_m");
   write_distance(w, c.self.min_m);
   w.field("at_time_s", c.self.at_time_s).field("samples_below_margin", c.self.samples_below_margin).end_object();
+  if (transits) {
+    w.key("transits");
+    write(w, *transits);
+  }
   w.end_object();
 }
 
@@ -377,6 +406,7 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
     if (arm_plan.tuning || !arm_plan.tuning_error.empty()) s.swarm = summarise_swarm(arm_plan);
   }
   if (arm_plan.clearance) s.clearance = arm_plan.clearance;
+  if (arm_plan.transits) s.transits = arm_plan.transits;
   s.self_margin_m = config.clearance.self_margin_m;
   s.problems = plan_problems(s);
   s.status = s.problems.empty() ? "ok" : "not_executable";
@@ -435,8 +465,16 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
         worst += (worst.empty() ? "" : ", ") + l.link + " " + fmt(l.min_m, 2) + " m (margin " + fmt(l.margin_m, 2) + ")";
     if (c->self.samples_below_margin > 0)
       worst += (worst.empty() ? "" : ", ") + c->self.link_a + "-" + c->self.link_b + " " + fmt(c->self.min_m, 2) + " m";
+    std::string moves;
+    if (s.transits && s.transits->failed > 0)
+      for (const auto& d : s.transits->detours)
+        if (!d.rerouted) {
+          moves = "; " + std::to_string(s.transits->failed) + " joint move(s) not re-routed (move " + std::to_string(d.move) +
+                  ": " + d.reason + ")";
+          break;
+        }
     out.push_back({"clearance", "the arm comes closer than its margins at " + std::to_string(c->samples_below_margin()) +
-                                    " link-samples: " + worst});
+                                    " link-samples: " + worst + moves});
   }
   return out;
 }
@@ -510,7 +548,7 @@ std::string JobSummary::to_json() const {
   }
   if (clearance) {
     w.key("clearance");
-    write(w, *clearance, self_margin_m);
+    write(w, *clearance, self_margin_m, transits);
   }
   w.end_object();
   return w.str();

@@ -189,9 +189,30 @@ void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const 
   tr.kind.push_back(kind);
 }
 
+// Rest-to-rest joint quintic q0 -> q1 within the joint and nozzle limits, appended to tr from time
+// t0 (not included) as samples of kind Transit with region index `region`. Returns its duration;
+// `pushed` gets the number of samples appended.
+double push_joint_leg(const Robot& robot, const TimingConfig& timing, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1,
+                      double t0, int region, TimedTrajectory& tr, std::size_t& pushed) {
+  pushed = 0;
+  const double T = quintic_nozzle_duration(robot, q0, q1, timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2);
+  if (!(T > 0.0)) return T;
+  for (double t : time_grid(T, timing.trajectory_rate_hz)) {
+    if (t == 0.0) continue;
+    Eigen::VectorXd q, qd, qdd;
+    quintic_joint(q0, q1, T, t, q, qd, qdd);
+    push_sample(tr, t0 + t, q, pose_of(robot.fk(q)), 0, -1, region, static_cast<char>(SegmentKind::Transit));
+    ++pushed;
+  }
+  return T;
+}
+
 // Velocities / accelerations by finite differences and the limit check.
 void finish_trajectory(const Robot& robot, TimedTrajectory& tr) {
   const int dof = robot.dof();
+  tr.max_velocity_ratio = tr.max_acceleration_ratio = 0.0;
+  tr.worst_velocity_joint = tr.worst_acceleration_joint = -1;
+  tr.max_position_violation_rad = tr.max_position_violation_m = 0.0;
   finite_differences(tr.t_s, tr.q, tr.qd, tr.qdd);
   const Eigen::VectorXd& vl = robot.velocity_limits();
   const Eigen::VectorXd& al = robot.acceleration_limits();
@@ -324,17 +345,9 @@ std::vector<Eigen::VectorXd> first_stretch_joints(const TimingContext& ctx, cons
 // duration.
 double append_joint_move(const TimingContext& ctx, const Eigen::VectorXd& q0, const Eigen::VectorXd& q1, double t0,
                          int region, RegionTiming& out) {
-  const Robot& robot = ctx.robot;
-  const double T =
-      quintic_nozzle_duration(robot, q0, q1, ctx.timing.nozzle_max_speed_mps, ctx.timing.nozzle_max_accel_mps2);
-  if (!(T > 0.0)) return T;
-  for (double t : time_grid(T, ctx.timing.trajectory_rate_hz)) {
-    if (t == 0.0) continue;
-    Eigen::VectorXd q, qd, qdd;
-    quintic_joint(q0, q1, T, t, q, qd, qdd);
-    push_sample(out.part, t0 + t, q, pose_of(robot.fk(q)), 0, -1, region, static_cast<char>(SegmentKind::Transit));
-    out.slot.push_back(-1);
-  }
+  std::size_t pushed = 0;
+  const double T = push_joint_leg(ctx.robot, ctx.timing, q0, q1, t0, region, out.part, pushed);
+  out.slot.insert(out.slot.end(), pushed, -1);
   return T;
 }
 
@@ -523,6 +536,77 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
   tr.spray_time_s = tr.cycle_time.spraying_s;
   finish_trajectory(robot, tr);
   return tr;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Joint moves (re-routed by collision/transit)
+// ------------------------------------------------------------------------------------------------
+
+std::vector<JointMove> joint_moves(const TimedTrajectory& tr) {
+  const auto transit = static_cast<char>(SegmentKind::Transit);
+  std::vector<JointMove> out;
+  std::size_t i = 0;
+  while (i < tr.size()) {
+    if (tr.kind[i] != transit) {
+      ++i;
+      continue;
+    }
+    std::size_t j = i;
+    while (j + 1 < tr.size() && tr.kind[j + 1] == transit) ++j;
+    // The first sample of a trajectory is its start posture (kind Transit): the move starts there.
+    JointMove m;
+    m.start = i == 0 ? 0 : i - 1;
+    m.end = j;
+    m.region_index = tr.region_index[j];
+    if (m.end > m.start) out.push_back(m);
+    i = j + 1;
+  }
+  return out;
+}
+
+TimedTrajectory joint_move_through(const Robot& robot, const std::vector<Eigen::VectorXd>& postures,
+                                   const TimingConfig& timing, int region_index) {
+  if (postures.size() < 2) throw std::invalid_argument("joint_move_through: needs at least two postures");
+  TimedTrajectory piece;
+  double t0 = 0.0;
+  for (std::size_t k = 0; k + 1 < postures.size(); ++k) {
+    std::size_t pushed = 0;
+    const double T = push_joint_leg(robot, timing, postures[k], postures[k + 1], t0, region_index, piece, pushed);
+    if (T > 0.0) t0 += T;
+  }
+  piece.duration_s = t0;
+  piece.transit_time_s = t0;
+  return piece;
+}
+
+void replace_joint_move(const Robot& robot, TimedTrajectory& tr, const JointMove& move, const TimedTrajectory& piece) {
+  if (!(move.start < move.end && move.end < tr.size()))
+    throw std::invalid_argument("replace_joint_move: samples (" + std::to_string(move.start) + ", " +
+                                std::to_string(move.end) + "] are not a move of a trajectory of " +
+                                std::to_string(tr.size()) + " samples");
+  if (piece.size() == 0 || !piece.q.back().isApprox(tr.q[move.end], 1e-9))
+    throw std::invalid_argument("replace_joint_move: the new move does not end where the old one did");
+  const double t_start = tr.t_s[move.start];
+  const double delta = piece.duration_s - move.duration_s(tr);
+  const auto first = static_cast<std::ptrdiff_t>(move.start + 1), last = static_cast<std::ptrdiff_t>(move.end + 1);
+  auto splice = [&](auto& dst, const auto& src) {
+    dst.erase(dst.begin() + first, dst.begin() + last);
+    dst.insert(dst.begin() + first, src.begin(), src.end());
+  };
+  const std::size_t after = move.start + 1 + piece.size();  // first sample after the new move
+  splice(tr.t_s, piece.t_s);
+  splice(tr.q, piece.q);
+  splice(tr.nozzle, piece.nozzle);
+  splice(tr.spraying, piece.spraying);
+  splice(tr.pass_index, piece.pass_index);
+  splice(tr.region_index, piece.region_index);
+  splice(tr.kind, piece.kind);
+  for (std::size_t k = move.start + 1; k < after; ++k) tr.t_s[k] += t_start;
+  for (std::size_t k = after; k < tr.size(); ++k) tr.t_s[k] += delta;
+  tr.duration_s += delta;
+  tr.transit_time_s += delta;
+  (move.region_index < 0 ? tr.cycle_time.transits_s : tr.cycle_time.stop_and_go_s) += delta;
+  finish_trajectory(robot, tr);
 }
 
 }  // namespace shotcrete

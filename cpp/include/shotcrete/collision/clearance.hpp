@@ -18,7 +18,7 @@ namespace shotcrete {
 struct TimedTrajectory;
 
 /// The wall as an obstacle: an octree of points (leaf edge `resolution_m`). Each occupied leaf is a
-/// box, so a distance reads at most half a leaf diagonal (sqrt(3)/2 x resolution) short of the
+/// box, so a distance reads at most a leaf diagonal (sqrt(3) x resolution) short of the
 /// distance to the points themselves, never long.
 class WallOctree {
  public:
@@ -32,6 +32,12 @@ class WallOctree {
   /// the bound prunes the search.
   double distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m = nullptr,
                   double at_most_m = std::numeric_limits<double>::max()) const;
+  /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
+  /// the octree's answer L is at most a leaf diagonal short, so every point that can be nearest
+  /// lies within L + sqrt(3) x resolution of the shape; those are gathered from a KD-tree of the
+  /// points (built on first use) and measured exactly (point_shape_distance). `closest_m`: the point.
+  double exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
+                        Eigen::Vector3d* closest_m = nullptr) const;
   double resolution_m() const;
   std::size_t occupied_leaves() const;
 
@@ -47,6 +53,9 @@ double shape_distance(const CollisionShape& a, const Eigen::Isometry3d& pose_a, 
 /// Distance [m] of a point to a shape at its link's world pose (0 inside): the exact reference
 /// the octree query is checked against.
 double point_shape_distance(const Eigen::Vector3d& p, const CollisionShape& shape, const Eigen::Isometry3d& link_pose);
+
+/// The wall margin of a shape: nozzle_margin_m for links named nozzle*, else link_margin_m.
+double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config);
 
 /// Shape pairs checked against each other: every pair on links that are not neighbours on the
 /// chain (frames more than one apart) and do not already touch at the neutral posture (a

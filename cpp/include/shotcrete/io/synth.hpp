@@ -21,7 +21,7 @@ struct SyntheticBay {
   std::vector<DigPit> pits;
   TunnelAxis axis;  // x axis through the origin
 
-  /// Noise-free TD (m) of the wall at (d, theta).
+  /// Noise-free TD (m) of the wall at (d, theta): over-break, pits, less the protrusion.
   double td_at(double d_m, double theta_rad) const;
   /// Points on the wall with radial noise; about points_per_cell per cell of `cell_size_m`.
   Cloud sample(double cell_size_m = 0.05) const;

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "shotcrete/collision/clearance.hpp"
+#include "shotcrete/collision/transit.hpp"
 #include "shotcrete/pipeline/executed_deposit.hpp"
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/timing/timing.hpp"
@@ -51,6 +52,9 @@ struct ArmPlan {
   // With clearance.enabled and a trajectory: the space allowance of every link along it, against
   // the wall as scanned and as sprayed (check_clearance).
   std::optional<ClearanceReport> clearance;
+  // With clearance.enabled and a trajectory: its joint moves checked, and those closer than the
+  // margins re-routed (clear_transits, before the clearance check of the whole trajectory).
+  std::optional<TransitReport> transits;
 };
 
 /// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the
@@ -62,9 +66,19 @@ struct ArmPlan {
 /// With timing.tune_with_pso the final plan's regions are then tuned by tune_timing and timed
 /// again; that trajectory is kept when it is shorter and each worst joint ratio stays within its
 /// limit or no worse than before (regions that came out worse keep the config's parameters).
-/// Last, the trajectory kept is executed on the surface (execute_deposit): `executed`.
+/// Last, the trajectory kept is executed on the surface (execute_deposit): `executed`. With
+/// clearance.enabled its joint moves are then checked against the wall as scanned and as sprayed
+/// and re-routed where they come closer than the margins (arm_transits; the deposit is laid again
+/// when one was), and the whole trajectory is checked (arm_clearance).
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
+
+/// The wall the arm meets during the job: the scan's points and the executed deposit's surface.
+Points arm_wall(const Surface& surface, const ExecutedDeposit& executed);
+
+/// clear_transits on `trajectory` against arm_wall (what plan_for_arm stores in ArmPlan::transits).
+TransitReport arm_transits(const Surface& surface, TimedTrajectory& trajectory, const ExecutedDeposit& executed,
+                           const Robot& robot, const ClearanceConfig& config, const TimingConfig& timing);
 
 /// The space allowance of `trajectory` against the wall as scanned (surface) and as sprayed
 /// (executed): what plan_for_arm stores in ArmPlan::clearance with clearance.enabled.

@@ -147,6 +147,7 @@ struct JobSummary {
   double config_timing_duration_s = 0.0;         // trajectory duration with the config's timing
   std::optional<SwarmSummary> swarm;             // with a trajectory, when the swarm ran or failed
   std::optional<ClearanceReport> clearance;      // with a trajectory and clearance.enabled
+  std::optional<TransitReport> transits;         // its joint moves checked and re-routed (ArmPlan::transits)
   double self_margin_m = 0.0;                    // clearance.self_margin_m
   // "ok", or "not_executable" when problems is not empty (plan_problems).
   std::string status = "ok";

@@ -100,6 +100,30 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
                           const std::vector<TimingParams>& params = {});
 
+/// A rest-to-rest joint move of a trajectory (a transit between regions, the move from the start
+/// posture, or a stop-and-go move inside a region): it starts at rest at sample `start` and its
+/// samples are (start, end], all of kind Transit; it ends at rest at sample `end`.
+struct JointMove {
+  std::size_t start = 0, end = 0;
+  int region_index = -1;  // -1 between regions (and from the start posture), else the region's stop-and-go
+  double duration_s(const TimedTrajectory& tr) const { return tr.t_s[end] - tr.t_s[start]; }
+};
+/// The trajectory's joint moves in time order: every run of Transit samples.
+std::vector<JointMove> joint_moves(const TimedTrajectory& tr);
+
+/// Rest-to-rest joint quintics through `postures` in turn (at least two), each leg as time_plan
+/// times its joint moves (quintic_nozzle_duration: joint and nozzle limits), sampled at
+/// timing.trajectory_rate_hz. Times start at 0 at postures.front(), which is not included; samples
+/// are of kind Transit with region index `region_index`.
+TimedTrajectory joint_move_through(const Robot& robot, const std::vector<Eigen::VectorXd>& postures,
+                                   const TimingConfig& timing, int region_index);
+
+/// Replaces the samples (move.start, move.end] of `tr` by `piece` (times from move.start, as
+/// joint_move_through gives them), shifts the later samples by the change of duration (added to
+/// duration_s, transit_time_s and the cycle-time bucket of the move: transits or stop_and_go), and
+/// redoes the finite differences and limit checks. The piece must end where the move ended.
+void replace_joint_move(const Robot& robot, TimedTrajectory& tr, const JointMove& move, const TimedTrajectory& piece);
+
 /// One timed Cartesian path (e.g. a region, or the quintic baseline) in joint space from rest to
 /// rest: sampled at rate_hz, joints tracked from the solve_path start found from `seed`,
 /// velocities / accelerations by finite differences and the limit check; no transits.

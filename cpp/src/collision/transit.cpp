@@ -1,0 +1,265 @@
+// Transits by the seed method: check every joint move, re-route those closer than the margins
+// through postures of maximum space allowance (see transit.hpp).
+#include "shotcrete/collision/transit.hpp"
+
+#include <nlopt.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <optional>
+#include <sstream>
+
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/timing/trajectory.hpp"
+
+namespace shotcrete {
+
+double posture_allowance(const Robot& robot, const Eigen::VectorXd& q, const WallOctree& wall,
+                         const ClearanceConfig& config, const std::vector<std::pair<int, int>>& pairs, double cap_m) {
+  const auto& shapes = robot.collision_shapes();
+  const auto frames = robot.link_frames(q);
+  double least = cap_m;
+  for (const auto& s : shapes) {
+    const double margin = shape_margin_m(s, config);
+    // Bounded by the least allowance so far: a shape farther than that cannot lower it.
+    least = std::min(least, wall.distance(s, frames[s.frame], nullptr, std::max(0.0, margin + least)) - margin);
+  }
+  for (const auto& [a, b] : pairs)
+    least = std::min(least, shape_distance(shapes[a], frames[shapes[a].frame], shapes[b], frames[shapes[b].frame]) -
+                                config.self_margin_m);
+  return least;
+}
+
+namespace {
+
+// Least distance less margin over a clearance report (links and the self check).
+double report_allowance(const ClearanceReport& rep, const ClearanceConfig& config) {
+  double least = std::numeric_limits<double>::infinity();
+  for (const auto& l : rep.links) least = std::min(least, l.min_m - l.margin_m);
+  if (std::isfinite(rep.self.min_m)) least = std::min(least, rep.self.min_m - config.self_margin_m);
+  return least;
+}
+
+std::string worst_of(const ClearanceReport& rep, const ClearanceConfig& config) {
+  std::ostringstream o;
+  o.precision(3);
+  double least = std::numeric_limits<double>::infinity();
+  for (const auto& l : rep.links)
+    if (l.min_m - l.margin_m < least) {
+      least = l.min_m - l.margin_m;
+      o.str("");
+      o << l.link << " " << l.min_m << " m (margin " << l.margin_m << ")";
+    }
+  if (std::isfinite(rep.self.min_m) && rep.self.min_m - config.self_margin_m < least) {
+    o.str("");
+    o << rep.self.link_a << "-" << rep.self.link_b << " " << rep.self.min_m << " m (margin " << config.self_margin_m << ")";
+  }
+  return o.str();
+}
+
+struct Router {
+  const Robot& robot;
+  const WallOctree& wall;
+  const ClearanceConfig& config;
+  const TimingConfig& timing;
+  int region_index;
+  std::vector<std::pair<int, int>> pairs;
+  int optimisations = 0;
+
+  // The samples of a move (its start excluded) keep every margin.
+  bool clear(const TimedTrajectory& piece) const {
+    return piece.size() == 0 || check_clearance(robot, piece, wall, config).samples_below_margin() == 0;
+  }
+  // Posture of the move's sample where a link comes closest to breaking its margin.
+  static Eigen::VectorXd worst_posture(const TimedTrajectory& piece, const ClearanceReport& rep, const ClearanceConfig& cfg) {
+    double least = std::numeric_limits<double>::infinity(), at = 0.0;
+    for (const auto& l : rep.links)
+      if (l.min_m - l.margin_m < least) least = l.min_m - l.margin_m, at = l.at_time_s;
+    if (std::isfinite(rep.self.min_m) && rep.self.min_m - cfg.self_margin_m < least) at = rep.self.at_time_s;
+    const auto k = std::lower_bound(piece.t_s.begin(), piece.t_s.end(), at) - piece.t_s.begin();
+    return piece.q[static_cast<std::size_t>(std::min<std::ptrdiff_t>(k, static_cast<std::ptrdiff_t>(piece.size()) - 1))];
+  }
+
+  // A posture of maximum space allowance from `start`: BOBYQA within the joint limits on the
+  // allowance saturated at cap_m, less a small pull toward `ref` (the straight move's midpoint: of
+  // two postures with enough room, the one nearer the straight move).
+  Eigen::VectorXd via_from(const Eigen::VectorXd& start, const Eigen::VectorXd& ref, double cap_m) {
+    ++optimisations;
+    const int n = robot.dof();
+    const Eigen::VectorXd lo = robot.lower_limits(), hi = robot.upper_limits();
+    const Eigen::VectorXd range = (hi - lo).cwiseMax(1e-9);
+    // 5 cm of allowance per unit of normalised joint distance: a tie-breaker past the cap, small
+    // against the allowance below it.
+    constexpr double kPull_m = 0.05;
+    std::function<double(const std::vector<double>&)> objective = [&](const std::vector<double>& x) {
+      const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(x.data(), n);
+      const double a = posture_allowance(robot, q, wall, config, pairs, cap_m);
+      return -(a - kPull_m * (q - ref).cwiseQuotient(range).norm());
+    };
+    nlopt::opt opt(nlopt::LN_BOBYQA, static_cast<unsigned>(n));
+    opt.set_lower_bounds(std::vector<double>(lo.data(), lo.data() + n));
+    opt.set_upper_bounds(std::vector<double>(hi.data(), hi.data() + n));
+    opt.set_min_objective(
+        [](const std::vector<double>& x, std::vector<double>&, void* data) {
+          return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
+        },
+        &objective);
+    // A tenth of each joint's range, within half the bound gap as BOBYQA needs.
+    std::vector<double> step(static_cast<std::size_t>(n));
+    for (int j = 0; j < n; ++j) step[static_cast<std::size_t>(j)] = 0.1 * range[j];
+    opt.set_initial_step(step);
+    // A via needs room, not precision: millimetres and a few hundred evaluations.
+    opt.set_xtol_abs(2e-3);
+    opt.set_ftol_abs(1e-3);
+    opt.set_maxeval(40 * n);
+    const Eigen::VectorXd x0 = start.cwiseMax(lo).cwiseMin(hi);
+    std::vector<double> x(x0.data(), x0.data() + n);
+    double best = 0.0;
+    try {
+      opt.optimize(x, best);
+    } catch (const nlopt::roundoff_limited&) {
+      // x holds BOBYQA's best point.
+    }
+    return Eigen::Map<const Eigen::VectorXd>(x.data(), n).cwiseMax(lo).cwiseMin(hi);
+  }
+
+  // q with the telescopes (prismatic joints) all the way in.
+  Eigen::VectorXd folded(const Eigen::VectorXd& q) const {
+    Eigen::VectorXd f = q;
+    for (int j = 0; j < robot.dof(); ++j)
+      if (robot.joint_is_prismatic()[static_cast<std::size_t>(j)]) f[j] = robot.lower_limits()[j];
+    return f;
+  }
+  // Starts of the via search and the posture each pulls toward: the straight move's worst sample
+  // pushed out of the wall (a local deflection), its midpoint, the midpoint with the telescopes in,
+  // a quarter and three quarters along it, the stow posture.
+  std::vector<std::pair<Eigen::VectorXd, Eigen::VectorXd>> starts(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb,
+                                                                  const Eigen::VectorXd& worst) const {
+    const Eigen::VectorXd mid = 0.5 * (qa + qb);
+    return {{worst, worst}, {mid, mid}, {folded(mid), mid}, {0.75 * qa + 0.25 * qb, mid}, {0.25 * qa + 0.75 * qb, mid},
+            {robot.stow(), mid}};
+  }
+
+  // Postures after qa up to qb (qb last) whose rest-to-rest quintics keep every margin; none when
+  // no route of at most 2^depth legs was found.
+  std::optional<std::vector<Eigen::VectorXd>> route(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb, int depth) {
+    const TimedTrajectory straight = joint_move_through(robot, {qa, qb}, timing, region_index);
+    if (straight.size() == 0) return std::vector<Eigen::VectorXd>{qb};
+    const ClearanceReport rep = check_clearance(robot, straight, wall, config);
+    if (rep.samples_below_margin() == 0) return std::vector<Eigen::VectorXd>{qb};
+    if (depth == 0) return std::nullopt;
+    const Eigen::VectorXd worst = worst_posture(straight, rep, config);
+    // Vias sought with the allowance saturated at via_allowance_m first (the nearest posture with
+    // that much room), then at three times it, then unsaturated (the seed method's maximum).
+    std::vector<Eigen::VectorXd> vias;
+    std::optional<std::vector<Eigen::VectorXd>> best;
+    for (const double cap : {config.via_allowance_m, 3.0 * config.via_allowance_m, 10.0}) {
+      const std::size_t first_new = vias.size();
+      for (const auto& [start, ref] : starts(qa, qb, worst)) {
+        Eigen::VectorXd v = via_from(start, ref, cap);
+        if (posture_allowance(robot, v, wall, config, pairs, 0.0) < 0.0) continue;
+        const bool seen = std::any_of(vias.begin(), vias.end(), [&](const Eigen::VectorXd& u) { return (u - v).norm() < 1e-3; });
+        if (!seen) vias.push_back(std::move(v));
+      }
+      // One via: the fastest route that keeps the margins.
+      double best_s = std::numeric_limits<double>::infinity();
+      for (std::size_t k = first_new; k < vias.size(); ++k) {
+        const TimedTrajectory piece = joint_move_through(robot, {qa, vias[k], qb}, timing, region_index);
+        if (piece.duration_s < best_s && clear(piece)) best = std::vector<Eigen::VectorXd>{vias[k], qb}, best_s = piece.duration_s;
+      }
+      if (best) return best;
+    }
+    // Fold, swing, unfold: the telescopes in at the start, the swing, the telescopes out at the
+    // goal (each folded posture pushed to the via allowance when it lacks room itself).
+    {
+      const Eigen::VectorXd fa = via_from(folded(qa), folded(qa), config.via_allowance_m);
+      const Eigen::VectorXd fb = via_from(folded(qb), folded(qb), config.via_allowance_m);
+      if (posture_allowance(robot, fa, wall, config, pairs, 0.0) >= 0.0 &&
+          posture_allowance(robot, fb, wall, config, pairs, 0.0) >= 0.0 &&
+          clear(joint_move_through(robot, {qa, fa, fb, qb}, timing, region_index)))
+        return std::vector<Eigen::VectorXd>{fa, fb, qb};
+    }
+    if (depth == 1) return std::nullopt;
+    // Else each leg re-routed the same way, through the (at most three) vias with the most room.
+    std::vector<std::pair<double, std::size_t>> room;
+    for (std::size_t k = 0; k < vias.size(); ++k) room.emplace_back(-posture_allowance(robot, vias[k], wall, config, pairs, 10.0), k);
+    std::sort(room.begin(), room.end());
+    if (room.size() > 3) room.resize(3);
+    for (const auto& [negative_room, k] : room) {
+      const Eigen::VectorXd& v = vias[k];
+      auto left = route(qa, v, depth - 1);
+      if (!left) continue;
+      auto right = route(v, qb, depth - 1);
+      if (!right) continue;
+      left->insert(left->end(), right->begin(), right->end());
+      return left;
+    }
+    return std::nullopt;
+  }
+};
+
+// A move as a trajectory of its own (start sample included) for check_clearance.
+TimedTrajectory move_samples(const TimedTrajectory& tr, const JointMove& m) {
+  TimedTrajectory out;
+  for (std::size_t k = m.start; k <= m.end; ++k) out.t_s.push_back(tr.t_s[k]), out.q.push_back(tr.q[k]);
+  return out;
+}
+
+}  // namespace
+
+TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall,
+                             const ClearanceConfig& config, const TimingConfig& timing) {
+  const auto t0 = std::chrono::steady_clock::now();
+  TransitReport rep;
+  const auto pairs = self_check_pairs(robot);
+  std::vector<JointMove> moves = joint_moves(trajectory);
+  rep.moves_checked = static_cast<int>(moves.size());
+  for (std::size_t i = 0; i < moves.size(); ++i) {
+    const JointMove move = moves[i];
+    const ClearanceReport straight = check_clearance(robot, move_samples(trajectory, move), wall, config);
+    if (straight.samples_below_margin() == 0) continue;
+    TransitDetour d;
+    d.move = static_cast<int>(i);
+    d.region_index = move.region_index;
+    d.start_time_s = trajectory.t_s[move.start];
+    d.straight_samples_below = straight.samples_below_margin();
+    d.straight_worst = worst_of(straight, config);
+    d.straight_min_allowance_m = report_allowance(straight, config);
+    d.straight_duration_s = d.duration_s = move.duration_s(trajectory);
+    const Eigen::VectorXd qa = trajectory.q[move.start], qb = trajectory.q[move.end];
+    Router router{robot, wall, config, timing, move.region_index, pairs};
+    if (posture_allowance(robot, qa, wall, config, pairs, 0.0) < 0.0 ||
+        posture_allowance(robot, qb, wall, config, pairs, 0.0) < 0.0) {
+      d.reason = "its start or goal posture is itself closer than the margins";
+    } else if (!config.reroute_transits) {
+      d.reason = "clearance.reroute_transits is off";
+    } else if (const auto route = router.route(qa, qb, 2)) {
+      std::vector<Eigen::VectorXd> postures{qa};
+      postures.insert(postures.end(), route->begin(), route->end());
+      const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+      d.vias.assign(route->begin(), route->end() - 1);
+      for (const auto& v : d.vias) d.via_allowance_m.push_back(posture_allowance(robot, v, wall, config, pairs, 10.0));
+      TimedTrajectory checked = piece;
+      checked.t_s.insert(checked.t_s.begin(), 0.0);
+      checked.q.insert(checked.q.begin(), qa);
+      d.min_allowance_m = report_allowance(check_clearance(robot, checked, wall, config), config);
+      d.duration_s = piece.duration_s;
+      replace_joint_move(robot, trajectory, move, piece);
+      moves = joint_moves(trajectory);  // the later samples moved
+      d.rerouted = true;
+    } else {
+      d.reason = "no via posture found whose route keeps the margins";
+    }
+    d.optimisations = router.optimisations;
+    if (d.rerouted) ++rep.rerouted, rep.detour_time_s += d.duration_s - d.straight_duration_s;
+    else ++rep.failed;
+    rep.detours.push_back(std::move(d));
+  }
+  rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return rep;
+}
+
+}  // namespace shotcrete

@@ -1,0 +1,244 @@
+// Transits by the seed method: the joint moves of a trajectory, their replacement, and a transit
+// that a rock protrusion makes collide re-routed through a via posture, checked against a
+// brute-force distance to the wall's points (not the octree).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "shotcrete/collision/clearance.hpp"
+#include "shotcrete/collision/transit.hpp"
+#include "shotcrete/robot/robot.hpp"
+#include "shotcrete/timing/trajectory.hpp"
+#include "timing_fixtures.hpp"
+
+using namespace shotcrete;
+
+namespace {
+
+constexpr double kR = 4.5;  // the narrow bay's wall radius
+
+// Half cylinder of radius kR about the x axis over x in [x0, x1], with a dome of the synthetic
+// pits' shape (alpha 1.5) standing `height` toward the axis at (x_c, theta_c), radius `radius`
+// on the unrolled wall. Points every ~4 cm.
+Points wall_with_protrusion(double x0, double x1, double x_c, double theta_c, double height, double radius) {
+  const int n_theta = static_cast<int>(M_PI * kR / 0.04), n_d = static_cast<int>((x1 - x0) / 0.04);
+  Points p(n_theta * n_d, 3);
+  for (int i = 0; i < n_theta; ++i)
+    for (int j = 0; j < n_d; ++j) {
+      const double th = M_PI * (i + 0.5) / n_theta, x = x0 + (x1 - x0) * (j + 0.5) / n_d;
+      const double ds = (th - theta_c) * kR, dd = x - x_c;
+      const double q = (ds * ds + dd * dd) / (radius * radius);
+      const double r = kR - (q < 1.0 ? height * std::pow(1.0 - q, 1.5) : 0.0);
+      p.row(i * n_d + j) << x, r * std::cos(th), r * std::sin(th);
+    }
+  return p;
+}
+
+// Least distance less margin over every shape (exact distance to every wall point) and every
+// checked pair (FCL shape-shape) at posture q: the brute-force reference of posture_allowance.
+double brute_allowance(const Robot& robot, const Eigen::VectorXd& q, const Points& wall, const ClearanceConfig& cfg,
+                       const std::vector<std::pair<int, int>>& pairs) {
+  const auto& shapes = robot.collision_shapes();
+  const auto frames = robot.link_frames(q);
+  double least = std::numeric_limits<double>::infinity();
+  for (const auto& s : shapes) {
+    // Every point, exactly; a point whose distance to the shape's bounding sphere is already no
+    // less than the least so far is skipped (it cannot be nearer).
+    const Eigen::Vector3d c = frames[s.frame] * s.origin.translation();
+    const double rb = s.kind == CollisionShape::Kind::box ? 0.5 * s.size_m.norm()
+                      : s.kind == CollisionShape::Kind::sphere ? s.radius_m
+                                                               : std::hypot(s.radius_m, 0.5 * s.length_m);
+    double d = std::numeric_limits<double>::infinity();
+    for (Eigen::Index i = 0; i < wall.rows(); ++i) {
+      const Eigen::Vector3d p = wall.row(i).transpose();
+      if ((p - c).norm() - rb >= d) continue;
+      d = std::min(d, point_shape_distance(p, s, frames[s.frame]));
+    }
+    least = std::min(least, d - shape_margin_m(s, cfg));
+  }
+  for (const auto& [a, b] : pairs)
+    least = std::min(least, shape_distance(shapes[a], frames[shapes[a].frame], shapes[b], frames[shapes[b].frame]) -
+                                cfg.self_margin_m);
+  return least;
+}
+
+// Two regions on the narrow wall far apart around the arch (nozzle at 1 m standoff): the transit
+// between them swings the arm over the crown.
+std::vector<std::vector<Pass>> two_regions() {
+  return {shotcrete::test::axial_region(2, 0.6, 0.2, 0.3, 0.55, {0.3}, kR - 1.0, kR),
+          shotcrete::test::axial_region(2, 0.6, 0.2, 0.3, 2.45, {0.3}, kR - 1.0, kR)};
+}
+
+}  // namespace
+
+TEST(Transit, JointMovesAndTheirReplacement) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig timing;
+  TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  const auto moves = joint_moves(tr);
+  ASSERT_GE(moves.size(), 2u);
+  EXPECT_EQ(moves.front().start, 0u);  // from the start posture
+  EXPECT_EQ(moves.front().region_index, -1);
+  double moves_s = 0.0;
+  for (const auto& m : moves) {
+    moves_s += m.duration_s(tr);
+    for (std::size_t k = m.start + 1; k <= m.end; ++k) EXPECT_EQ(tr.kind[k], static_cast<char>(SegmentKind::Transit));
+    if (m.start > 0) EXPECT_NE(tr.kind[m.start], static_cast<char>(SegmentKind::Transit));  // a region's last sample
+    if (m.end + 1 < tr.size()) EXPECT_NE(tr.kind[m.end + 1], static_cast<char>(SegmentKind::Transit));
+  }
+  EXPECT_NEAR(moves_s, tr.transit_time_s, 1e-9);  // every joint move counted once
+  // The transit between the regions through a via posture: later samples shift by the added time.
+  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  ASSERT_NE(it, moves.end());
+  const JointMove m = *it;
+  const Eigen::VectorXd qa = tr.q[m.start], qb = tr.q[m.end];
+  Eigen::VectorXd via = 0.5 * (qa + qb);
+  via[0] += 0.3;  // a slew detour
+  const TimedTrajectory piece = joint_move_through(robot, {qa, via, qb}, timing, -1);
+  const TimedTrajectory before = tr;
+  replace_joint_move(robot, tr, m, piece);
+  const double delta = piece.duration_s - m.duration_s(before);
+  EXPECT_NE(delta, 0.0);  // (a via can also shorten it: the nozzle's path, which bounds its speed, changes)
+  EXPECT_NEAR(tr.duration_s, before.duration_s + delta, 1e-9);
+  EXPECT_NEAR(tr.transit_time_s, before.transit_time_s + delta, 1e-9);
+  EXPECT_NEAR(tr.cycle_time.transits_s, before.cycle_time.transits_s + delta, 1e-9);
+  EXPECT_NEAR(tr.cycle_time.total_s(), tr.duration_s, 1e-6);
+  EXPECT_EQ(tr.size(), before.size() - (m.end - m.start) + piece.size());
+  const std::size_t after = m.start + 1 + piece.size();
+  EXPECT_TRUE(tr.q[after - 1].isApprox(qb, 1e-9));
+  for (std::size_t k = after, k0 = m.end + 1; k < tr.size(); ++k, ++k0) {
+    ASSERT_NEAR(tr.t_s[k], before.t_s[k0] + delta, 1e-9);
+    ASSERT_TRUE(tr.q[k].isApprox(before.q[k0], 0.0));
+  }
+  for (std::size_t k = 1; k < tr.size(); ++k) ASSERT_GT(tr.t_s[k], tr.t_s[k - 1]);
+  // Rest-to-rest quintics within the joint limits: on the new move's samples and at the via.
+  for (std::size_t k = m.start + 1; k < after; ++k) {
+    EXPECT_LE(tr.qd[k].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff(), 1.0 + 1e-6);
+    EXPECT_LE(tr.qdd[k].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff(), 1.0 + 1e-2);
+  }
+  const auto via_at = std::min_element(tr.q.begin() + static_cast<std::ptrdiff_t>(m.start + 1),
+                                       tr.q.begin() + static_cast<std::ptrdiff_t>(after),
+                                       [&](const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
+                                         return (a - via).norm() < (b - via).norm();
+                                       });
+  EXPECT_LT((*via_at - via).norm(), 1e-9);  // it stops at the via
+  EXPECT_THROW(replace_joint_move(robot, tr, JointMove{5, 3, -1}, piece), std::invalid_argument);
+}
+
+// The seed method's test bay: a narrow wall (radius 4.5 m) with a rock protrusion where the
+// straight joint interpolation of the transit between two regions passes; the transit is
+// re-routed through a via posture, every sample of the new move keeps the margins by a
+// brute-force distance to the wall's points, and the time it costs is reported.
+TEST(Transit, ProtrusionInTheTransitIsRerouted) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig timing;
+  const ClearanceConfig cfg;
+  TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  const auto moves = joint_moves(tr);
+  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  ASSERT_NE(it, moves.end());
+  const JointMove transit = *it;
+  // Where the straight transit's nozzle comes nearest the plain wall: the protrusion goes there,
+  // standing 0.3 m further in than the nozzle's room above its margin.
+  double least = std::numeric_limits<double>::infinity(), x_c = 0.0, th_c = 0.0;
+  for (std::size_t k = transit.start; k <= transit.end; ++k) {
+    const Eigen::Vector3d p = tr.nozzle[k].position_m;
+    const double room = kR - std::hypot(p.y(), p.z());
+    if (room < least) least = room, x_c = p.x(), th_c = std::atan2(p.z(), p.y());
+  }
+  const double height = least - cfg.nozzle_margin_m + 0.3;
+  const Points wall = wall_with_protrusion(-0.6, 2.0, x_c, th_c, height, 0.8);
+  const WallOctree octree(wall, cfg.octree_resolution_m);
+  const auto pairs = self_check_pairs(robot);
+  // The straight interpolation collides; its end postures do not.
+  double straight = std::numeric_limits<double>::infinity();
+  for (std::size_t k = transit.start; k <= transit.end; k += 5)
+    straight = std::min(straight, brute_allowance(robot, tr.q[k], wall, cfg, pairs));
+  ASSERT_LT(straight, 0.0);
+  ASSERT_GE(brute_allowance(robot, tr.q[transit.start], wall, cfg, pairs), 0.0);
+  ASSERT_GE(brute_allowance(robot, tr.q[transit.end], wall, cfg, pairs), 0.0);
+
+  const double duration_before = tr.duration_s;
+  const TransitReport rep = clear_transits(robot, tr, octree, cfg, timing);
+  EXPECT_EQ(rep.moves_checked, static_cast<int>(moves.size()));
+  // The rock stands over the crown: the move from the stow posture may cross it too. Every move
+  // it blocks is re-routed, the transit between the regions among them.
+  EXPECT_EQ(rep.failed, 0);
+  ASSERT_GE(rep.rerouted, 1);
+  ASSERT_EQ(rep.detours.size(), static_cast<std::size_t>(rep.rerouted));
+  const int transit_index = static_cast<int>(it - moves.begin());
+  EXPECT_TRUE(std::any_of(rep.detours.begin(), rep.detours.end(), [&](const TransitDetour& d) { return d.move == transit_index; }));
+  const auto after = joint_moves(tr);
+  ASSERT_EQ(after.size(), moves.size());
+  double detour_s = 0.0;
+  for (const TransitDetour& d : rep.detours) {
+    EXPECT_TRUE(d.rerouted);
+    EXPECT_GT(d.straight_samples_below, 0);
+    EXPECT_LT(d.straight_min_allowance_m, 0.0);
+    ASSERT_FALSE(d.vias.empty());
+    EXPECT_GE(d.min_allowance_m, 0.0);
+    detour_s += d.duration_s - d.straight_duration_s;
+    const JointMove m = after[static_cast<std::size_t>(d.move)];
+    EXPECT_NEAR(m.duration_s(tr), d.duration_s, 1e-9);
+    EXPECT_NEAR(tr.t_s[m.start], d.start_time_s, 1e-9);
+    // Independent check of every sample of the new move: exact distances to the wall's points.
+    double worst = std::numeric_limits<double>::infinity();
+    for (std::size_t k = m.start; k <= m.end; ++k) worst = std::min(worst, brute_allowance(robot, tr.q[k], wall, cfg, pairs));
+    EXPECT_GE(worst, 0.0) << "move " << d.move;
+    RecordProperty("move_" + std::to_string(d.move) + "_allowance_m", std::to_string(worst));
+    // Within the joint limits along it.
+    for (std::size_t k = m.start + 1; k <= m.end; ++k) {
+      ASSERT_TRUE(robot.within_limits(tr.q[k], 1e-9));
+      EXPECT_LE(tr.qd[k].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff(), 1.0 + 1e-6);
+    }
+    // posture_allowance reads short of the brute force by at most half a leaf diagonal, never long.
+    for (const auto& v : d.vias) {
+      const double exact = brute_allowance(robot, v, wall, cfg, pairs);
+      const double read = posture_allowance(robot, v, octree, cfg, pairs, 10.0);
+      EXPECT_LE(read, exact + 1e-6);
+      EXPECT_GE(read, exact - std::sqrt(3.0) * cfg.octree_resolution_m - 1e-6);
+    }
+  }
+  // The time cost: reported, and what the trajectory grew by.
+  EXPECT_NEAR(rep.detour_time_s, detour_s, 1e-9);
+  EXPECT_NEAR(tr.duration_s, duration_before + rep.detour_time_s, 1e-9);
+  RecordProperty("straight_allowance_m", std::to_string(straight));
+  RecordProperty("detour_s", std::to_string(rep.detour_time_s));
+  // With re-routing off the move stays and is reported as not re-routed.
+  TimedTrajectory plain = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  ClearanceConfig off = cfg;
+  off.reroute_transits = false;
+  const TransitReport kept = clear_transits(robot, plain, octree, off, timing);
+  EXPECT_EQ(kept.rerouted, 0);
+  EXPECT_EQ(kept.failed, rep.rerouted);
+  EXPECT_EQ(kept.detour_time_s, 0.0);
+}
+
+// A rock at the goal of the transit (where the next region starts spraying): no route can help, the
+// move stays as it was and is reported with the reason.
+TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig timing;
+  const ClearanceConfig cfg;
+  TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  const auto moves = joint_moves(tr);
+  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  ASSERT_NE(it, moves.end());
+  const Eigen::Vector3d goal = tr.nozzle[it->end].position_m;  // 1 m from the wall, facing it
+  const Points wall = wall_with_protrusion(-0.6, 2.0, goal.x(), std::atan2(goal.z(), goal.y()), 0.8, 0.8);
+  const WallOctree octree(wall, cfg.octree_resolution_m);
+  const auto pairs = self_check_pairs(robot);
+  ASSERT_LT(brute_allowance(robot, tr.q[it->end], wall, cfg, pairs), 0.0);
+  const TimedTrajectory before = tr;
+  const TransitReport rep = clear_transits(robot, tr, octree, cfg, timing);
+  const int index = static_cast<int>(it - moves.begin());
+  const auto d = std::find_if(rep.detours.begin(), rep.detours.end(), [&](const TransitDetour& x) { return x.move == index; });
+  ASSERT_NE(d, rep.detours.end());
+  EXPECT_FALSE(d->rerouted);
+  EXPECT_EQ(d->reason, "its start or goal posture is itself closer than the margins");
+  EXPECT_EQ(d->optimisations, 0);
+  EXPECT_EQ(d->duration_s, d->straight_duration_s);
+  EXPECT_GE(rep.failed, 1);
+  if (rep.rerouted == 0) EXPECT_EQ(tr.duration_s, before.duration_s);  // nothing changed
+}
