@@ -78,6 +78,8 @@ void bind_rescan(py::module_& m) {
   m.def("measure_cells", &measure_cells, py::arg("grid"), py::arg("before"), py::arg("after_registered"), py::arg("config"),
         py::call_guard<py::gil_scoped_release>(),
         "Layer per grid cell, M3C2 along the cell's radial ray (config: RescanConfig).");
+  m.def("wall_points", &wall_points, py::arg("grid"), py::arg("cloud"), py::arg("wall_td_m"), py::arg("band_m"),
+        "The points of `cloud` within band_m (radially) of the wall at TD wall_td_m of their grid cell.");
   py::class_<Comparison>(m, "Comparison")
       .def_readonly("bias_m", &Comparison::bias_m)
       .def_readonly("rms_m", &Comparison::rms_m)

@@ -213,4 +213,21 @@ CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& 
   return out;
 }
 
+Cloud wall_points(const Grid& grid, const Cloud& cloud, const Eigen::VectorXd& wall_td_m, double band_m) {
+  if (wall_td_m.size() != grid.size())
+    throw std::invalid_argument("wall_points: " + std::to_string(wall_td_m.size()) + " TD values for a grid of " +
+                                std::to_string(grid.size()) + " cells");
+  std::vector<Eigen::Index> keep;
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d cyl = grid.axis.to_cylindrical(cloud.xyz.row(i).transpose());
+    const int cell = grid.cell_at(cyl.y(), cyl.z());
+    if (cell < 0 || !grid.valid[static_cast<size_t>(cell)] || !std::isfinite(wall_td_m[cell])) continue;
+    if (std::abs(cyl.x() - grid.profile.radius_at(cyl.y()) - wall_td_m[cell]) <= band_m) keep.push_back(i);
+  }
+  Cloud out;
+  out.xyz.resize(static_cast<Eigen::Index>(keep.size()), 3);
+  for (size_t k = 0; k < keep.size(); ++k) out.xyz.row(static_cast<Eigen::Index>(k)) = cloud.xyz.row(keep[k]);
+  return out;
+}
+
 }  // namespace shotcrete

@@ -90,6 +90,11 @@ struct CellThickness {
 CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& after_registered,
                             const RescanConfig& config);
 
+/// The points of `cloud` on the measured wall: in a valid cell of `grid` with a finite `wall_td_m`
+/// (per cell, e.g. the measured residual TD) and within band_m of it radially. The bay as the
+/// corrective round sees it, without the context or a surface crossing the bay's ends (the face).
+Cloud wall_points(const Grid& grid, const Cloud& cloud, const Eigen::VectorXd& wall_td_m, double band_m);
+
 /// Measured vs predicted per cell over the cells where both are finite [m]: measured - predicted.
 struct Comparison {
   double bias_m = 0.0, rms_m = 0.0, max_abs_m = 0.0;
