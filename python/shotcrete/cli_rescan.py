@@ -6,6 +6,7 @@ from typing import Optional
 
 import typer
 
+from . import _core
 from .cli_common import cli_config, console, print_json, progress_reporter, refuse_overwrite, say, user_errors
 from .config import default_config_path
 from .io import read_cloud
@@ -48,6 +49,11 @@ def register(app: typer.Typer) -> None:
             inputs = [p for p in (before_path, after_path, mask, initial_pose, config) if p is not None]
             with job_output(out, inputs) as tmp:
                 before, after = read_cloud(before_path), read_cloud(after_path)
+                for path, cloud in ((before_path, before), (after_path, after)):
+                    try:
+                        _core.check_cloud(cloud, cfg.io)
+                    except ValueError as exc:
+                        raise ValueError(f"{path}: {exc}") from None
                 mask_cloud = read_cloud(mask) if mask is not None else None
                 with progress_reporter(disable=as_json) as progress:
                     result = rs.rescan(before, after, the_job, cfg, mask=mask_cloud, initial=T0, correct=correct,

@@ -203,7 +203,8 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
         except ValueError as exc:
             raise ValueError(f"{name}-scan: {exc}") from None
     if config.io.unit_scale != 1.0:
-        before, after = _core.scale_cloud(before, config.io.unit_scale), _core.scale_cloud(after, config.io.unit_scale)
+        k = config.io.unit_scale
+        before, after = (_core.Cloud(np.ascontiguousarray(np.asarray(c.xyz) * k)) for c in (before, after))
     progress("register", 0.0)
     t0 = time.perf_counter()
     T0 = np.eye(4) if initial is None else np.asarray(initial, float)

@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -144,6 +145,22 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
                                 enum_name(c.reference) + ")");
   Registration out;
   out.target_points = static_cast<long>(target->size());
+  pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+  tree.setInputCloud(target);
+  std::vector<int> idx(1);
+  std::vector<float> d2(1);
+  // The share of `pts` with a target point within `dist`, and the RMS of those distances.
+  auto matched_share = [&](const PclCloud& pts, double dist, double* rms) {
+    long matched = 0;
+    double sum2 = 0.0;
+    for (const auto& q : pts.points)
+      if (tree.nearestKSearch(q, 1, idx, d2) > 0 && d2[0] <= dist * dist) {
+        ++matched;
+        sum2 += d2[0];
+      }
+    if (rms) *rms = matched ? std::sqrt(sum2 / static_cast<double>(matched)) : std::numeric_limits<double>::quiet_NaN();
+    return pts.empty() ? 0.0 : static_cast<double>(matched) / static_cast<double>(pts.size());
+  };
   Eigen::Matrix4d T = initial;
   PclCloud::Ptr source;
   Eigen::Matrix4d S = Eigen::Matrix4d::Identity(), Sinv = Eigen::Matrix4d::Identity();  // centring
@@ -160,6 +177,13 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
       throw std::invalid_argument("rescan: no reference area in the after-scan: " + std::to_string(source->size()) +
                                   " points fall in the reference areas (fewer than rescan.min_reference_points " +
                                   std::to_string(c.min_reference_points) + "): another bay, or a wrong initial pose");
+    if (dist == c.coarse_correspondence_m) {
+      const double start = matched_share(*source, dist, nullptr);
+      if (start < c.min_overlap)
+        throw std::runtime_error("rescan: at the start pose only " + pct(start) + " of the after-scan's reference points lie within "
+                                 "rescan.coarse_correspondence_m of the before-scan's (below rescan.min_overlap " +
+                                 pct(c.min_overlap) + "): another bay, or give the initial pose");
+    }
     Gicp gicp;
     gicp.setInputSource(source);
     gicp.setInputTarget(target);
@@ -181,22 +205,8 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
     pcl::transformPointCloud(*source, *source, gicp.getFinalTransformation());
   }
   // Overlap and RMS of the final source against the target.
-  pcl::KdTreeFLANN<pcl::PointXYZ> tree;
-  tree.setInputCloud(target);
-  std::vector<int> idx(1);
-  std::vector<float> d2(1);
-  long matched = 0;
-  double sum2 = 0.0;
-  const double lim2 = c.fine_correspondence_m * c.fine_correspondence_m;
-  for (const auto& q : source->points) {
-    if (tree.nearestKSearch(q, 1, idx, d2) > 0 && d2[0] <= lim2) {
-      ++matched;
-      sum2 += d2[0];
-    }
-  }
   out.source_points = static_cast<long>(source->size());
-  out.overlap = static_cast<double>(matched) / static_cast<double>(source->size());
-  out.rms_m = matched ? std::sqrt(sum2 / static_cast<double>(matched)) : std::numeric_limits<double>::quiet_NaN();
+  out.overlap = matched_share(*source, c.fine_correspondence_m, &out.rms_m);
   out.transform = T;
   out.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (out.overlap < c.min_overlap)
