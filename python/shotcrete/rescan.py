@@ -157,9 +157,16 @@ def calibrated_config(config, factor: float):
     return cal
 
 
+def rotation_deg(R: np.ndarray) -> float:
+    """The angle of a rotation matrix [deg], accurate near 0 (atan2 of sin and cos, not arccos)."""
+    R = np.asarray(R)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return float(np.degrees(np.arctan2(np.linalg.norm(v) / 2, (np.trace(R) - 1) / 2)))
+
+
 def _pose_summary(T: np.ndarray) -> dict:
     T = np.asarray(T)
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1.0, 1.0))))
+    angle = rotation_deg(T[:3, :3])
     return {"matrix": T.tolist(), "rotation_deg": angle, "translation_m": T[:3, 3].tolist()}
 
 

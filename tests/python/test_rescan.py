@@ -65,7 +65,9 @@ def test_registration_recovers_the_true_pose(loop):
     truth = json.loads((loop / "after_truth.json").read_text())
     T, Tt = np.array(rep["registration"]["matrix"]), np.array(truth["pose_after_to_before"])
     E = np.linalg.inv(T) @ Tt
-    assert np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1))) < 0.05
+    v = np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
+    assert np.degrees(np.arctan2(np.linalg.norm(v) / 2, (np.trace(E[:3, :3]) - 1) / 2)) < 0.05
+    assert rep["registration"]["rotation_deg"] == pytest.approx(np.degrees(np.arccos((np.trace(T[:3, :3]) - 1) / 2)), abs=1e-4)
     assert np.linalg.norm(E[:3, 3]) < 0.003
     assert rep["registration"]["overlap"] > 0.9
 

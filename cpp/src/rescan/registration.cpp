@@ -1,4 +1,5 @@
 // Registration of the after-scan on the reference areas (docs/architecture.md §12).
+#include <pcl/filters/random_sample.h>
 #include <pcl/filters/voxel_grid.h>
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/point_cloud.h>
@@ -25,8 +26,10 @@ class Gicp : public pcl::GeneralizedIterativeClosestPoint<pcl::PointXYZ, pcl::Po
   int iterations() const { return nr_iterations_; }
 };
 
-// Points (already in the before frame) shifted by -centre into float, then voxelled: float keeps
-// 0.1 mm within a few hundred metres of the centre, so survey coordinates never reach PCL.
+// Points (already in the before frame) shifted by -centre into float (float keeps 0.1 mm within a
+// few hundred metres of the centre, so survey coordinates never reach PCL), then thinned to as
+// many points as voxel_m would leave, drawn at random: voxel centroids depend on where the voxel
+// edges cut a surface, which moved the pose by ~3 mm along the axis (the face straddling them).
 PclCloud::Ptr to_pcl_voxel(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& centre, double voxel_m) {
   PclCloud::Ptr pc(new PclCloud);
   pc->reserve(pts.size());
@@ -38,8 +41,14 @@ PclCloud::Ptr to_pcl_voxel(const std::vector<Eigen::Vector3d>& pts, const Eigen:
   pcl::VoxelGrid<pcl::PointXYZ> grid;
   grid.setInputCloud(pc);
   grid.setLeafSize(static_cast<float>(voxel_m), static_cast<float>(voxel_m), static_cast<float>(voxel_m));
+  PclCloud voxels;
+  grid.filter(voxels);
+  pcl::RandomSample<pcl::PointXYZ> sample;
+  sample.setInputCloud(pc);
+  sample.setSample(static_cast<unsigned int>(voxels.size()));
+  sample.setSeed(1);
   PclCloud::Ptr out(new PclCloud);
-  grid.filter(*out);
+  sample.filter(*out);
   return out;
 }
 
