@@ -158,6 +158,9 @@ TEST(Registration, RecoversAKnownPoseOnTheReferenceAreas) {
   EXPECT_LT(wall_error(reg.transform, p.after.pose, p.bay), 0.005);
   EXPECT_GT(reg.overlap, 0.9);
   EXPECT_GT(reg.iterations, 0);
+  // Point-to-plane RMS: the 5 mm scanner noise (of the point and of the plane's 8 points), no more.
+  EXPECT_GT(reg.rms_m, 0.004);
+  EXPECT_LT(reg.rms_m, 0.008);
   // The layer then reads true within a few mm on average (its own noise: 5 mm scanner noise, 6 points per cell).
   const CellThickness t = measure_cells(p.grid, p.before, transform_cloud(p.after.cloud, reg.transform), c.rescan);
   const Comparison cmp = compare_cells(t.thickness_m, p.after.true_thickness_m);

@@ -6,6 +6,7 @@
 #include <pcl/point_types.h>
 #include <pcl/registration/gicp.h>
 
+#include <Eigen/Eigenvalues>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -158,15 +159,31 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
   tree.setInputCloud(target);
   std::vector<int> idx(1);
   std::vector<float> d2(1);
-  // The share of `pts` with a target point within `dist`, and the RMS of those distances.
+  // The share of `pts` whose nearest target point lies within `dist`, and (rms) the RMS distance
+  // of those points to the plane of their 8 nearest target points: the thinned clouds' spacing
+  // would dominate a point-to-point distance.
   auto matched_share = [&](const PclCloud& pts, double dist, double* rms) {
     long matched = 0;
     double sum2 = 0.0;
-    for (const auto& q : pts.points)
-      if (tree.nearestKSearch(q, 1, idx, d2) > 0 && d2[0] <= dist * dist) {
-        ++matched;
-        sum2 += d2[0];
+    std::vector<int> nn(8);
+    std::vector<float> nd2(8);
+    for (const auto& q : pts.points) {
+      if (tree.nearestKSearch(q, 1, idx, d2) <= 0 || d2[0] > dist * dist) continue;
+      ++matched;
+      if (!rms) continue;
+      const int k = tree.nearestKSearch(q, 8, nn, nd2);
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      for (int j = 0; j < k; ++j) mean += target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>();
+      mean /= k;
+      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+      for (int j = 0; j < k; ++j) {
+        const Eigen::Vector3d v = target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>() - mean;
+        cov += v * v.transpose();
       }
+      const Eigen::Vector3d normal = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+      const double e = (q.getVector3fMap().cast<double>() - mean).dot(normal);
+      sum2 += e * e;
+    }
     if (rms) *rms = matched ? std::sqrt(sum2 / static_cast<double>(matched)) : std::numeric_limits<double>::quiet_NaN();
     return pts.empty() ? 0.0 : static_cast<double>(matched) / static_cast<double>(pts.size());
   };

@@ -37,7 +37,8 @@ ReferenceTest mask_reference(const Cloud& mask, const RescanConfig& config);
 
 struct Registration {
   Eigen::Matrix4d transform = Eigen::Matrix4d::Identity();  // after -> before: p_before = T p_after
-  double rms_m = 0.0;        // RMS distance of the matched after reference points to their nearest before point
+  double rms_m = 0.0;        // RMS distance of the matched after reference points to the before-scan's local plane
+                             // (8 nearest points): scanner noise plus what registration left
   double overlap = 0.0;      // share of after reference points with a before point within fine_correspondence_m
   int iterations = 0;        // GICP iterations, both stages
   long target_points = 0;    // before reference points (voxelled)
