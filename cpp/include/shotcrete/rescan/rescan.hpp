@@ -48,9 +48,10 @@ struct Registration {
 
 /// Registers `after` to `before` on the reference areas: starts from `initial` (the known rig pose;
 /// identity when the scanner frame did not change), keeps the points the test accepts (after points
-/// through the current estimate), voxels both (voxel_size_m), then GICP (PCL, covariances from 20
-/// neighbours) twice: coarse_correspondence_m, then fine_correspondence_m with the reference of the
-/// after-scan re-selected through the coarse estimate. Throws std::invalid_argument for too few
+/// through the current estimate), thins both (as many random points as voxels of voxel_size_m),
+/// then GICP (PCL, covariances from 20 neighbours) twice: coarse_correspondence_m on clouds thinned
+/// at twice the voxel edge, then fine_correspondence_m with the reference of the after-scan
+/// re-selected through the coarse estimate. Throws std::invalid_argument for too few
 /// reference points (min_reference_points) and std::runtime_error when GICP does not converge or the
 /// overlap is below min_overlap (not the same place, or a wrong initial pose).
 Registration register_scans(const Cloud& before, const Cloud& after, const ReferenceTest& reference,
