@@ -186,6 +186,22 @@ def page_facts(surface, table: CellTable, config, view_html: str = "") -> PageFa
                      off_regions(surface, table, True), off_regions(surface, table, False), view_html)
 
 
+def _bay_note(bay) -> str:
+    """Where the bay lies in the scan when the scan holds more than the bay (grid.bay)."""
+    if not bay:
+        return ""
+    whole = abs(bay["start_m"] - bay["scan_start_m"]) < 1e-9 and abs(bay["end_m"] - bay["scan_end_m"]) < 1e-9
+    left_out = bay.get("points_outside_bay", 0) + bay.get("points_not_wall", 0)
+    if whole and left_out == 0:
+        return ""
+    how = {"detect": "detected: the stretch that is not lining", "range": "grid.bay_start_m..bay_end_m",
+           "whole": "the whole scan"}.get(bay["selection"], bay["selection"])
+    return html.escape(f"; chainage {bay['start_m']:.2f}..{bay['end_m']:.2f} m of the scan's "
+                       f"{bay['scan_start_m']:.2f}..{bay['scan_end_m']:.2f} m ({how}); "
+                       f"{left_out:,} points near the design line left out of the grid "
+                       f"({bay.get('points_not_wall', 0):,} facing away from the axis: face, floor)")
+
+
 def fmt_sig(value: float, sig: int = 3) -> str:
     """``value`` to ``sig`` significant digits in plain notation (no exponent)."""
     if value == 0 or not math.isfinite(value):
@@ -308,7 +324,7 @@ def summary_html(report: dict, facts: PageFacts) -> str:
             f"{name} {_v('td_before_' + k, fmt_mm(report['td_before_mm'][k]))}"
             for k, name in (("mean", "mean"), ("min", "min"), ("max", "max")))),
         ("Bay length (grid along the axis)", _v("bay_length", f"{length:.2f} m")
-         + f" ({round(length / facts.cell_size_m)} cells of {facts.cell_size_m * 100:g} cm)"),
+         + f" ({round(length / facts.cell_size_m)} cells of {facts.cell_size_m * 100:g} cm)" + _bay_note(report.get("bay"))),
         ("Concrete missing (required)", _volume("required", report["required_volume_m3"], length)),
     ]
     if ex:

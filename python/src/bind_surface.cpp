@@ -87,6 +87,8 @@ void bind_surface(py::module_& m) {
       .def_readonly("d0_m", &Grid::d0_m)
       .def_readonly("n_theta", &Grid::n_theta)
       .def_readonly("n_d", &Grid::n_d)
+      .def_readonly("points_not_wall", &Grid::points_not_wall, "points near the design line left out: normal tilted (face, floor)")
+      .def_readonly("points_outside_bay", &Grid::points_outside_bay, "points near the design line left out: outside the bay")
       .def_property_readonly("count", [](const Grid& g) { return as_map(g.count, g); }, "(n_theta, n_d) points per cell")
       .def_property_readonly("valid", [](const Grid& g) {
         std::vector<std::uint8_t> v(g.valid.begin(), g.valid.end());
@@ -104,8 +106,22 @@ void bind_surface(py::module_& m) {
       .def("design_point", &Grid::design_point, py::arg("cell"))
       .def("valid_count", &Grid::valid_count)
       .def("__len__", &Grid::size);
+  py::class_<BayRange>(m, "BayRange", "Chainage range [start_m, end_m) along the axis, m.")
+      .def(py::init([](double start_m, double end_m) { return BayRange{start_m, end_m}; }), py::arg("start_m"), py::arg("end_m"))
+      .def_readonly("start_m", &BayRange::start_m)
+      .def_readonly("end_m", &BayRange::end_m);
+  py::class_<BaySelectionResult>(m, "BaySelection", "How the bay was chosen from the scan (grid.bay).")
+      .def_readonly("mode", &BaySelectionResult::mode)
+      .def_readonly("range", &BaySelectionResult::range)
+      .def_readonly("scan_start_m", &BaySelectionResult::scan_start_m)
+      .def_readonly("scan_end_m", &BaySelectionResult::scan_end_m)
+      .def_readonly("lined_columns", &BaySelectionResult::lined_columns)
+      .def_readonly("scan_columns", &BaySelectionResult::scan_columns);
   m.def("build_grid", &build_grid, py::arg("cloud"), py::arg("axis"), py::arg("profile"), py::arg("config"),
-        py::arg("max_deviation_m"));
+        py::arg("max_deviation_m"), py::arg("bay") = std::nullopt,
+        "Grid a cloud with normals (optionally only the bay's chainage range).");
+  m.def("select_bay", &select_bay, py::arg("whole_scan"), py::arg("config"),
+        "The bay of a whole-scan grid: whole, the config's range, or the longest stretch that is not lining.");
   m.def("missing_volume_m3", &missing_volume_m3, py::arg("grid"),
         "Volume [m^3] between the wall and the design line over the valid cells with TD > 0 (the required volume).");
   m.def("point_td", &point_td, py::arg("cloud"), py::arg("axis"), py::arg("profile"), "Per-point TD [m].");
@@ -151,6 +167,7 @@ void bind_surface(py::module_& m) {
       .def_readonly("axis_fit_rms_m", &Surface::axis_fit_rms_m)
       .def_readonly("axis_fit", &Surface::axis_fit, "AxisFit, or None when the axis came from the config")
       .def_readonly("grid", &Surface::grid)
+      .def_readonly("bay", &Surface::bay, "BaySelection: the chainage range of the bay the grid covers")
       .def_readonly("levels", &Surface::levels)
       .def_readonly("timings_s", &Surface::timings_s);
   m.def("build_surface", &build_surface, py::arg("cloud"), py::arg("config"),

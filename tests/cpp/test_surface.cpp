@@ -420,6 +420,148 @@ TEST(Synth, DefaultBayResemblesTheThesisExperiment) {
   EXPECT_LT(worst, 0.012);
 }
 
+namespace {
+
+// The default synthetic bay (d in [0, 1.2) m) inside a scene: a lined bay behind it (d in
+// [-1.5, 0), on the design line with 5 mm noise), the face at its far end and a floor below.
+Cloud bay_in_a_scene(const Cloud& bay, double R) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.005);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  for (Eigen::Index i = 0; i < bay.size(); ++i) pts.push_back(bay.xyz.row(i).transpose());
+  for (int i = 0; i < 150000; ++i) {  // lining: about as dense as the bay
+    const double d = -1.5 + 1.5 * u(rng), theta = kPi * u(rng), r = R + noise(rng);
+    pts.emplace_back(d, r * std::cos(theta), r * std::sin(theta));
+  }
+  for (int i = 0; i < 60000; ++i) {  // face: a half disk at d = 1.25
+    const double r = (R + 0.15) * std::sqrt(u(rng)), theta = kPi * u(rng);
+    pts.emplace_back(1.25 + noise(rng), r * std::cos(theta), r * std::sin(theta));
+  }
+  for (int i = 0; i < 60000; ++i)  // floor 1.6 m below the springlines, across the whole scene
+    pts.emplace_back(-1.5 + 2.75 * u(rng), (2.0 * u(rng) - 1.0) * R, -1.6 + noise(rng));
+  Cloud c;
+  c.xyz.resize(static_cast<Eigen::Index>(pts.size()), 3);
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
+  return c;
+}
+
+}  // namespace
+
+TEST(Bay, DetectedInASceneGridsTheSameCellsAsTheBayAlone) {
+  Config cfg;
+  cfg.preprocess.outlier_neighbors = 0;  // the reference grid must see the same bay points
+  const double R = cfg.profile.design_radius_m;
+  const Cloud bay = make_synthetic_bay(cfg.synth).sample();
+  const Surface alone = build_surface(bay, cfg);
+  const Surface scene = build_surface(bay_in_a_scene(bay, R), cfg);
+  EXPECT_EQ(alone.bay.lined_columns, 0);
+  EXPECT_EQ(scene.bay.mode, "detect");
+  EXPECT_NEAR(scene.bay.range.start_m, 0.0, 1e-9);
+  EXPECT_NEAR(scene.bay.range.end_m, 1.2, 1e-9);
+  EXPECT_GE(scene.bay.lined_columns, 29);  // [-1.5, 0) in 5 cm cross-sections
+  EXPECT_LE(scene.bay.lined_columns, 30);
+  EXPECT_GT(scene.grid.points_not_wall, 5000);   // face and floor points near the design line
+  EXPECT_GT(scene.grid.points_outside_bay, 100000);  // the lining
+  ASSERT_EQ(scene.grid.n_d, alone.grid.n_d);
+  ASSERT_EQ(scene.grid.n_theta, alone.grid.n_theta);
+  ASSERT_NEAR(scene.grid.theta0_rad, alone.grid.theta0_rad, 1e-12);
+  // The same cells; TD differs only where the face's and the lining's neighbours tilted a normal
+  // past the wall limit at the bay's two ends.
+  int same_valid = 0, close = 0, both = 0;
+  for (int c = 0; c < alone.grid.size(); ++c) {
+    same_valid += alone.grid.valid[c] == scene.grid.valid[c];
+    if (!(alone.grid.valid[c] && scene.grid.valid[c])) continue;
+    ++both;
+    close += std::abs(scene.grid.td_m[c] - alone.grid.td_m[c]) < 0.002;
+  }
+  EXPECT_GE(same_valid, alone.grid.size() - 5);
+  EXPECT_GE(close, both - 40) << "cells whose TD moved by 2 mm or more: " << both - close;
+  EXPECT_NEAR(missing_volume_m3(scene.grid), missing_volume_m3(alone.grid), 0.002 * missing_volume_m3(alone.grid));
+}
+
+TEST(Bay, AxisFittedInASceneFitsTheWallNotTheFloorAndFace) {
+  Config cfg;
+  const Cloud bay = make_synthetic_bay(cfg.synth).sample();
+  const Surface known = build_surface(bay, cfg);
+  cfg.profile.estimate_axis = true;
+  const Surface scene = build_surface(bay_in_a_scene(bay, cfg.profile.design_radius_m), cfg);
+  const Surface alone = build_surface(bay, cfg);  // the same fit on the bay without its scene
+  std::printf("scene: %.4f rad, centre %.4f m, volume %.4f; alone: %.4f rad, centre %.4f, volume %.4f; known volume %.4f\n",
+              std::acos(std::min(1.0, std::abs(scene.axis.ex.x()))), std::hypot(scene.axis.origin_m.y(), scene.axis.origin_m.z()),
+              missing_volume_m3(scene.grid), std::acos(std::min(1.0, std::abs(alone.axis.ex.x()))),
+              std::hypot(alone.axis.origin_m.y(), alone.axis.origin_m.z()), missing_volume_m3(alone.grid), missing_volume_m3(known.grid));
+  ASSERT_TRUE(scene.axis_fit.has_value());
+  // As close to the true axis as the fit on the bay alone (0.0024 rad, 0.5 mm): direction within
+  // 0.004 rad, the centre line within 1 cm of the true one (y = z = 0).
+  EXPECT_LT(std::acos(std::min(1.0, std::abs(scene.axis.ex.x()))), 0.004);
+  EXPECT_LT(std::acos(std::min(1.0, std::abs(alone.axis.ex.x()))), 0.004);
+  EXPECT_LT(std::hypot(scene.axis.origin_m.y(), scene.axis.origin_m.z()), 0.01);
+  EXPECT_NEAR(scene.bay.range.end_m - scene.bay.range.start_m, 1.2, 0.051);
+  // Within 2 %: the fitted axis starts its chainage where the bay's fitted points start, so a
+  // column at an end is partly covered and counts whole (4.35 m^3 against 4.30).
+  EXPECT_NEAR(missing_volume_m3(scene.grid), missing_volume_m3(known.grid), 0.02 * missing_volume_m3(known.grid));
+}
+
+TEST(Bay, RangeCutsExactlyTheColumnsOfTheWholeGrid) {
+  Config cfg;
+  const Cloud bay = make_synthetic_bay(cfg.synth).sample();
+  cfg.grid.bay = BaySelection::whole;
+  const Surface whole = build_surface(bay, cfg);
+  cfg.grid.bay = BaySelection::range;
+  cfg.grid.bay_start_m = 0.21;  // snapped to the nearest cell edges: [0.20, 0.80)
+  cfg.grid.bay_end_m = 0.79;
+  const Surface part = build_surface(bay, cfg);
+  EXPECT_EQ(part.bay.mode, "range");
+  EXPECT_NEAR(part.grid.d0_m, 0.20, 1e-12);
+  ASSERT_EQ(part.grid.n_d, 12);
+  EXPECT_GT(part.grid.points_outside_bay, 0);
+  const int first = static_cast<int>(std::lround((part.grid.d0_m - whole.grid.d0_m) / whole.grid.cell_size_m));
+  for (int row = 0; row < part.grid.n_theta; ++row)
+    for (int col = 0; col < part.grid.n_d; ++col) {
+      const int a = part.grid.index(row, col), b = whole.grid.index(row, col + first);
+      ASSERT_EQ(part.grid.valid[a], whole.grid.valid[b]);
+      if (part.grid.valid[a]) ASSERT_DOUBLE_EQ(part.grid.td_m[a], whole.grid.td_m[b]);
+    }
+}
+
+TEST(Bay, NoBayOrARangeOffTheScanIsAClearError) {
+  Config cfg;
+  const double R = cfg.profile.design_radius_m;
+  // Lining only: every cross-section on the design line.
+  Cloud lined = lattice_cylinder(R, [](double, double) { return 0.0; }, 3);
+  try {
+    build_surface(lined, cfg);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("every cross-section of the scan looks lined"), std::string::npos) << e.what();
+  }
+  cfg.grid.bay = BaySelection::whole;  // the user can still grid it
+  EXPECT_NO_THROW(build_surface(lined, cfg));
+  cfg.grid.bay = BaySelection::range;
+  cfg.grid.bay_start_m = 5.0;
+  cfg.grid.bay_end_m = 6.0;
+  try {
+    build_surface(lined, cfg);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("misses the scan's wall, which spans [0, 1.2) m"), std::string::npos) << e.what();
+  }
+  cfg.grid.bay_end_m = 4.0;  // start above end: the config check names both keys
+  EXPECT_THROW(validate(cfg), std::invalid_argument);
+  // A floor alone (every normal vertical) near the design line is no wall.
+  Cloud floor;
+  floor.xyz.resize(2000, 3);
+  for (int i = 0; i < 2000; ++i) floor.xyz.row(i) << 0.001 * i, -5.6 + 0.0005 * (i % 40) * 20, -1.0 + 1e-4 * (i % 7);
+  cfg.grid.bay = BaySelection::detect;
+  try {
+    build_surface(floor, cfg);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("faces the axis"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Synth, SeededAndReproducible) {
   SynthConfig sc;
   sc.points_per_cell = 1;

@@ -156,3 +156,48 @@ def test_cli_bad_inputs_exit_2(tmp_path, run_cli):
     cfg.write_text("profile:\n  design_radius_m: 0\n")
     r = run_cli("plan", mm, "--out", tmp_path / "o4", "--config", cfg)
     assert r.exit_code == 2 and "design_radius_m" in r.output
+
+
+def test_cli_plan_of_a_scene_grids_the_bay_and_keeps_the_rest(tmp_path, run_cli, small_config, small_cloud):
+    """Issue 16: a scan holding the bay, 0.5 m of lining behind it and the face: the detected bay
+    gets the same cells and required volume as the bay scanned alone, report.json says where it
+    lies, and the lining and face stay in the written clouds (obstacles, references), unmoved."""
+    rng = np.random.default_rng(3)
+    R = small_config.profile.design_radius_m
+    n = 20000
+    d, th = -0.5 * rng.random(n), 1.0 + rng.random(n)
+    r = R + rng.normal(0.0, 0.005, n)
+    lining = np.c_[d, r * np.cos(th), r * np.sin(th)]
+    rr, th = (R + 0.15) * np.sqrt(rng.random(n)), 1.0 + rng.random(n)
+    face = np.c_[0.65 + rng.normal(0.0, 0.005, n), rr * np.cos(th), rr * np.sin(th)]
+    bay = np.asarray(small_cloud.xyz)
+    files = {}
+    for name, xyz in (("bay", bay), ("scene", np.vstack([bay, lining, face]))):
+        files[name] = tmp_path / f"{name}.ply"
+        shotcrete.write_cloud(files[name], shotcrete.Cloud(xyz))
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
+                   "planner:\n  max_rounds: 2\nclearance:\n  enabled: false\n")
+    reports = {}
+    for name, path in files.items():
+        r = run_cli("plan", path, "--out", tmp_path / name, "--config", cfg, "--json")
+        assert r.exit_code in (0, 3), r.output
+        reports[name] = json.loads((tmp_path / name / "report.json").read_text())
+    alone, scene = reports["bay"], reports["scene"]
+    assert alone["bay"]["lined_columns"] == 0 and alone["bay"]["points_outside_bay"] == 0
+    assert scene["bay"]["selection"] == "detect"
+    assert scene["bay"]["start_m"] == pytest.approx(0.0, abs=1e-9) and scene["bay"]["end_m"] == pytest.approx(0.6, abs=1e-9)
+    assert scene["bay"]["scan_start_m"] == pytest.approx(-0.5, abs=0.051) and scene["bay"]["lined_columns"] >= 9
+    assert scene["bay"]["points_outside_bay"] > 15000 and scene["bay"]["points_not_wall"] > 1000
+    # The same grid; a few cells empty in the sparse bay alone get a face-rim point in the scene.
+    assert scene["grid_shape"] == alone["grid_shape"] and 0 <= scene["cells"] - alone["cells"] <= 5
+    assert scene["required_volume_m3"] == pytest.approx(alone["required_volume_m3"], rel=0.003)
+    page = (tmp_path / "scene" / "report.html").read_text()
+    assert "chainage 0.00..0.60 m of the scan" in page and "detected: the stretch that is not lining" in page
+    # The lining stays in the sprayed cloud: beyond the passes' overrun (0.1 m) and the spot
+    # (0.19 m) where the plan left it; nearer the bay it got the overspray, as it would.
+    sprayed = np.asarray(shotcrete.read_cloud(tmp_path / "scene" / "sprayed.ply").xyz)
+    assert len(sprayed) > len(bay) + n  # the preprocessed scene (voxel filter), lining and face included
+    behind = sprayed[sprayed[:, 0] < -0.4]
+    assert len(behind) > 3000
+    assert np.abs(np.hypot(behind[:, 1], behind[:, 2]) - R).max() < 0.05

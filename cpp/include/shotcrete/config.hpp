@@ -25,6 +25,14 @@ constexpr std::array<EnumName<PassDirection>, 2> enum_names(PassDirection) {
   return {{{PassDirection::axial, "axial"}, {PassDirection::circumferential, "circumferential"}}};
 }
 
+/// grid.bay: which stretch of the scan along the axis is the bay to spray (docs/architecture.md §3,
+/// "Bay selection"): the whole scan, a chainage range from the config, or detected as the stretch
+/// that is not lining.
+enum class BaySelection { whole, range, detect };
+constexpr std::array<EnumName<BaySelection>, 3> enum_names(BaySelection) {
+  return {{{BaySelection::whole, "whole"}, {BaySelection::range, "range"}, {BaySelection::detect, "detect"}}};
+}
+
 /// ordering.method: the region-ordering solver (ordering.hpp).
 enum class OrderingMethod { aco, ga, nn, exact, best };
 constexpr std::array<EnumName<OrderingMethod>, 5> enum_names(OrderingMethod) {
@@ -66,6 +74,16 @@ struct NormalsConfig {
 struct GridConfig {
   double cell_size_m = 0.05;  // cell edge along the axis and along the wall arc
   int min_points_per_cell = 1;  // cells with fewer points are marked empty
+  // Bay selection: the rest of the scan (lined bay, face, floor) stays in the cloud as obstacle
+  // and reference but out of the grid.
+  BaySelection bay = BaySelection::detect;
+  double bay_start_m = 0.0;  // bay: range; chainage of the bay's ends along the axis, from
+  double bay_end_m = 0.0;    // profile.axis_origin_m (the job's frame), m
+  double lined_td_m = 0.03;  // bay: detect; a cell whose TD is within this of the design line looks lined, m
+  double lined_fraction = 0.9;  // a cross-section (grid column) with this share of lined cells is lining
+  // A point whose normal is farther than this from the radial direction is not wall (the face,
+  // a floor, a duct's flank) and stays out of the grid, rad. Dig-pit flanks tilt < 40 deg.
+  double max_normal_tilt_rad = 1.0472;
 };
 
 struct RegionConfig {

@@ -40,6 +40,12 @@ template <class F> void visit(NormalsConfig*, F&& f) {
 template <class F> void visit(GridConfig*, F&& f) {
   f("cell_size_m", &GridConfig::cell_size_m, 0.005, 1.0, "cell edge along axis and arc [m]");
   f("min_points_per_cell", &GridConfig::min_points_per_cell, 1, 10000, "fewer points: cell empty");
+  f("bay", &GridConfig::bay, 0, 0, "bay to grid along the axis: whole, range (bay_start_m..bay_end_m) or detect (the unlined stretch)");
+  f("bay_start_m", &GridConfig::bay_start_m, -1e6, 1e6, "bay: range; start chainage along the axis from profile.axis_origin_m [m]");
+  f("bay_end_m", &GridConfig::bay_end_m, -1e6, 1e6, "bay: range; end chainage [m]");
+  f("lined_td_m", &GridConfig::lined_td_m, 0.001, 1.0, "bay: detect; a cell within this TD of the design line looks lined [m]");
+  f("lined_fraction", &GridConfig::lined_fraction, 0.5, 1.0, "bay: detect; share of lined cells that makes a cross-section lining");
+  f("max_normal_tilt_rad", &GridConfig::max_normal_tilt_rad, 0.1, 1.5708, "points with normals farther than this from radial are not wall [rad]");
 }
 template <class F> void visit(RegionConfig*, F&& f) {
   f("min_region_cells", &RegionConfig::min_region_cells, 1, 100000, "smaller regions merge");

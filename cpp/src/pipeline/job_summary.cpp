@@ -318,6 +318,9 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.axis_fit_rms_m = surface.axis_fit_rms_m;
   s.axis_estimated = surface.axis_fit.has_value();
   s.axis_origin_m = surface.axis.origin_m;
+  s.bay = surface.bay;
+  s.points_not_wall = grid.points_not_wall;
+  s.points_outside_bay = grid.points_outside_bay;
   s.axis_direction = surface.axis.ex;
   if (surface.axis_fit) {
     s.axis_fit_arc_deg = surface.axis_fit->arc_rad * 180.0 / M_PI;
@@ -448,6 +451,10 @@ std::string JobSummary::to_json() const {
   if (axis_fit_points) w.value(*axis_fit_points);
   else w.null();
   w.end_object();
+  w.key("bay").begin_object().field("selection", bay.mode).field("start_m", bay.range.start_m).field("end_m", bay.range.end_m);
+  w.field("scan_start_m", bay.scan_start_m).field("scan_end_m", bay.scan_end_m);
+  w.field("lined_columns", bay.lined_columns).field("scan_columns", bay.scan_columns);
+  w.field("points_not_wall", points_not_wall).field("points_outside_bay", points_outside_bay).end_object();
   w.key("levels_before");
   write(w, levels_before);
   w.key("td_before_mm");

@@ -44,26 +44,44 @@ Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const Desig
 }
 
 Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
-                const GridConfig& config, double max_deviation_m) {
+                const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay) {
   if (!(profile.radius_m > 0) || !std::isfinite(profile.radius_m))
     throw std::invalid_argument("grid: design radius must be > 0, got " + std::to_string(profile.radius_m));
   if (!(config.cell_size_m > 0)) throw std::invalid_argument("grid: cell_size_m must be > 0");
   if (cloud.size() == 0) throw std::invalid_argument("grid: the cloud is empty");
   if (!cloud.has_normals()) throw std::invalid_argument("grid: the cloud needs normals (run estimate_normals)");
+  if (bay && !(bay->start_m < bay->end_m))
+    throw std::invalid_argument("grid: the bay's start chainage " + std::to_string(bay->start_m) +
+                                " m is not below its end " + std::to_string(bay->end_m) + " m");
 
   Grid g;
   g.axis = axis;
   g.profile = profile;
   g.cell_size_m = config.cell_size_m;
   g.dtheta_rad = config.cell_size_m / profile.radius_m;
+  // Bay ends on the nearest cell edges, so the end columns are whole cells of the bay.
+  const double bay_d0 = bay ? std::round(bay->start_m / g.cell_size_m) * g.cell_size_m : 0.0;
+  const int bay_cols = bay ? std::max(1, static_cast<int>(std::lround((bay->end_m - bay_d0) / g.cell_size_m))) : 0;
+  const double cos_tilt = std::cos(config.max_normal_tilt_rad);
 
   std::vector<Eigen::Vector3d> cyl(cloud.size());
   std::vector<char> keep(cloud.size(), 0);
   double tmin = std::numeric_limits<double>::infinity(), tmax = -tmin, dmin = tmin, dmax = -tmin;
-  std::size_t kept = 0;
+  std::size_t kept = 0, near_line = 0;
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
     cyl[i] = axis.to_cylindrical(cloud.xyz.row(i).transpose());
     if (std::abs(cyl[i][0] - profile.radius_at(cyl[i][1])) > max_deviation_m) continue;
+    ++near_line;
+    // A zero normal (none estimated) counts as wall: only a known tilt leaves a point out.
+    const Eigen::Vector3d n = cloud.normals.row(i).transpose();
+    if (n.squaredNorm() > 0.25 && std::abs(n.dot(axis.radial(cyl[i][1]))) < cos_tilt * n.norm()) {
+      ++g.points_not_wall;
+      continue;
+    }
+    if (bay && (cyl[i][2] < bay_d0 || cyl[i][2] >= bay_d0 + bay_cols * g.cell_size_m)) {
+      ++g.points_outside_bay;
+      continue;
+    }
     keep[i] = 1;
     ++kept;
     tmin = std::min(tmin, cyl[i][1]);
@@ -73,15 +91,27 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   }
   if (kept == 0) {
     std::ostringstream msg;
-    msg << "grid: no point lies within " << max_deviation_m << " m of the design radius " << profile.radius_m
-        << " m around the axis; check profile.design_radius_m, the axis, and that coordinates are metres";
+    if (near_line == 0)
+      msg << "grid: no point lies within " << max_deviation_m << " m of the design radius " << profile.radius_m
+          << " m around the axis; check profile.design_radius_m, the axis, and that coordinates are metres";
+    else if (g.points_outside_bay == 0)
+      msg << "grid: none of the " << near_line << " points near the design line faces the axis (normals tilted more than grid.max_normal_tilt_rad = "
+          << config.max_normal_tilt_rad << " rad from radial): the cloud is no tunnel wall around this axis";
+    else
+      msg << "grid: no wall point lies in the bay's chainage range [" << bay->start_m << ", " << bay->end_m
+          << ") m along the axis; check grid.bay_start_m/bay_end_m against the scan";
     throw std::invalid_argument(msg.str());
   }
   // Cell edges on fixed multiples of the cell size, so cells do not depend on the point sample.
   g.theta0_rad = std::floor(tmin / g.dtheta_rad) * g.dtheta_rad;
-  g.d0_m = std::floor(dmin / g.cell_size_m) * g.cell_size_m;
   g.n_theta = std::max(1, static_cast<int>(std::floor((tmax - g.theta0_rad) / g.dtheta_rad)) + 1);
-  g.n_d = std::max(1, static_cast<int>(std::floor((dmax - g.d0_m) / g.cell_size_m)) + 1);
+  if (bay) {
+    g.d0_m = bay_d0;
+    g.n_d = bay_cols;
+  } else {
+    g.d0_m = std::floor(dmin / g.cell_size_m) * g.cell_size_m;
+    g.n_d = std::max(1, static_cast<int>(std::floor((dmax - g.d0_m) / g.cell_size_m)) + 1);
+  }
   if (static_cast<double>(g.n_theta) * g.n_d > 5e7)
     throw std::invalid_argument("grid: more than 50 million cells; increase grid.cell_size_m");
 
@@ -114,6 +144,69 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
     g.td_m[c] = r_sum[c] / g.count[c];
   }
   return g;
+}
+
+BaySelectionResult select_bay(const Grid& whole, const GridConfig& config) {
+  BaySelectionResult r;
+  r.mode = enum_name(config.bay);
+  r.scan_columns = whole.n_d;
+  r.scan_start_m = whole.d0_m;
+  r.scan_end_m = whole.d0_m + whole.n_d * whole.cell_size_m;
+  r.range = {r.scan_start_m, r.scan_end_m};
+  if (config.bay == BaySelection::whole) return r;
+  if (config.bay == BaySelection::range) {
+    if (config.bay_end_m <= r.scan_start_m || config.bay_start_m >= r.scan_end_m) {
+      std::ostringstream msg;
+      msg << "grid: the bay [" << config.bay_start_m << ", " << config.bay_end_m << ") m (grid.bay_start_m, bay_end_m) misses the scan's wall, which spans ["
+          << r.scan_start_m << ", " << r.scan_end_m << ") m along the axis";
+      throw std::invalid_argument(msg.str());
+    }
+    r.range = {config.bay_start_m, config.bay_end_m};
+    return r;
+  }
+  // detect: lining is smooth and on the design line; a fresh bay lies outside it (over-break).
+  std::vector<char> lining(whole.n_d, 0);
+  std::vector<int> valid(whole.n_d, 0);
+  std::vector<long> points(whole.n_d, 0);
+  for (int col = 0; col < whole.n_d; ++col) {
+    int lined = 0;
+    for (int row = 0; row < whole.n_theta; ++row) {
+      const int c = whole.index(row, col);
+      points[col] += whole.count[c];
+      if (!whole.valid[c]) continue;
+      ++valid[col];
+      if (std::abs(whole.td_m[c]) <= config.lined_td_m) ++lined;
+    }
+    lining[col] = valid[col] > 0 && lined >= config.lined_fraction * valid[col];
+    r.lined_columns += lining[col];
+  }
+  int best_start = -1, best_len = 0;
+  for (int col = 0; col < whole.n_d;) {
+    if (lining[col]) {
+      ++col;
+      continue;
+    }
+    int end = col;
+    while (end < whole.n_d && !lining[end]) ++end;
+    if (end - col >= best_len) best_start = col, best_len = end - col;  // >=: the farther run on a tie
+    col = end;
+  }
+  if (best_len == 0) {
+    std::ostringstream msg;
+    msg << "grid: every cross-section of the scan looks lined (" << config.lined_fraction * 100.0
+        << " % of its cells within grid.lined_td_m = " << config.lined_td_m * 1000.0
+        << " mm of the design line): no bay to spray was found; set grid.bay to range (bay_start_m, bay_end_m) or whole";
+    throw std::invalid_argument(msg.str());
+  }
+  // End columns of the run holding under a third of the points of its median cross-section are
+  // no bay wall: the rim of the face, where the wall's neighbours tilt a few normals toward it.
+  std::vector<long> counts(points.begin() + best_start, points.begin() + best_start + best_len);
+  std::nth_element(counts.begin(), counts.begin() + counts.size() / 2, counts.end());
+  const double typical = static_cast<double>(counts[counts.size() / 2]);
+  while (best_len > 1 && points[best_start] < typical / 3.0) ++best_start, --best_len;
+  while (best_len > 1 && points[best_start + best_len - 1] < typical / 3.0) --best_len;
+  r.range = {whole.d0_m + best_start * whole.cell_size_m, whole.d0_m + (best_start + best_len) * whole.cell_size_m};
+  return r;
 }
 
 int level_of_td_mm(double td_mm) {

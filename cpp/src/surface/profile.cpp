@@ -136,9 +136,80 @@ Points patch_means(const Points& pts, const TunnelAxis& axis, double radius_m) {
   return out;
 }
 
+/// Indices of the points that can be wall around the axis along `dir`: a scene (floor, face,
+/// lining's end) holds more than the wall, and a cylinder fitted to it all is wrong. Each point
+/// whose normal lies across the axis votes for the centre one design radius along its normal; the
+/// densest 10 cm bin of votes is the centre, and the wall is the points within max_deviation_m of
+/// the design radius around it whose normals point at it within kWallNormalTilt_rad.
+std::vector<Eigen::Index> wall_candidates(const Cloud& cloud, const Eigen::Vector3d& dir, const ProfileConfig& profile) {
+  constexpr double kBin_m = 0.1, kWallNormalTilt_rad = 1.0472;
+  const TunnelAxis f = TunnelAxis::from_direction(Eigen::Vector3d::Zero(), dir);
+  const double R = profile.design_radius_m;
+  std::map<std::pair<std::int64_t, std::int64_t>, int> votes;
+  std::vector<Eigen::Vector2d> centre(static_cast<std::size_t>(cloud.size()), Eigen::Vector2d::Constant(NAN));
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d p = cloud.xyz.row(i).transpose(), n = cloud.normals.row(i).transpose();
+    const Eigen::Vector2d n2(n.dot(f.ey), n.dot(f.ez));
+    if (n2.norm() < 0.5) continue;  // the face: normal along the axis
+    const Eigen::Vector2d c = Eigen::Vector2d(p.dot(f.ey), p.dot(f.ez)) + R * n2.normalized();
+    centre[static_cast<std::size_t>(i)] = c;
+    ++votes[{static_cast<std::int64_t>(std::floor(c.x() / kBin_m)), static_cast<std::int64_t>(std::floor(c.y() / kBin_m))}];
+  }
+  std::vector<Eigen::Index> out;
+  if (votes.empty()) return out;
+  const auto best = std::max_element(votes.begin(), votes.end(), [](const auto& a, const auto& b) { return a.second < b.second; });
+  const Eigen::Vector2d bin_c((best->first.first + 0.5) * kBin_m, (best->first.second + 0.5) * kBin_m);
+  Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+  int count = 0;
+  for (const auto& c : centre)
+    if (c.allFinite() && (c - bin_c).norm() < 3 * kBin_m) sum += c, ++count;
+  const Eigen::Vector2d c0 = sum / std::max(count, 1);
+  const double cos_tilt = std::cos(kWallNormalTilt_rad);
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d p = cloud.xyz.row(i).transpose(), n = cloud.normals.row(i).transpose();
+    const Eigen::Vector2d q = Eigen::Vector2d(p.dot(f.ey), p.dot(f.ez)) - c0;
+    const double r = q.norm();
+    if (r < 1e-9 || std::abs(r - R) > profile.max_deviation_m) continue;
+    const Eigen::Vector3d radial = (q.x() * f.ey + q.y() * f.ez) / r;
+    if (std::abs(n.dot(radial)) >= cos_tilt * std::max(n.norm(), 1e-12)) out.push_back(i);
+  }
+  return out;
+}
+
+AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile);
+
 }  // namespace
 
 AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile) {
+  if (cloud.size() < kMinAxisFitPoints)
+    throw std::invalid_argument("axis fit: need at least " + std::to_string(kMinAxisFitPoints) + " points, got " +
+                                std::to_string(cloud.size()));
+  if (!cloud.has_normals()) throw std::invalid_argument("axis fit: the cloud needs normals");
+  try {
+    return fit_cylinder(cloud, profile);
+  } catch (const std::invalid_argument& whole_cloud) {
+    // A scene (floor, face) around the wall: fit the points that can be wall, and when that does
+    // not fit either, the whole cloud's reason stands.
+    const std::vector<Eigen::Index> wall = wall_candidates(cloud, direction_from_normals(cloud.normals), profile);
+    if (static_cast<long>(wall.size()) < kMinAxisFitPoints || wall.size() == static_cast<std::size_t>(cloud.size())) throw;
+    Cloud sub;
+    sub.xyz.resize(static_cast<Eigen::Index>(wall.size()), 3);
+    sub.normals.resize(static_cast<Eigen::Index>(wall.size()), 3);
+    for (std::size_t k = 0; k < wall.size(); ++k) {
+      sub.xyz.row(static_cast<Eigen::Index>(k)) = cloud.xyz.row(wall[k]);
+      sub.normals.row(static_cast<Eigen::Index>(k)) = cloud.normals.row(wall[k]);
+    }
+    try {
+      return fit_cylinder(sub, profile);
+    } catch (const std::invalid_argument&) {
+      throw whole_cloud;
+    }
+  }
+}
+
+namespace {
+
+AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile) {
   const Eigen::Index n = cloud.size();
   if (n < kMinAxisFitPoints)
     throw std::invalid_argument("axis fit: need at least " + std::to_string(kMinAxisFitPoints) + " points, got " +
@@ -225,5 +296,7 @@ AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile) {
                                 " m; the cloud is not a tunnel wall");
   return fit;
 }
+
+}  // namespace
 
 }  // namespace shotcrete

@@ -21,6 +21,30 @@ class StageTimer {
   std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
 };
 
+/// The points of `cloud` that build_grid would grid inside `range` (near the design line, facing
+/// the axis), with their normals.
+Cloud bay_wall_points(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile, const Config& config,
+                      const BayRange& range) {
+  const double cos_tilt = std::cos(config.grid.max_normal_tilt_rad);
+  std::vector<Eigen::Index> keep;
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d c = axis.to_cylindrical(cloud.xyz.row(i).transpose());
+    const Eigen::Vector3d n = cloud.normals.row(i).transpose();
+    if (c[2] < range.start_m || c[2] >= range.end_m) continue;
+    if (std::abs(c[0] - profile.radius_at(c[1])) > config.profile.max_deviation_m) continue;
+    if (n.squaredNorm() > 0.25 && std::abs(n.dot(axis.radial(c[1]))) < cos_tilt * n.norm()) continue;
+    keep.push_back(i);
+  }
+  Cloud out;
+  out.xyz.resize(static_cast<Eigen::Index>(keep.size()), 3);
+  out.normals.resize(static_cast<Eigen::Index>(keep.size()), 3);
+  for (std::size_t k = 0; k < keep.size(); ++k) {
+    out.xyz.row(static_cast<Eigen::Index>(k)) = cloud.xyz.row(keep[k]);
+    out.normals.row(static_cast<Eigen::Index>(k)) = cloud.normals.row(keep[k]);
+  }
+  return out;
+}
+
 }  // namespace
 
 Surface build_surface(const Cloud& raw, const Config& config) {
@@ -45,13 +69,42 @@ Surface build_surface(const Cloud& raw, const Config& config) {
     timer.lap("axis_fit");
   }
   s.cloud = std::move(cloud);
-  regrid(s, config);
+  // The whole scan's wall first; the bay is a stretch of it (the rest stays in s.cloud).
+  Grid scan_grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m);
+  s.bay = select_bay(scan_grid, config.grid);
+  if (config.profile.estimate_axis && (s.bay.range.start_m != s.bay.scan_start_m || s.bay.range.end_m != s.bay.scan_end_m)) {
+    // The axis again from the bay's own wall: a cylinder through the lining and the over-broken bay
+    // together tilts to fit both. One cross-section less at each end, where a column may hold a
+    // strip of lining (a lower envelope follows the lowest points).
+    const double cs = config.grid.cell_size_m;
+    const BayRange inner{s.bay.range.start_m + cs, s.bay.range.end_m - cs};
+    const Cloud bay_wall = inner.start_m < inner.end_m ? bay_wall_points(s.cloud, s.axis, s.profile, config, inner) : Cloud{};
+    if (bay_wall.size() >= kMinAxisFitPoints) {
+      const AxisFit fit = fit_axis(bay_wall, config.profile);
+      s.axis = fit.axis;
+      s.axis_fit_rms_m = fit.rms_m;
+      s.axis_fit = fit;
+      orient_normals_toward_axis(s.cloud, s.axis);
+      scan_grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m);
+      s.bay = select_bay(scan_grid, config.grid);
+    }
+  }
+  if (s.bay.range.start_m == s.bay.scan_start_m && s.bay.range.end_m == s.bay.scan_end_m) {
+    s.grid = std::move(scan_grid);
+    s.levels = cell_levels(s.grid);
+  } else {
+    regrid(s, config);
+  }
   timer.lap("grid");
   return s;
 }
 
 void regrid(Surface& s, const Config& config) {
-  s.grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m);
+  // The bay chosen on the scan, not re-detected: a sprayed bay looks like lining.
+  // (A surface assembled by hand, with no bay chosen, grids the whole cloud.)
+  const bool chosen = s.bay.range.start_m < s.bay.range.end_m;
+  s.grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m,
+                      chosen ? std::optional<BayRange>(s.bay.range) : std::nullopt);
   s.levels = cell_levels(s.grid);
 }
 

@@ -114,6 +114,8 @@ struct JobSummary {
   Eigen::Vector3d axis_origin_m{0, 0, 0}, axis_direction{1, 0, 0};
   std::optional<double> axis_fit_arc_deg;  // arc the wall covers around the fitted axis
   std::optional<long> axis_fit_points;     // points the fit used
+  BaySelectionResult bay;                  // report.json `bay`: the stretch of the scan gridded
+  long points_not_wall = 0, points_outside_bay = 0;  // near the design line but left out of the grid
   std::map<int, int> levels_before;
   TdStatsMm td_before_mm;
   // Of the executed deposit (the trajectory with the pump's flow) when there is a trajectory,

@@ -3,6 +3,8 @@
 // design radius (theta step = cell_size_m / r_design). Cell index = row * n_d + col with
 // row along theta (up the wall) and col along d (along the tunnel).
 #include <map>
+#include <optional>
+#include <string>
 #include <vector>
 
 #include "shotcrete/config.hpp"
@@ -28,6 +30,8 @@ struct Grid {
   Points mean_xyz;             // per cell, m (zero where invalid)
   Points mean_normal;          // per cell, unit, toward the axis (zero where invalid)
   Eigen::VectorXd td_m;        // per cell mean TD = r_wall - r_design, m (NaN where invalid)
+  long points_not_wall = 0;     // points near the design line left out: normal tilted beyond grid.max_normal_tilt_rad
+  long points_outside_bay = 0;  // points near the design line left out: outside the bay's chainage range
 
   int size() const { return n_theta * n_d; }
   int index(int row, int col) const { return row * n_d + col; }
@@ -42,10 +46,35 @@ struct Grid {
   int valid_count() const;
 };
 
-/// Grids a cloud with normals. Points farther than max_deviation_m from the design line are
-/// ignored; throws std::invalid_argument if none is left (wrong radius, axis or units).
+/// Chainage range of the bay along the axis [start_m, end_m), m from the axis origin.
+struct BayRange {
+  double start_m = 0.0, end_m = 0.0;
+};
+
+/// Grids a cloud with normals. Points farther than max_deviation_m from the design line, points
+/// whose normal tilts more than config.max_normal_tilt_rad from the radial direction (face,
+/// floor) and, with `bay`, points outside its chainage range are left out; throws
+/// std::invalid_argument if none is left (wrong radius, axis or units). With `bay`, the grid's
+/// columns span exactly the range, its ends snapped to the nearest cell edges.
 Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
-                const GridConfig& config, double max_deviation_m);
+                const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay = std::nullopt);
+
+/// How the bay was chosen (report.json `bay`).
+struct BaySelectionResult {
+  std::string mode;            // grid.bay: whole | range | detect
+  BayRange range;              // the grid's chainage span, m
+  double scan_start_m = 0.0, scan_end_m = 0.0;  // chainage span of the wall points of the scan, m
+  int lined_columns = 0;       // detect: cross-sections that look lined
+  int scan_columns = 0;        // cross-sections of the whole scan's grid
+};
+
+/// The bay of a grid of the whole scan (docs/architecture.md §3, "Bay selection"). detect: a
+/// column (cross-section) is lining when at least config.lined_fraction of its valid cells lie
+/// within config.lined_td_m of the design line; the bay is the longest run of columns that are
+/// not lining (the farther one along the axis on a tie), less end columns holding under a third
+/// of the points of its median cross-section (the face's rim). Throws std::invalid_argument when every
+/// column is lining or a range misses the scan.
+BaySelectionResult select_bay(const Grid& whole_scan, const GridConfig& config);
 
 /// Concrete missing behind the design line [m^3]: a valid cell with TD t > 0 holds the ring sector
 /// between the design radius r at its theta and r + t, dtheta * dd * (r t + t^2 / 2) (the flat

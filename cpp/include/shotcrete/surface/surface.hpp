@@ -17,7 +17,8 @@ struct Surface {
   DesignProfile profile;
   double axis_fit_rms_m = 0.0;  // 0 when the axis came from the config
   std::optional<AxisFit> axis_fit;  // when profile.estimate_axis
-  Grid grid;
+  Grid grid;                // the bay's grid
+  BaySelectionResult bay;   // how the bay was chosen from the scan
   std::vector<int> levels;  // per cell
   std::map<std::string, double> timings_s;  // per stage
 };
@@ -25,7 +26,8 @@ struct Surface {
 /// Throws std::invalid_argument with the reason for unusable input (empty, NaN, units, radius).
 Surface build_surface(const Cloud& raw, const Config& config);
 
-/// Re-grids a cloud that already has normals (after deposition moved its points).
+/// Re-grids a cloud that already has normals (after deposition moved its points), over the bay
+/// chosen when the surface was built.
 void regrid(Surface& surface, const Config& config);
 
 }  // namespace shotcrete
