@@ -265,11 +265,14 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
         t2 = time.perf_counter()
         cal_cfg = calibrated_config(config, cal.factor)
         wall = _core.wall_points(job.grid, after_reg, np.asarray(th.residual_td_m), WALL_BAND_M)
-        corr_surface = _core.build_surface(wall, cal_cfg)
+        # wall_points is the bay already; sprayed near flush it would look lined to grid.bay detect.
+        plan_cfg = cal_cfg.copy()
+        plan_cfg.grid.bay = "whole"
+        corr_surface = _core.build_surface(wall, plan_cfg)
         from .planning import plan_surface
-        correction = plan_surface(corr_surface, cal_cfg, progress)
+        correction = plan_surface(corr_surface, plan_cfg, progress)
         timings["correction"] = time.perf_counter() - t2
-        summary["correction"] = correction_summary(corr_surface, correction, cal_cfg)
+        summary["correction"] = correction_summary(corr_surface, correction, plan_cfg)
         progress("correction", 1.0)
     summary["timings_s"] = timings
     return RescanResult(summary, job, reg, th, cal, correction, corr_surface, cal_cfg)
