@@ -27,6 +27,8 @@ def register(app: typer.Typer) -> None:
                initial_pose: Optional[Path] = typer.Option(None, "--initial-pose",
                                                            help="JSON 4x4 after -> before start pose (default identity)"),
                correct: bool = typer.Option(True, "--correct/--no-correct", help="plan the corrective round"),
+               per_point: int = typer.Option(0, "--per-point", min=0,
+                                             help="also measure at up to N wall points of BEFORE (points.ply, intensity = layer in m)"),
                write_config: Optional[Path] = typer.Option(None, "--write-config",
                                                            help="write a copy of the config with the calibrated deposition rate"),
                force: bool = typer.Option(False, help="overwrite an existing --write-config file"),
@@ -57,7 +59,7 @@ def register(app: typer.Typer) -> None:
                 mask_cloud = read_cloud(mask) if mask is not None else None
                 with progress_reporter(disable=as_json) as progress:
                     result = rs.rescan(before, after, the_job, cfg, mask=mask_cloud, initial=T0, correct=correct,
-                                       progress=progress)
+                                       per_point=per_point, progress=progress)
                 result.summary["inputs"] = {"before": str(before_path), "after": str(after_path),
                                             "config": str(config or default_config_path())}
                 rs.write_outputs(tmp, result)

@@ -192,17 +192,20 @@ class RescanResult:
     correction: Optional[object]         # ArmPlan of the corrective round (or None)
     correction_surface: Optional[object]  # its surface (the after-scan's bay)
     calibrated: Optional[object]          # the calibrated config
+    points: Optional[tuple] = None        # per point on request: (core (N, 3), M3C2Result)
 
 
 def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.ndarray] = None,
-           correct: bool = True, progress: Optional[Callable[[str, float], None]] = None) -> RescanResult:
+           correct: bool = True, per_point: int = 0,
+           progress: Optional[Callable[[str, float], None]] = None) -> RescanResult:
     """The re-scan of ``job``'s bay: ``after`` (a Cloud, metres, any frame near ``before``'s)
     registered to ``before`` (the scan the job planned on, with its surroundings) on the reference
     areas of ``config.rescan.reference`` (dry: what the job left unsprayed; box; mask: within
     rescan.mask_radius_m of ``mask``), starting from ``initial`` (4 x 4, after -> before; identity by
     default); the layer per job cell (M3C2 along the cell's ray), measured vs predicted, the flow
     factor (``calibrate_flow``), and with ``correct`` the corrective round planned for the arm on the
-    after-scan's bay with the calibrated deposition rate. ValueError / RuntimeError, one line, for
+    after-scan's bay with the calibrated deposition rate. ``per_point`` > 0: the layer also at up to
+    that many of the before-scan's wall points (``_core.measure_points``; ``result.points``). ValueError / RuntimeError, one line, for
     unusable input (empty or NaN clouds, another bay, too little overlap, no reference area)."""
     progress = progress or (lambda stage, fraction: None)
     timings = {}
@@ -278,8 +281,24 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
         timings["correction"] = time.perf_counter() - t2
         summary["correction"] = correction_summary(corr_surface, correction, plan_cfg)
         progress("correction", 1.0)
+    points = None
+    if per_point > 0:
+        t3 = time.perf_counter()
+        wall = np.asarray(_core.wall_points(job.grid, before, td_job, WALL_BAND_M).xyz)
+        # Not within a cylinder radius of the bay's ends: the face or the lining would fill part of it.
+        g, rad = job.grid, config.rescan.cylinder_radius_m
+        d = (wall - np.asarray(g.axis.origin_m)) @ np.asarray(g.axis.ex)  # TunnelAxis: d along ex
+        wall = wall[(d >= g.d0_m + rad) & (d <= g.d0_m + g.n_d * g.cell_size_m - rad)]
+        pick = np.random.default_rng(0).choice(len(wall), min(per_point, len(wall)), replace=False)
+        core = np.ascontiguousarray(wall[np.sort(pick)])
+        points = (core, _core.measure_points(job.grid.axis, core, before, after_reg, config.rescan))
+        timings["per_point"] = time.perf_counter() - t3
+        summary["per_point"] = {"points": len(core), "thickness_mm": _stats_mm(points[1].distance_m),
+                                "lod95_mm": _stats_mm(points[1].lod95_m), "file": "points.ply"}
     summary["timings_s"] = timings
-    return RescanResult(summary, job, reg, th, cal, correction, corr_surface, cal_cfg)
+    result = RescanResult(summary, job, reg, th, cal, correction, corr_surface, cal_cfg)
+    result.points = points
+    return result
 
 
 def correction_summary(surface, arm_plan, config) -> dict:
@@ -333,6 +352,11 @@ def write_outputs(out: Path, result: RescanResult) -> dict:
                                 result.calibration.factor if result.calibration is not None else None)),
     ]
     files = {"cells": "cells.csv"}
+    if result.points is not None:
+        from .io import write_cloud
+
+        write_cloud(out / "points.ply", _core.Cloud(result.points[0]), np.asarray(result.points[1].distance_m))
+        files["points"] = "points.ply"  # the before-scan's wall points, intensity = layer [m] (NaN: none)
     if result.correction is not None:
         (out / "plan.json").write_text(json.dumps(plan_to_dict(result.correction.plan)) + "\n")
         files["corrective_plan"] = "plan.json"

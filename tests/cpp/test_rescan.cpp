@@ -316,6 +316,10 @@ TEST(Thickness, CellsOnACylinderWithAKnownLayerAgreeWithTheGenericM3C2) {
     ++compared;
   }
   EXPECT_GT(compared, 0.9 * grid.size());
+  // measure_points takes the same radial normals itself.
+  const M3C2Result mp = measure_points(bay.axis, core, before, a.cloud, c.rescan);
+  for (int i = 0; i < grid.size(); i += 101)
+    if (std::isfinite(g.distance_m[i])) EXPECT_DOUBLE_EQ(mp.distance_m[i], g.distance_m[i]);
 }
 
 TEST(Calibration, RobustFactorFromMeasuredVsPredicted) {

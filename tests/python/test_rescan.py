@@ -45,7 +45,7 @@ def loop(tmp_path_factory, run_cli_module):
     r = run("synth", "--config", d / "cfg_after.yaml", "--after", d / "job", "--out", d / "after.ply")
     assert r.exit_code == 0, r.output
     r = run("rescan", d / "before.ply", d / "after.ply", "--job", d / "job", "--config", d / "cfg.yaml",
-            "--out", d / "out", "--write-config", d / "calibrated.yaml")
+            "--out", d / "out", "--write-config", d / "calibrated.yaml", "--per-point", 3000)
     assert r.exit_code == 0, r.output
     return d
 
@@ -144,6 +144,35 @@ def test_corrective_round_planned_on_the_measured_residual(loop):
     html = (loop / "out" / "report.html").read_text()
     for f in rep["files"]["figures"]:
         assert f in html and (loop / "out" / f).is_file()
+
+
+def test_per_point_layer_against_the_truth_of_its_cell(loop):
+    rep = json.loads((loop / "out" / "report.json").read_text())
+    assert rep["per_point"]["points"] == 3000 and rep["files"]["points"] == "points.ply"
+    pts = shotcrete.read_cloud(loop / "out" / "points.ply")
+    xyz = np.asarray(pts.xyz)
+    assert len(xyz) == 3000
+    # Each point's layer (in the PLY's intensity, re-measured here through the API) against the truth
+    # of the cell it lies in: the cell's mean, so the layer's variation inside a cell adds a little.
+    cfg = shotcrete.load_config(loop / "cfg.yaml")
+    from shotcrete import rescan as rs
+
+    job = rs.read_job(loop / "job", cfg)
+    truth = _csv(loop / "after_truth.csv")
+    by_cell = dict(zip(truth["cell"].astype(int), truth["true_thickness_mm"]))
+    T = np.array(rep["registration"]["matrix"])
+    after = shotcrete.read_cloud(loop / "after.ply")
+    after_reg = _core.transform_cloud(after, T)
+    r = _core.measure_points(job.grid.axis, _core.Cloud(xyz).xyz, shotcrete.read_cloud(loop / "before.ply"), after_reg,
+                             cfg.rescan)
+    m = np.asarray(r.distance_m) * 1000
+    cells = [job.grid.cell_at(*job.grid.axis.to_cylindrical(p)[1:]) for p in xyz]
+    t = np.array([by_cell.get(c, np.nan) for c in cells])
+    ok = np.isfinite(m) & np.isfinite(t)
+    assert ok.mean() > 0.95
+    # Per point: ~16 points per cylinder and scan, and the layer's variation inside the cell.
+    assert abs(np.mean(m[ok] - t[ok])) < 1.5 and np.sqrt(np.mean((m[ok] - t[ok]) ** 2)) < 8.0
+    assert rep["per_point"]["thickness_mm"]["mean"] == pytest.approx(np.nanmean(m), abs=0.5)
 
 
 def _shifted(src, dst, dx):

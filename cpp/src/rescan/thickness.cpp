@@ -148,6 +148,14 @@ M3C2Result m3c2(const Points& core, const Points& normals, const Cloud& before, 
   return out;
 }
 
+M3C2Result measure_points(const TunnelAxis& axis, const Points& core, const Cloud& before, const Cloud& after,
+                          const RescanConfig& c) {
+  Points normals(core.rows(), 3);
+  for (Eigen::Index i = 0; i < core.rows(); ++i)
+    normals.row(i) = -axis.radial(axis.to_cylindrical(core.row(i).transpose()).y()).transpose();
+  return m3c2(core, normals, before, after, c);  // inward normal: the after wall lies ahead, the layer reads positive
+}
+
 CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& after, const RescanConfig& c) {
   check_cloud_finite(before, "before");
   check_cloud_finite(after, "after");
