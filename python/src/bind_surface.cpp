@@ -116,7 +116,8 @@ void bind_surface(py::module_& m) {
       .def_readonly("scan_start_m", &BaySelectionResult::scan_start_m)
       .def_readonly("scan_end_m", &BaySelectionResult::scan_end_m)
       .def_readonly("lined_columns", &BaySelectionResult::lined_columns)
-      .def_readonly("scan_columns", &BaySelectionResult::scan_columns);
+      .def_readonly("scan_columns", &BaySelectionResult::scan_columns)
+      .def_readonly("warning", &BaySelectionResult::warning, "set when detect found only lining (the whole scan is gridded)");
   m.def("build_grid", &build_grid, py::arg("cloud"), py::arg("axis"), py::arg("profile"), py::arg("config"),
         py::arg("max_deviation_m"), py::arg("bay") = std::nullopt,
         "Grid a cloud with normals (optionally only the bay's chainage range).");

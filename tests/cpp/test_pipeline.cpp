@@ -218,6 +218,18 @@ TEST(JobSummary, ProblemsNameEveryReasonAPlanIsNotRight) {
   EXPECT_EQ(plan_problems(s)[0].message,
             "the scan covers 49 of the grid's 100 cells (less than 50 %): holes are neither graded nor sprayed");
   s = ok;
+  s.spot_diameter_m = 0.385;
+  s.grid_cell_size_m = 0.04;  // 0.4 m x 0.4 m
+  EXPECT_EQ(codes(s), std::vector<std::string>{});
+  s.grid_n_theta = 1;  // one row of cells: a line of points along the crown
+  s.grid_cell_size_m = 0.05;
+  s.grid_n_d = 8;
+  s.cells = 8;
+  EXPECT_EQ(codes(s), std::vector<std::string>{"narrow_scan"});
+  EXPECT_EQ(plan_problems(s)[0].message,
+            "the scan's wall spans 0.05 m across by 0.40 m along the axis, narrower than one spray spot (0.39 m): a line or "
+            "strip of points, not a bay to spray");
+  s = ok;
   s.levels_after = {{0, 40}, {1, 7}, {3, 3}};
   s.unreachable_cells = 4;
   s.stop_reason = "max rounds reached (planner.max_rounds)";

@@ -525,19 +525,17 @@ TEST(Bay, RangeCutsExactlyTheColumnsOfTheWholeGrid) {
     }
 }
 
-TEST(Bay, NoBayOrARangeOffTheScanIsAClearError) {
+TEST(Bay, AllLiningWarnsAndARangeOffTheScanIsAClearError) {
   Config cfg;
   const double R = cfg.profile.design_radius_m;
-  // Lining only: every cross-section on the design line.
+  // Lining only: every cross-section on the design line. Gridded whole, with a warning.
   Cloud lined = lattice_cylinder(R, [](double, double) { return 0.0; }, 3);
-  try {
-    build_surface(lined, cfg);
-    FAIL();
-  } catch (const std::invalid_argument& e) {
-    EXPECT_NE(std::string(e.what()).find("every cross-section of the scan looks lined"), std::string::npos) << e.what();
-  }
-  cfg.grid.bay = BaySelection::whole;  // the user can still grid it
-  EXPECT_NO_THROW(build_surface(lined, cfg));
+  const Surface all_lined = build_surface(lined, cfg);
+  EXPECT_NE(all_lined.bay.warning.find("every cross-section of the scan looks lined"), std::string::npos) << all_lined.bay.warning;
+  EXPECT_EQ(all_lined.bay.lined_columns, all_lined.grid.n_d);
+  EXPECT_NEAR(all_lined.bay.range.end_m - all_lined.bay.range.start_m, 1.2, 1e-9);
+  cfg.grid.bay = BaySelection::whole;
+  EXPECT_TRUE(build_surface(lined, cfg).bay.warning.empty());
   cfg.grid.bay = BaySelection::range;
   cfg.grid.bay_start_m = 5.0;
   cfg.grid.bay_end_m = 6.0;

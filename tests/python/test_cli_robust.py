@@ -394,6 +394,8 @@ def _problems_from_report(report: dict) -> set:
     n_theta, n_d = report["grid_shape"]
     if report["cells"] < 0.5 * n_theta * n_d:
         codes.add("sparse_grid")
+    if min(n_theta, n_d) * report["grid_cell_size_m"] < report["spot_diameter_m"]:
+        codes.add("narrow_scan")
     above = sum(n for level, n in report["levels_after"].items() if int(level) > 0)
     if report["unreachable_cells"] > 0:
         codes.add("unreachable_cells")
@@ -454,6 +456,21 @@ def test_sparse_scan_is_refused_with_exit_3_and_json_still_printed(tmp_path):
     assert [p["code"] for p in report["problems"]] == ["sparse_grid"] == sorted(_problems_from_report(report))
     n_theta, n_d = report["grid_shape"]
     assert report["cells"] < 0.5 * n_theta * n_d
+
+
+def test_a_line_of_points_is_refused_with_exit_3(tmp_path):
+    """A line of points along the crown (one row of cells) is no bay: exit 3, narrow_scan."""
+    d = np.linspace(0.0, 1.2, 4000)
+    cloud = tmp_path / "line.xyz"
+    np.savetxt(cloud, np.column_stack([d, 1e-4 * np.sin(50.0 * d), np.full_like(d, 5.7)]))
+    cfg = tmp_path / "quick.yaml"
+    cfg.write_text("clearance:\n  enabled: false\n")
+    r = _cli("plan", cloud, "--out", tmp_path / "p", "--json", "--config", cfg)
+    assert r.returncode == 3, r.stderr
+    report = json.loads(r.stdout)
+    codes = [p["code"] for p in report["problems"]]
+    assert "narrow_scan" in codes and set(codes) == _problems_from_report(report)
+    assert report["grid_shape"][0] == 1 and "not a bay to spray" in r.stderr
 
 
 def _exact_link_distance(report_link: dict, robot, q, wall: np.ndarray) -> float:

@@ -311,6 +311,8 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.mode = enum_name(config.planner.mode);
   s.cells = grid.valid_count();
   s.grid_n_theta = grid.n_theta;
+  s.grid_cell_size_m = grid.cell_size_m;
+  s.spot_diameter_m = 2.0 * config.deposition.spot_radius_m;
   s.grid_n_d = grid.n_d;
   s.points_in = options.points_in;
   s.points_used = static_cast<long>(surface.cloud.size());
@@ -354,6 +356,7 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   }
   s.stop_reason = plan.stop_reason.text();
   s.warnings = plan.warnings;
+  if (!surface.bay.warning.empty()) s.warnings.insert(s.warnings.begin(), surface.bay.warning);
   s.unreachable_cells = static_cast<int>(plan.unreachable_cells.size());
   s.spray_time_s = plan.spray_time_s;
   s.required_volume_m3 = plan.required_volume_m3;
@@ -394,6 +397,11 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
     out.push_back({"sparse_grid", "the scan covers " + std::to_string(s.cells) + " of the grid's " +
                                       std::to_string(cells_in_grid) + " cells (less than " +
                                       fmt(100.0 * kMinGridCoverage, 0) + " %): holes are neither graded nor sprayed"});
+  const double arc_m = s.grid_n_theta * s.grid_cell_size_m, length_m = s.grid_n_d * s.grid_cell_size_m;
+  if (s.spot_diameter_m > 0 && std::min(arc_m, length_m) < s.spot_diameter_m)
+    out.push_back({"narrow_scan", "the scan's wall spans " + fmt(arc_m, 2) + " m across by " + fmt(length_m, 2) +
+                                      " m along the axis, narrower than one spray spot (" + fmt(s.spot_diameter_m, 2) +
+                                      " m): a line or strip of points, not a bay to spray"});
   int above = 0;
   for (const auto& [level, n] : s.levels_after)
     if (level > 0) above += n;
@@ -438,6 +446,7 @@ std::string JobSummary::to_json() const {
   w.begin_object().field("mode", mode).field("status", status).key("problems").begin_array();
   for (const auto& p : problems) w.begin_object().field("code", p.code).field("message", p.message).end_object();
   w.end_array().field("cells", cells);
+  w.field("grid_cell_size_m", grid_cell_size_m).field("spot_diameter_m", spot_diameter_m);
   w.key("grid_shape").begin_array().value(grid_n_theta).value(grid_n_d).end_array();
   w.field("points_in", points_in).field("points_used", points_used);
   w.field("design_radius_m", design_radius_m).field("axis_fit_rms_m", axis_fit_rms_m);

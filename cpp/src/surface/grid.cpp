@@ -191,12 +191,14 @@ BaySelectionResult select_bay(const Grid& whole, const GridConfig& config) {
     if (end - col >= best_len) best_start = col, best_len = end - col;  // >=: the farther run on a tie
     col = end;
   }
-  if (best_len == 0) {
+  if (best_len == 0) {  // nothing but lining (or a bay already on its design line): grid it all, say so
     std::ostringstream msg;
-    msg << "grid: every cross-section of the scan looks lined (" << config.lined_fraction * 100.0
+    msg << "every cross-section of the scan looks lined (" << config.lined_fraction * 100.0
         << " % of its cells within grid.lined_td_m = " << config.lined_td_m * 1000.0
-        << " mm of the design line): no bay to spray was found; set grid.bay to range (bay_start_m, bay_end_m) or whole";
-    throw std::invalid_argument(msg.str());
+        << " mm of the design line): no unlined bay was found, the whole scan is gridded; set grid.bay to range "
+           "(bay_start_m, bay_end_m) if the bay is a part of it";
+    r.warning = msg.str();
+    return r;
   }
   // End columns of the run holding under a third of the points of its median cross-section are
   // no bay wall: the rim of the face, where the wall's neighbours tilt a few normals toward it.

@@ -72,9 +72,12 @@ Surface build_surface(const Cloud& raw, const Config& config) {
   // The whole scan's wall first; the bay is a stretch of it (the rest stays in s.cloud).
   Grid scan_grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m);
   s.bay = select_bay(scan_grid, config.grid);
-  if (config.profile.estimate_axis && (s.bay.range.start_m != s.bay.scan_start_m || s.bay.range.end_m != s.bay.scan_end_m)) {
+  const bool other_wall = config.grid.bay == BaySelection::detect ? s.bay.lined_columns > 0
+                                                                   : s.bay.range.start_m != s.bay.scan_start_m || s.bay.range.end_m != s.bay.scan_end_m;
+  if (config.profile.estimate_axis && other_wall) {
     // The axis again from the bay's own wall: a cylinder through the lining and the over-broken bay
-    // together tilts to fit both. One cross-section less at each end, where a column may hold a
+    // together tilts to fit both. (Not for a bay whose sparse end column was only trimmed: the
+    // whole wall fits better than a shorter one.) One cross-section less at each end, where a column may hold a
     // strip of lining (a lower envelope follows the lowest points).
     const double cs = config.grid.cell_size_m;
     const BayRange inner{s.bay.range.start_m + cs, s.bay.range.end_m - cs};

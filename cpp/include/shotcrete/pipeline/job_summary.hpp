@@ -106,6 +106,8 @@ struct JobSummary {
   std::string mode;  // planner.mode
   int cells = 0;     // valid grid cells
   int grid_n_theta = 0, grid_n_d = 0;
+  double grid_cell_size_m = 0.0;                 // grid.cell_size_m (the grid spans n_theta x n_d of them)
+  double spot_diameter_m = 0.0;                  // 2 x deposition.spot_radius_m (the spot at the reference standoff)
   long points_in = 0, points_used = 0;  // raw cloud, preprocessed cloud
   double design_radius_m = 0.0, axis_fit_rms_m = 0.0;
   // report.json `axis`: the axis the TD was measured from (the job's frame; the CLI adds

@@ -66,14 +66,15 @@ struct BaySelectionResult {
   double scan_start_m = 0.0, scan_end_m = 0.0;  // chainage span of the wall points of the scan, m
   int lined_columns = 0;       // detect: cross-sections that look lined
   int scan_columns = 0;        // cross-sections of the whole scan's grid
+  std::string warning;         // detect found only lining: the whole scan is gridded
 };
 
 /// The bay of a grid of the whole scan (docs/architecture.md §3, "Bay selection"). detect: a
 /// column (cross-section) is lining when at least config.lined_fraction of its valid cells lie
 /// within config.lined_td_m of the design line; the bay is the longest run of columns that are
 /// not lining (the farther one along the axis on a tie), less end columns holding under a third
-/// of the points of its median cross-section (the face's rim). Throws std::invalid_argument when every
-/// column is lining or a range misses the scan.
+/// of the points of its median cross-section (the face's rim); when every column is lining, the
+/// whole scan with a warning. Throws std::invalid_argument when a range misses the scan.
 BaySelectionResult select_bay(const Grid& whole_scan, const GridConfig& config);
 
 /// Concrete missing behind the design line [m^3]: a valid cell with TD t > 0 holds the ring sector
