@@ -6,10 +6,11 @@ from typing import Optional
 
 import typer
 
-from . import cli_deposition, cli_order, cli_robot, synthetic_cloud
+from . import cli_deposition, cli_order, cli_rescan, cli_robot, synthetic_cloud
 from .cli_common import (EXIT_NOT_EXECUTABLE, cli_config, console, print_json, progress_reporter, refuse_overwrite, say,
                          user_errors)
 from .config import default_config_path
+from ._core import make_synthetic_bay
 from .io import read_cloud, write_cloud
 from .pipeline import run_job
 
@@ -56,8 +57,12 @@ SUMMARY = ["status", "local_origin_m", "cells", "levels_before", "levels_after",
 def synth(out: Path = typer.Option(..., "--out", help="cloud file to write (.pcd, .ply, .xyz, .las)"),
           seed: Optional[int] = typer.Option(None, help="random seed (default: synth.seed of the config)"),
           config: Optional[Path] = typer.Option(None, help="YAML config file"),
-          force: bool = typer.Option(False, help="overwrite an existing file")):
-    """Write the synthetic bay (half cylinder with dig pits) as a point cloud."""
+          force: bool = typer.Option(False, help="overwrite an existing file"),
+          after: Optional[Path] = typer.Option(None, "--after", metavar="JOBDIR",
+                                               help="the scan after the job in JOBDIR sprayed the bay (synth.after_*); "
+                                                    "ground truth in <stem>_truth.json/.csv beside it")):
+    """Write the synthetic bay (half cylinder with dig pits; with synth.context_enabled its unsprayed
+    surroundings) as a point cloud, or with --after the same bay after spraying."""
     with user_errors():
         refuse_overwrite(out, force, "--out")
         cfg = cli_config(config)
@@ -65,9 +70,20 @@ def synth(out: Path = typer.Option(..., "--out", help="cloud file to write (.pcd
             if seed < 0:
                 raise ValueError("--seed must be >= 0")
             cfg.synth.seed = seed
-        cloud = synthetic_cloud(cfg)
-        write_cloud(out, cloud)
-        console.print(f"wrote {len(cloud)} points to {out}")
+        if after is None:
+            cloud = make_synthetic_bay(cfg.synth).sample_scan(cfg.grid.cell_size_m)
+            write_cloud(out, cloud)
+            console.print(f"wrote {len(cloud)} points to {out}")
+            return
+        from . import rescan as rs
+
+        for suffix in ("_truth.json", "_truth.csv"):
+            refuse_overwrite(out.with_name(out.stem + suffix), force, "--out (its truth file)")
+        job = rs.read_job(after, cfg)
+        scan = rs.after_scan(job, cfg)
+        write_cloud(out, scan.cloud)
+        truth = rs.write_after_truth(out, job, scan, cfg)
+        console.print(f"wrote {len(scan.cloud)} points to {out}, ground truth to {truth[0]} and {truth[1]}")
 
 
 @app.command()
@@ -104,6 +120,7 @@ def plan(cloud_path: Path = typer.Argument(..., metavar="CLOUD", help=".pcd .ply
 cli_order.register(app)
 cli_deposition.register(app)
 cli_robot.register(app)
+cli_rescan.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point alias

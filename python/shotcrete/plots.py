@@ -203,3 +203,34 @@ def speeds_chart(plan, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def value_map(grid, values_flat, path: Path, title: str, label: str, cmap: str = "viridis",
+              symmetric: bool = False) -> Path:
+    """Any per-cell value (flat, row * n_d + col) on the unrolled grid, on a continuous colour scale
+    (symmetric about 0 when asked); grey where NaN."""
+    v = np.asarray(values_flat, dtype=float).reshape(grid.n_theta, grid.n_d)
+    fig, ax, extent = _unrolled_axes(grid, title)
+    finite = v[np.isfinite(v)]
+    lim = float(np.percentile(np.abs(finite), 99)) if finite.size else 1.0
+    kw = {"vmin": -lim, "vmax": lim} if symmetric else {}
+    im = ax.imshow(np.ma.masked_invalid(v), origin="lower", extent=extent, aspect="auto", cmap=cmap,
+                   interpolation="nearest", **kw)
+    fig.colorbar(im, ax=ax, label=label)
+    return save(fig, path)
+
+
+def scatter_measured(predicted_mm, measured_mm, path: Path, factor: float | None = None) -> Path:
+    """Measured vs predicted thickness per cell, with y = x and the calibrated y = factor x."""
+    p, m = np.asarray(predicted_mm, float), np.asarray(measured_mm, float)
+    ok = np.isfinite(p) & np.isfinite(m)
+    fig, ax = plt.subplots(figsize=(6, 5.5))
+    ax.scatter(p[ok], m[ok], s=3, alpha=0.4)
+    top = float(max(p[ok].max(initial=1.0), m[ok].max(initial=1.0)))
+    ax.plot([0, top], [0, top], "k--", lw=1, label="measured = predicted")
+    if factor is not None:
+        ax.plot([0, top], [0, factor * top], "r-", lw=1, label=f"calibrated: measured = {factor:.3f} x predicted")
+    ax.set_xlabel("predicted (executed deposit) [mm]")
+    ax.set_ylabel("measured [mm]")
+    ax.legend()
+    return save(fig, path)

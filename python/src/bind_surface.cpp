@@ -153,7 +153,12 @@ void bind_surface(py::module_& m) {
       .def_readonly("pits", &SyntheticBay::pits)
       .def_readonly("axis", &SyntheticBay::axis)
       .def("td_at", &SyntheticBay::td_at, py::arg("d_m"), py::arg("theta_rad"), "Noise-free TD [m].")
-      .def("sample", &SyntheticBay::sample, py::arg("cell_size_m") = 0.05, "Sample the wall as a Cloud.");
+      .def("sample", &SyntheticBay::sample, py::arg("cell_size_m") = 0.05, "Sample the wall as a Cloud.")
+      .def("sample_context", &SyntheticBay::sample_context, py::arg("cell_size_m"), py::arg("points_per_cell"),
+           py::arg("noise_m"), py::arg("seed"),
+           "The unsprayed surroundings (synth.context_*): lined previous bay, invert, face; empty when disabled.")
+      .def("sample_scan", &SyntheticBay::sample_scan, py::arg("cell_size_m") = 0.05,
+           "What a scanner sees before spraying: the wall plus the context when synth.context_enabled.");
   m.def("make_synthetic_bay", &make_synthetic_bay, py::arg("config"));
 
   py::class_<Surface>(m, "Surface", "Preprocessed cloud with normals, axis, grid and levels.")

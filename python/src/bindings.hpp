@@ -34,3 +34,4 @@ void bind_planner(py::module_& m);
 void bind_timing(py::module_& m);
 void bind_pipeline(py::module_& m);
 void bind_collision(py::module_& m);
+void bind_rescan(py::module_& m);

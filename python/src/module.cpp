@@ -11,4 +11,5 @@ PYBIND11_MODULE(_core, m) {
   bind_timing(m);
   bind_collision(m);
   bind_pipeline(m);
+  bind_rescan(m);
 }

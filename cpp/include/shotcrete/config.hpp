@@ -111,6 +111,22 @@ struct SynthConfig {
   double protrusion_d_m = 0.6;
   double protrusion_theta_rad = 1.5708;
   double protrusion_radius_m = 0.6;  // D of the bump (on the unrolled wall)
+  // Scan context (docs/architecture.md §12): what a real scan also holds around the bay, unsprayed;
+  // off by default, so the default bay (and the demo's numbers) stay the bay alone.
+  bool context_enabled = false;
+  double context_previous_bay_m = 2.0;  // lined previous bay behind the new one (d < 0), on the design line
+  double context_invert_depth_m = 1.5;  // floor plane this far below the springlines (axis height); 0 = none
+  bool context_face = true;             // the face: a plane across the axis at the bay's far end (d = length_m)
+  // After-spraying scan (synth --after JOBDIR): the job's executed deposit per cell, scaled and roughened.
+  double after_flow_scale = 1.0;         // real / modelled concrete flow (the factor rescan calibrates)
+  double after_rebound_fraction = 0.08;  // real rebound share; scales the layer by (1 - it) / (1 - deposition.rebound_fraction)
+  double after_thickness_noise = 0.05;   // spatially correlated layer noise, std dev as a share of the layer
+  double after_noise_length_m = 0.5;     // correlation length of that noise (Gaussian covariance)
+  double after_noise_m = 0.005;          // scanner noise of the after-scan (std dev along the surface normal)
+  double after_points_per_cell = 20.0;   // its mean points per 50 mm x 50 mm cell (context: per same area)
+  Eigen::Vector3d after_pose_rpy_rad{0.0, 0.0, 0.0};    // true pose of the after-scan in the before frame:
+  Eigen::Vector3d after_pose_translation_m{0.0, 0.0, 0.0};  // p_before = R(roll, pitch, yaw) p_after + t
+  std::uint64_t after_seed = 2;
 };
 
 struct DepositionConfig {
@@ -222,6 +238,33 @@ struct ClearanceConfig {
                                       // it the posture nearest the straight move wins
 };
 
+/// rescan.reference: where the two scans are registered (docs/architecture.md §12).
+enum class ReferenceArea { dry, box, mask };
+constexpr std::array<EnumName<ReferenceArea>, 3> enum_names(ReferenceArea) {
+  return {{{ReferenceArea::dry, "dry"}, {ReferenceArea::box, "box"}, {ReferenceArea::mask, "mask"}}};
+}
+
+// Re-scan after spraying (docs/architecture.md §12): registration on unsprayed reference areas,
+// M3C2-style thickness along the wall normal, flow calibration.
+struct RescanConfig {
+  ReferenceArea reference = ReferenceArea::dry;  // dry: outside the cells the job sprayed; box; mask cloud
+  double dry_threshold_m = 0.002;    // dry: a cell whose predicted deposit is below this is unsprayed
+  double reference_margin_m = 0.3;   // dry: sprayed cells grown by this (overspray, rebound) [m]
+  Eigen::Vector3d reference_box_min_m{-1e3, -1e3, -1e3};  // box: reference corners in the before frame [m]
+  Eigen::Vector3d reference_box_max_m{1e3, 1e3, 1e3};
+  double mask_radius_m = 0.1;        // mask: before points within this of a mask point are reference [m]
+  double voxel_size_m = 0.05;        // downsampling of both reference clouds for GICP [m]
+  double coarse_correspondence_m = 0.3;  // GICP max correspondence distance, first stage [m]
+  double fine_correspondence_m = 0.05;   // second stage, and the overlap test [m]
+  int max_iterations = 60;           // GICP iterations per stage
+  double min_overlap = 0.5;          // share of after reference points with a before point within fine_correspondence_m
+  int min_reference_points = 500;    // fewer reference points (after voxelling) is refused
+  double cylinder_radius_m = 0.025;  // M3C2 projection cylinder radius [m]
+  double cylinder_half_length_m = 0.5;  // its half length along the normal, centred on the scanned wall [m]
+  int min_cylinder_points = 3;       // fewer points of either scan in a cylinder: no measurement
+  double calibration_min_deposit_m = 0.02;  // cells predicted to get at least this enter the calibration [m]
+};
+
 struct Config {
   IoConfig io;
   PreprocessConfig preprocess;
@@ -237,6 +280,7 @@ struct Config {
   RobotConfig robot;
   TimingConfig timing;
   ClearanceConfig clearance;
+  RescanConfig rescan;
 };
 
 /// Defaults overridden by a YAML file; unknown sections/keys, wrong types and out-of-range values

@@ -69,6 +69,19 @@ template <class F> void visit(SynthConfig*, F&& f) {
   f("protrusion_d_m", &SynthConfig::protrusion_d_m, -10.0, 30.0, "protrusion centre along the bay [m]");
   f("protrusion_theta_rad", &SynthConfig::protrusion_theta_rad, -3.2, 3.2, "protrusion centre angle [rad]");
   f("protrusion_radius_m", &SynthConfig::protrusion_radius_m, 0.01, 10.0, "protrusion radius on the unrolled wall [m]");
+  f("context_enabled", &SynthConfig::context_enabled, 0, 0, "add the unsprayed surroundings: previous bay, invert, face");
+  f("context_previous_bay_m", &SynthConfig::context_previous_bay_m, 0.0, 20.0, "length of the lined previous bay (d < 0) [m]");
+  f("context_invert_depth_m", &SynthConfig::context_invert_depth_m, 0.0, 10.0, "floor plane below the springlines [m]; 0 = none");
+  f("context_face", &SynthConfig::context_face, 0, 0, "a face plane across the axis at d = length_m");
+  f("after_flow_scale", &SynthConfig::after_flow_scale, 0.1, 3.0, "after-scan: real / modelled flow");
+  f("after_rebound_fraction", &SynthConfig::after_rebound_fraction, 0.0, 0.9, "after-scan: real rebound share");
+  f("after_thickness_noise", &SynthConfig::after_thickness_noise, 0.0, 1.0, "after-scan: correlated layer noise, share of the layer (std dev)");
+  f("after_noise_length_m", &SynthConfig::after_noise_length_m, 0.01, 100.0, "after-scan: correlation length of the layer noise [m]");
+  f("after_noise_m", &SynthConfig::after_noise_m, 0.0, 0.1, "after-scan: scanner noise std dev [m]");
+  f("after_points_per_cell", &SynthConfig::after_points_per_cell, 0.1, 10000.0, "after-scan: mean points per grid cell");
+  f("after_pose_rpy_rad", &SynthConfig::after_pose_rpy_rad, 0, 0, "after-scan pose in the before frame: roll, pitch, yaw [rad]");
+  f("after_pose_translation_m", &SynthConfig::after_pose_translation_m, 0, 0, "after-scan pose in the before frame: translation [m]");
+  f("after_seed", &SynthConfig::after_seed, 0, 0, "after-scan random seed");
 }
 template <class F> void visit(DepositionConfig*, F&& f) {
   f("reference_standoff_m", &DepositionConfig::reference_standoff_m, 0.1, 5.0, "H0 of the spot model [m]");
@@ -164,6 +177,25 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("via_allowance_m", &ClearanceConfig::via_allowance_m, 0.0, 5.0, "allowance beyond the margins sought at a via posture [m]");
 }
 
+template <class F> void visit(RescanConfig*, F&& f) {
+  f("reference", &RescanConfig::reference, 0, 0, "dry | box | mask: the areas the scans are registered on");
+  f("dry_threshold_m", &RescanConfig::dry_threshold_m, 0.0, 0.1, "dry: predicted deposit below this is unsprayed [m]");
+  f("reference_margin_m", &RescanConfig::reference_margin_m, 0.0, 5.0, "dry: sprayed cells grown by this [m]");
+  f("reference_box_min_m", &RescanConfig::reference_box_min_m, 0, 0, "box: minimum corner, before frame [m]");
+  f("reference_box_max_m", &RescanConfig::reference_box_max_m, 0, 0, "box: maximum corner, before frame [m]");
+  f("mask_radius_m", &RescanConfig::mask_radius_m, 0.001, 10.0, "mask: before points within this of a mask point [m]");
+  f("voxel_size_m", &RescanConfig::voxel_size_m, 0.0, 1.0, "voxel edge of the reference clouds for GICP [m]; 0 = off");
+  f("coarse_correspondence_m", &RescanConfig::coarse_correspondence_m, 0.001, 10.0, "GICP correspondence distance, first stage [m]");
+  f("fine_correspondence_m", &RescanConfig::fine_correspondence_m, 0.001, 10.0, "GICP correspondence distance, second stage and overlap [m]");
+  f("max_iterations", &RescanConfig::max_iterations, 1, 10000, "GICP iterations per stage");
+  f("min_overlap", &RescanConfig::min_overlap, 0.0, 1.0, "least share of after reference points matched");
+  f("min_reference_points", &RescanConfig::min_reference_points, 10, 100000000, "least reference points per scan");
+  f("cylinder_radius_m", &RescanConfig::cylinder_radius_m, 0.001, 1.0, "M3C2 cylinder radius [m]");
+  f("cylinder_half_length_m", &RescanConfig::cylinder_half_length_m, 0.01, 10.0, "M3C2 cylinder half length [m]");
+  f("min_cylinder_points", &RescanConfig::min_cylinder_points, 1, 100000, "least points per scan in a cylinder");
+  f("calibration_min_deposit_m", &RescanConfig::calibration_min_deposit_m, 0.0, 1.0, "least predicted deposit of a calibration cell [m]");
+}
+
 template <class G> void visit_sections(G&& g) {
   g("io", &Config::io);
   g("preprocess", &Config::preprocess);
@@ -179,6 +211,7 @@ template <class G> void visit_sections(G&& g) {
   g("robot", &Config::robot);
   g("timing", &Config::timing);
   g("clearance", &Config::clearance);
+  g("rescan", &Config::rescan);
 }
 
 }  // namespace shotcrete::fields

@@ -1,6 +1,8 @@
 #include "shotcrete/io/synth.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -59,6 +61,190 @@ Cloud SyntheticBay::sample(double cell_size_m) const {
     cloud.xyz.row(i) = axis.to_cartesian(r, theta, d).transpose();
   }
   return cloud;
+}
+
+}  // namespace shotcrete
+
+namespace shotcrete {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Appends n uniform samples of a surface: at(u1, u2) -> (point, unit normal) for u in [0, 1)^2,
+// each point moved along its normal by Gaussian noise.
+template <class At>
+void sample_surface(std::vector<Eigen::Vector3d>& out, long n, double noise_m, std::mt19937_64& rng, At at) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, noise_m > 0 ? noise_m : 1.0);
+  for (long i = 0; i < n; ++i) {
+    Eigen::Vector3d p, nrm;
+    if (!at(u(rng), u(rng), p, nrm)) continue;
+    out.push_back(p + nrm * (noise_m > 0 ? noise(rng) : 0.0));
+  }
+}
+
+Cloud to_cloud(const std::vector<Eigen::Vector3d>& pts) {
+  Cloud c;
+  c.xyz.resize(static_cast<Eigen::Index>(pts.size()), 3);
+  for (size_t i = 0; i < pts.size(); ++i) c.xyz.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
+  return c;
+}
+
+// A unit-variance Gaussian random field on the unrolled wall (d, s): sum of random Fourier modes
+// with wave vectors ~ N(0, I / l^2), which gives the covariance exp(-h^2 / (2 l^2)).
+struct RandomField {
+  std::vector<Eigen::Vector2d> k;
+  std::vector<double> phase;
+  RandomField(double length_m, std::uint64_t seed, int modes = 64) {
+    std::mt19937_64 rng(seed);
+    std::normal_distribution<double> g(0.0, 1.0 / length_m);
+    std::uniform_real_distribution<double> u(0.0, 2.0 * kPi);
+    for (int i = 0; i < modes; ++i) {
+      k.emplace_back(g(rng), g(rng));
+      phase.push_back(u(rng));
+    }
+  }
+  double operator()(double d_m, double s_m) const {
+    double sum = 0.0;
+    for (size_t i = 0; i < k.size(); ++i) sum += std::cos(k[i].x() * d_m + k[i].y() * s_m + phase[i]);
+    return sum * std::sqrt(2.0 / static_cast<double>(k.size()));
+  }
+};
+
+}  // namespace
+
+Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, double noise_m,
+                                   std::uint64_t seed) const {
+  const auto& c = config;
+  if (!c.context_enabled) return Cloud{};
+  const double density = points_per_cell / (cell_size_m * cell_size_m);  // points per m^2
+  const double R = c.design_radius_m, h = c.context_invert_depth_m;
+  std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ULL + 29);
+  std::vector<Eigen::Vector3d> pts;
+  if (c.context_previous_bay_m > 0) {  // lined: on the design line
+    const double dth = c.theta_max_rad - c.theta_min_rad, len = c.context_previous_bay_m;
+    sample_surface(pts, std::lround(dth * R * len * density), noise_m, rng,
+                   [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
+                     const double th = c.theta_min_rad + u1 * dth;
+                     p = axis.to_cartesian(R, th, -len + u2 * len);
+                     n = -axis.radial(th);
+                     return true;
+                   });
+  }
+  if (h > 0) {  // invert: under the previous bay and the new one
+    const double d0 = -c.context_previous_bay_m, len = c.context_previous_bay_m + c.length_m;
+    sample_surface(pts, std::lround(2 * R * len * density), noise_m, rng,
+                   [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
+                     p = axis.origin_m + axis.ex * (d0 + u2 * len) + axis.ey * (-R + 2 * R * u1) - axis.ez * h;
+                     n = axis.ez;
+                     return true;
+                   });
+  }
+  if (c.context_face) {  // the face: inside the design circle, above the invert (or the springlines)
+    const double zmin = h > 0 ? -h : 0.0;
+    const double area_box = 2 * R * (R - zmin);
+    sample_surface(pts, std::lround(area_box * density), noise_m, rng,
+                   [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
+                     const double y = -R + 2 * R * u1, z = zmin + (R - zmin) * u2;
+                     if (y * y + z * z > R * R) return false;  // rejection: only the disc's part
+                     p = axis.origin_m + axis.ex * c.length_m + axis.ey * y + axis.ez * z;
+                     n = -axis.ex;
+                     return true;
+                   });
+  }
+  return to_cloud(pts);
+}
+
+Cloud SyntheticBay::sample_scan(double cell_size_m) const {
+  Cloud bay = sample(cell_size_m);
+  if (!config.context_enabled) return bay;
+  const Cloud ctx = sample_context(cell_size_m, config.points_per_cell, config.noise_m, config.seed);
+  Cloud out;
+  out.xyz.resize(bay.size() + ctx.size(), 3);
+  out.xyz << bay.xyz, ctx.xyz;
+  return out;
+}
+
+Eigen::Matrix4d after_pose(const SynthConfig& c) {
+  const Eigen::Vector3d& rpy = c.after_pose_rpy_rad;
+  const Eigen::Matrix3d R = (Eigen::AngleAxisd(rpy.z(), Eigen::Vector3d::UnitZ()) *
+                             Eigen::AngleAxisd(rpy.y(), Eigen::Vector3d::UnitY()) *
+                             Eigen::AngleAxisd(rpy.x(), Eigen::Vector3d::UnitX())).toRotationMatrix();
+  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+  T.topLeftCorner<3, 3>() = R;
+  T.topRightCorner<3, 1>() = c.after_pose_translation_m;
+  return T;
+}
+
+AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Eigen::VectorXd& deposit_m,
+                          const Config& config) {
+  const auto& c = bay.config;
+  if (deposit_m.size() != lattice.size())
+    throw std::invalid_argument("synth --after: " + std::to_string(deposit_m.size()) + " deposit values for a grid of " +
+                                std::to_string(lattice.size()) + " cells");
+  if (std::abs(lattice.profile.radius_m - c.design_radius_m) > 1e-6)
+    throw std::invalid_argument("synth --after: the job's design radius " + std::to_string(lattice.profile.radius_m) +
+                                " m is not synth.design_radius_m " + std::to_string(c.design_radius_m) +
+                                " m (another bay or another config)");
+  AfterScan out;
+  out.layer_scale = c.after_flow_scale * (1.0 - c.after_rebound_fraction) / (1.0 - config.deposition.rebound_fraction);
+  const RandomField field(c.after_noise_length_m, c.after_seed * 0x9E3779B97F4A7C15ULL + 5);
+  const int nt = lattice.n_theta, nd = lattice.n_d;
+  auto dep = [&](int row, int col) {
+    row = std::clamp(row, 0, nt - 1);
+    col = std::clamp(col, 0, nd - 1);
+    const int cell = lattice.index(row, col);
+    const double v = deposit_m[cell];
+    return lattice.valid[static_cast<size_t>(cell)] && std::isfinite(v) ? v : 0.0;
+  };
+  const double R = c.design_radius_m;
+  auto layer = [&](double d, double theta) {
+    // Bilinear between cell centres (clamped at the lattice's edges).
+    const double fr = (theta - lattice.theta0_rad) / lattice.dtheta_rad - 0.5;
+    const double fc = (d - lattice.d0_m) / lattice.cell_size_m - 0.5;
+    const int r0 = static_cast<int>(std::floor(fr)), c0 = static_cast<int>(std::floor(fc));
+    const double a = fr - r0, b = fc - c0;
+    const double D = (1 - a) * ((1 - b) * dep(r0, c0) + b * dep(r0, c0 + 1)) +
+                     a * ((1 - b) * dep(r0 + 1, c0) + b * dep(r0 + 1, c0 + 1));
+    return std::max(0.0, out.layer_scale * D * (1.0 + c.after_thickness_noise * field(d, theta * R)));
+  };
+  // Ground truth: the layer's mean over each cell (8 x 8 midpoints).
+  out.true_thickness_m = Eigen::VectorXd::Constant(lattice.size(), std::numeric_limits<double>::quiet_NaN());
+  for (int cell = 0; cell < lattice.size(); ++cell) {
+    if (!lattice.valid[static_cast<size_t>(cell)]) continue;
+    const int row = lattice.row_of(cell), col = lattice.col_of(cell);
+    double sum = 0;
+    for (int i = 0; i < 8; ++i)
+      for (int j = 0; j < 8; ++j)
+        sum += layer(lattice.d0_m + (col + (j + 0.5) / 8.0) * lattice.cell_size_m,
+                     lattice.theta0_rad + (row + (i + 0.5) / 8.0) * lattice.dtheta_rad);
+    out.true_thickness_m[cell] = sum / 64.0;
+  }
+  // The sprayed bay, sampled afresh.
+  const double arc = (c.theta_max_rad - c.theta_min_rad) * R;
+  const double cs = config.grid.cell_size_m;
+  const long n = std::lround(arc * c.length_m / (cs * cs) * c.after_points_per_cell);
+  std::mt19937_64 rng(c.after_seed * 0x9E3779B97F4A7C15ULL + 17);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, c.after_noise_m > 0 ? c.after_noise_m : 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  pts.reserve(static_cast<size_t>(n));
+  for (long i = 0; i < n; ++i) {
+    const double d = u(rng) * c.length_m;
+    const double theta = c.theta_min_rad + u(rng) * (c.theta_max_rad - c.theta_min_rad);
+    const double r = R + bay.td_at(d, theta) - layer(d, theta) + (c.after_noise_m > 0 ? noise(rng) : 0.0);
+    pts.push_back(bay.axis.to_cartesian(r, theta, d));
+  }
+  const Cloud ctx = bay.sample_context(cs, c.after_points_per_cell, c.after_noise_m, c.after_seed);
+  for (Eigen::Index i = 0; i < ctx.size(); ++i) pts.push_back(ctx.xyz.row(i).transpose());
+  // Seen from the after-scan's pose: p_after = R^T (p_before - t).
+  out.pose = after_pose(c);
+  const Eigen::Matrix3d Rt = out.pose.topLeftCorner<3, 3>().transpose();
+  const Eigen::Vector3d t = out.pose.topRightCorner<3, 1>();
+  for (auto& p : pts) p = Rt * (p - t);
+  out.cloud = to_cloud(pts);
+  return out;
 }
 
 }  // namespace shotcrete

@@ -4,6 +4,7 @@
 #include <vector>
 
 #include "shotcrete/config.hpp"
+#include "shotcrete/surface/grid.hpp"
 #include "shotcrete/surface/profile.hpp"
 #include "shotcrete/types.hpp"
 
@@ -25,8 +26,37 @@ struct SyntheticBay {
   double td_at(double d_m, double theta_rad) const;
   /// Points on the wall with radial noise; about points_per_cell per cell of `cell_size_m`.
   Cloud sample(double cell_size_m = 0.05) const;
+  /// The unsprayed surroundings (context_*), `points_per_cell` per cell area, noise along each
+  /// surface's normal: the lined previous bay (d in [-context_previous_bay_m, 0), on the design
+  /// line), the invert (plane z = -context_invert_depth_m, |y| <= r_design, under both bays) and the
+  /// face (plane d = length_m inside the design circle, above the invert). Empty when disabled.
+  Cloud sample_context(double cell_size_m, double points_per_cell, double noise_m, std::uint64_t seed) const;
+  /// What a scanner sees before spraying: sample() plus sample_context() when context_enabled.
+  Cloud sample_scan(double cell_size_m = 0.05) const;
 };
 
 SyntheticBay make_synthetic_bay(const SynthConfig& config);
+
+/// A synthetic scan after spraying, with its ground truth.
+struct AfterScan {
+  Cloud cloud;                   // in the after-scan's own frame (p_before = pose * p_after)
+  Eigen::Matrix4d pose = Eigen::Matrix4d::Identity();  // true after -> before transform
+  Eigen::VectorXd true_thickness_m;  // per cell of the lattice: mean radial layer over the cell (NaN: invalid cell)
+  double layer_scale = 1.0;      // after_flow_scale * (1 - after_rebound) / (1 - deposition.rebound_fraction)
+};
+
+/// The rigid transform of synth.after_pose_*: rotation R = Rz(yaw) Ry(pitch) Rx(roll), then t.
+Eigen::Matrix4d after_pose(const SynthConfig& config);
+
+/// The bay of `bay` after spraying: the wall moves toward the axis by the layer
+/// L(d, theta) = layer_scale * D(d, theta) * (1 + after_thickness_noise * F(d, s)), clamped at 0, where D
+/// interpolates `deposit_m` (per cell of `lattice`, the job's executed deposit; invalid or NaN cells
+/// count 0) bilinearly between cell centres and F is a unit-variance Gaussian random field of
+/// correlation length after_noise_length_m (64 random Fourier modes). Sampled with
+/// after_points_per_cell and after_noise_m, the context added unchanged (when enabled), and every
+/// point expressed in the after-scan's frame (inverse of after_pose). Throws std::invalid_argument
+/// for a deposit of the wrong size or a lattice with another design radius.
+AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Eigen::VectorXd& deposit_m,
+                          const Config& config);
 
 }  // namespace shotcrete
