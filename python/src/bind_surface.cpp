@@ -118,7 +118,12 @@ void bind_surface(py::module_& m) {
       .def_readonly("lined_columns", &BaySelectionResult::lined_columns)
       .def_readonly("scan_columns", &BaySelectionResult::scan_columns)
       .def_readonly("warning", &BaySelectionResult::warning, "set when detect found only lining (the whole scan is gridded)");
-  m.def("build_grid", &build_grid, py::arg("cloud"), py::arg("axis"), py::arg("profile"), py::arg("config"),
+  m.def("build_grid",
+        [](const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile, const GridConfig& config,
+           double max_deviation_m, const std::optional<BayRange>& bay) {
+          return build_grid(cloud, axis, profile, config, max_deviation_m, bay);
+        },
+        py::arg("cloud"), py::arg("axis"), py::arg("profile"), py::arg("config"),
         py::arg("max_deviation_m"), py::arg("bay") = std::nullopt,
         "Grid a cloud with normals (optionally only the bay's chainage range).");
   m.def("select_bay", &select_bay, py::arg("whole_scan"), py::arg("config"),

@@ -66,8 +66,11 @@ SprayedWall unsprayed_wall(const Surface& surface, double max_deviation_m) {
   wall.surface = surface;
   wall.cell_of_point.assign(surface.cloud.size(), -1);
   const Eigen::VectorXd td = point_td(surface.cloud, surface.axis, surface.profile);
+  // The points the grid was built from (not the face's rim or a floor's edge in a wall cell), or,
+  // for a surface assembled by hand, every point near the design line.
+  const bool known = surface.in_grid.size() == static_cast<std::size_t>(surface.cloud.size());
   for (Eigen::Index i = 0; i < surface.cloud.size(); ++i) {
-    if (std::abs(td[i]) > max_deviation_m) continue;
+    if (known ? !surface.in_grid[static_cast<std::size_t>(i)] : std::abs(td[i]) > max_deviation_m) continue;
     const Eigen::Vector3d cyl = surface.axis.to_cylindrical(surface.cloud.xyz.row(i).transpose());
     const int c = surface.grid.cell_at(cyl[1], cyl[2]);
     if (c >= 0 && surface.grid.valid[c]) wall.cell_of_point[i] = c;

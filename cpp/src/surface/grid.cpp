@@ -6,6 +6,8 @@
 #include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <unordered_map>
+#include <cstdint>
 
 namespace shotcrete {
 
@@ -44,7 +46,8 @@ Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const Desig
 }
 
 Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
-                const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay) {
+                const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay,
+                std::vector<char>* kept_points) {
   if (!(profile.radius_m > 0) || !std::isfinite(profile.radius_m))
     throw std::invalid_argument("grid: design radius must be > 0, got " + std::to_string(profile.radius_m));
   if (!(config.cell_size_m > 0)) throw std::invalid_argument("grid: cell_size_m must be > 0");
@@ -65,16 +68,44 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   const double cos_tilt = std::cos(config.max_normal_tilt_rad);
 
   std::vector<Eigen::Vector3d> cyl(cloud.size());
-  std::vector<char> keep(cloud.size(), 0);
-  double tmin = std::numeric_limits<double>::infinity(), tmax = -tmin, dmin = tmin, dmax = -tmin;
-  std::size_t kept = 0, near_line = 0;
+  // 0: not near the line; 1: near it but facing away (not wall); 2: wall-like. A floor's noisy
+  // normals tip a few of its points under the tilt limit, and one point makes a cell: a cell of the
+  // fixed lattice whose wall-like points are both a minority of its points near the line and under
+  // half a typical cell's drops them. (Where the face meets the wall, the face's points
+  // outnumber the wall's in the last column, but the wall's are as many as anywhere.)
+  std::vector<char> kind(cloud.size(), 0);
+  std::unordered_map<std::int64_t, std::pair<int, int>> votes;  // lattice cell -> (wall-like, not wall)
+  auto lattice_key = [&](const Eigen::Vector3d& c) {
+    return static_cast<std::int64_t>(std::floor(c[1] / g.dtheta_rad)) * 4000037 +
+           static_cast<std::int64_t>(std::floor(c[2] / g.cell_size_m));
+  };
+  std::size_t near_line = 0;
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
     cyl[i] = axis.to_cylindrical(cloud.xyz.row(i).transpose());
     if (std::abs(cyl[i][0] - profile.radius_at(cyl[i][1])) > max_deviation_m) continue;
     ++near_line;
     // A zero normal (none estimated) counts as wall: only a known tilt leaves a point out.
     const Eigen::Vector3d n = cloud.normals.row(i).transpose();
-    if (n.squaredNorm() > 0.25 && std::abs(n.dot(axis.radial(cyl[i][1]))) < cos_tilt * n.norm()) {
+    const bool facing_away = n.squaredNorm() > 0.25 && std::abs(n.dot(axis.radial(cyl[i][1]))) < cos_tilt * n.norm();
+    kind[i] = facing_away ? 1 : 2;
+    auto& v = votes[lattice_key(cyl[i])];
+    (facing_away ? v.second : v.first) += 1;
+  }
+  std::vector<int> wall_counts;
+  for (const auto& kv : votes)
+    if (kv.second.first > 0) wall_counts.push_back(kv.second.first);
+  int typical = 0;
+  if (!wall_counts.empty()) {
+    std::nth_element(wall_counts.begin(), wall_counts.begin() + wall_counts.size() / 2, wall_counts.end());
+    typical = wall_counts[wall_counts.size() / 2];
+  }
+  std::vector<char> keep(cloud.size(), 0);
+  double tmin = std::numeric_limits<double>::infinity(), tmax = -tmin, dmin = tmin, dmax = -tmin;
+  std::size_t kept = 0;
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    if (kind[i] == 0) continue;
+    const auto& v = votes[lattice_key(cyl[i])];
+    if (kind[i] == 1 || (v.first < v.second && 2 * v.first < typical)) {
       ++g.points_not_wall;
       continue;
     }
@@ -102,6 +133,7 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
           << ") m along the axis; check grid.bay_start_m/bay_end_m against the scan";
     throw std::invalid_argument(msg.str());
   }
+  if (kept_points) *kept_points = keep;
   // Cell edges on fixed multiples of the cell size, so cells do not depend on the point sample.
   g.theta0_rad = std::floor(tmin / g.dtheta_rad) * g.dtheta_rad;
   g.n_theta = std::max(1, static_cast<int>(std::floor((tmax - g.theta0_rad) / g.dtheta_rad)) + 1);

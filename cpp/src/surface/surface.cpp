@@ -21,20 +21,14 @@ class StageTimer {
   std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
 };
 
-/// The points of `cloud` that build_grid would grid inside `range` (near the design line, facing
-/// the axis), with their normals.
+/// The points of `cloud` that build_grid grids inside `range`, with their normals.
 Cloud bay_wall_points(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile, const Config& config,
                       const BayRange& range) {
-  const double cos_tilt = std::cos(config.grid.max_normal_tilt_rad);
+  std::vector<char> kept;
+  build_grid(cloud, axis, profile, config.grid, config.profile.max_deviation_m, range, &kept);
   std::vector<Eigen::Index> keep;
-  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3d c = axis.to_cylindrical(cloud.xyz.row(i).transpose());
-    const Eigen::Vector3d n = cloud.normals.row(i).transpose();
-    if (c[2] < range.start_m || c[2] >= range.end_m) continue;
-    if (std::abs(c[0] - profile.radius_at(c[1])) > config.profile.max_deviation_m) continue;
-    if (n.squaredNorm() > 0.25 && std::abs(n.dot(axis.radial(c[1]))) < cos_tilt * n.norm()) continue;
-    keep.push_back(i);
-  }
+  for (Eigen::Index i = 0; i < cloud.size(); ++i)
+    if (kept[static_cast<std::size_t>(i)]) keep.push_back(i);
   Cloud out;
   out.xyz.resize(static_cast<Eigen::Index>(keep.size()), 3);
   out.normals.resize(static_cast<Eigen::Index>(keep.size()), 3);
@@ -92,12 +86,7 @@ Surface build_surface(const Cloud& raw, const Config& config) {
       s.bay = select_bay(scan_grid, config.grid);
     }
   }
-  if (s.bay.range.start_m == s.bay.scan_start_m && s.bay.range.end_m == s.bay.scan_end_m) {
-    s.grid = std::move(scan_grid);
-    s.levels = cell_levels(s.grid);
-  } else {
-    regrid(s, config);
-  }
+  regrid(s, config);
   timer.lap("grid");
   return s;
 }
@@ -107,7 +96,7 @@ void regrid(Surface& s, const Config& config) {
   // (A surface assembled by hand, with no bay chosen, grids the whole cloud.)
   const bool chosen = s.bay.range.start_m < s.bay.range.end_m;
   s.grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m,
-                      chosen ? std::optional<BayRange>(s.bay.range) : std::nullopt);
+                      chosen ? std::optional<BayRange>(s.bay.range) : std::nullopt, &s.in_grid);
   s.levels = cell_levels(s.grid);
 }
 

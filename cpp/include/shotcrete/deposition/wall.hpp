@@ -16,9 +16,10 @@ struct SprayedWall {
   std::vector<int> cell_of_point;  // the scan's cell of every point (-1: outside the grid band)
 };
 
-/// The wall before any spraying: the surface's cloud on its grid. Points farther than
-/// max_deviation_m from the design line belong to no cell (as in build_grid); the cell means and
-/// TD are those of the points assigned here. Throws std::invalid_argument without normals.
+/// The wall before any spraying: the surface's cloud on its grid. The points the grid was built
+/// from (surface.in_grid) keep their cells; the rest (the face, a floor, the lining, points farther
+/// than max_deviation_m from the design line when in_grid is not set) belong to no cell; the cell
+/// means and TD are those of the points assigned here. Throws std::invalid_argument without normals.
 SprayedWall unsprayed_wall(const Surface& surface, double max_deviation_m);
 
 /// Puts a layer on the wall: every point moves toward the axis along its ray (d and theta stay, so

@@ -55,9 +55,13 @@ struct BayRange {
 /// whose normal tilts more than config.max_normal_tilt_rad from the radial direction (face,
 /// floor) and, with `bay`, points outside its chainage range are left out; throws
 /// std::invalid_argument if none is left (wrong radius, axis or units). With `bay`, the grid's
-/// columns span exactly the range, its ends snapped to the nearest cell edges.
+/// columns span exactly the range, its ends snapped to the nearest cell edges. A lattice cell whose
+/// wall-like points are both a minority of its points near the design line and under half
+/// a typical cell's drops them (a floor's noisy normals tip a few of its points under the limit). kept_points, when given, gets
+/// 1 for every point gridded.
 Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
-                const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay = std::nullopt);
+                const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay = std::nullopt,
+                std::vector<char>* kept_points = nullptr);
 
 /// How the bay was chosen (report.json `bay`).
 struct BaySelectionResult {

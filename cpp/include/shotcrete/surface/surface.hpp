@@ -19,6 +19,7 @@ struct Surface {
   std::optional<AxisFit> axis_fit;  // when profile.estimate_axis
   Grid grid;                // the bay's grid
   BaySelectionResult bay;   // how the bay was chosen from the scan
+  std::vector<char> in_grid;  // per cloud point: 1 when gridded (near the line, wall, in the bay)
   std::vector<int> levels;  // per cell
   std::map<std::string, double> timings_s;  // per stage
 };
