@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "shotcrete/rescan/rescan.hpp"
+#include "shotcrete/surface/preprocess.hpp"
 
 namespace shotcrete {
 
@@ -232,10 +233,7 @@ Cloud wall_points(const Grid& grid, const Cloud& cloud, const Eigen::VectorXd& w
     if (cell < 0 || !grid.valid[static_cast<size_t>(cell)] || !std::isfinite(wall_td_m[cell])) continue;
     if (std::abs(cyl.x() - grid.profile.radius_at(cyl.y()) - wall_td_m[cell]) <= band_m) keep.push_back(i);
   }
-  Cloud out;
-  out.xyz.resize(static_cast<Eigen::Index>(keep.size()), 3);
-  for (size_t k = 0; k < keep.size(); ++k) out.xyz.row(static_cast<Eigen::Index>(k)) = cloud.xyz.row(keep[k]);
-  return out;
+  return select_points(cloud, keep);
 }
 
 }  // namespace shotcrete

@@ -92,6 +92,18 @@ Cloud scale_cloud(const Cloud& cloud, double unit_scale) {
   return out;
 }
 
+Cloud select_points(const Cloud& cloud, const std::vector<Eigen::Index>& indices) {
+  const bool normals = cloud.has_normals();
+  Cloud out;
+  out.xyz.resize(static_cast<Eigen::Index>(indices.size()), 3);
+  if (normals) out.normals.resize(static_cast<Eigen::Index>(indices.size()), 3);
+  for (std::size_t j = 0; j < indices.size(); ++j) {
+    out.xyz.row(static_cast<Eigen::Index>(j)) = cloud.xyz.row(indices[j]);
+    if (normals) out.normals.row(static_cast<Eigen::Index>(j)) = cloud.normals.row(indices[j]);
+  }
+  return out;
+}
+
 Cloud crop_box(const Cloud& cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m) {
   std::vector<Eigen::Index> keep;
   keep.reserve(cloud.size());
@@ -99,14 +111,7 @@ Cloud crop_box(const Cloud& cloud, const Eigen::Vector3d& min_m, const Eigen::Ve
     const Eigen::Vector3d p = cloud.xyz.row(i).transpose();
     if ((p.array() >= min_m.array()).all() && (p.array() <= max_m.array()).all()) keep.push_back(i);
   }
-  Cloud out;
-  out.xyz.resize(keep.size(), 3);
-  if (cloud.has_normals()) out.normals.resize(keep.size(), 3);
-  for (std::size_t j = 0; j < keep.size(); ++j) {
-    out.xyz.row(j) = cloud.xyz.row(keep[j]);
-    if (cloud.has_normals()) out.normals.row(j) = cloud.normals.row(keep[j]);
-  }
-  return out;
+  return select_points(cloud, keep);
 }
 
 Cloud voxel_downsample(const Cloud& cloud, double voxel_size_m) {

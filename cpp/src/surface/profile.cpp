@@ -1,5 +1,7 @@
 #include "shotcrete/surface/profile.hpp"
 
+#include "shotcrete/surface/preprocess.hpp"
+
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
@@ -176,39 +178,6 @@ std::vector<Eigen::Index> wall_candidates(const Cloud& cloud, const Eigen::Vecto
   return out;
 }
 
-AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile);
-
-}  // namespace
-
-AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile) {
-  if (cloud.size() < kMinAxisFitPoints)
-    throw std::invalid_argument("axis fit: need at least " + std::to_string(kMinAxisFitPoints) + " points, got " +
-                                std::to_string(cloud.size()));
-  if (!cloud.has_normals()) throw std::invalid_argument("axis fit: the cloud needs normals");
-  try {
-    return fit_cylinder(cloud, profile);
-  } catch (const std::invalid_argument& whole_cloud) {
-    // A scene (floor, face) around the wall: fit the points that can be wall, and when that does
-    // not fit either, the whole cloud's reason stands.
-    const std::vector<Eigen::Index> wall = wall_candidates(cloud, direction_from_normals(cloud.normals), profile);
-    if (static_cast<long>(wall.size()) < kMinAxisFitPoints || wall.size() == static_cast<std::size_t>(cloud.size())) throw;
-    Cloud sub;
-    sub.xyz.resize(static_cast<Eigen::Index>(wall.size()), 3);
-    sub.normals.resize(static_cast<Eigen::Index>(wall.size()), 3);
-    for (std::size_t k = 0; k < wall.size(); ++k) {
-      sub.xyz.row(static_cast<Eigen::Index>(k)) = cloud.xyz.row(wall[k]);
-      sub.normals.row(static_cast<Eigen::Index>(k)) = cloud.normals.row(wall[k]);
-    }
-    try {
-      return fit_cylinder(sub, profile);
-    } catch (const std::invalid_argument&) {
-      throw whole_cloud;
-    }
-  }
-}
-
-namespace {
-
 AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile) {
   const Eigen::Index n = cloud.size();
   if (n < kMinAxisFitPoints)
@@ -298,5 +267,25 @@ AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile) {
 }
 
 }  // namespace
+
+AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile) {
+  if (cloud.size() < kMinAxisFitPoints)
+    throw std::invalid_argument("axis fit: need at least " + std::to_string(kMinAxisFitPoints) + " points, got " +
+                                std::to_string(cloud.size()));
+  if (!cloud.has_normals()) throw std::invalid_argument("axis fit: the cloud needs normals");
+  try {
+    return fit_cylinder(cloud, profile);
+  } catch (const std::invalid_argument& whole_cloud) {
+    // A scene (floor, face) around the wall: fit the points that can be wall, and when that does
+    // not fit either, the whole cloud's reason stands.
+    const std::vector<Eigen::Index> wall = wall_candidates(cloud, direction_from_normals(cloud.normals), profile);
+    if (static_cast<long>(wall.size()) < kMinAxisFitPoints || wall.size() == static_cast<std::size_t>(cloud.size())) throw;
+    try {
+      return fit_cylinder(select_points(cloud, wall), profile);
+    } catch (const std::invalid_argument&) {
+      throw whole_cloud;
+    }
+  }
+}
 
 }  // namespace shotcrete

@@ -29,14 +29,7 @@ Cloud bay_wall_points(const Cloud& cloud, const TunnelAxis& axis, const DesignPr
   std::vector<Eigen::Index> keep;
   for (Eigen::Index i = 0; i < cloud.size(); ++i)
     if (kept[static_cast<std::size_t>(i)]) keep.push_back(i);
-  Cloud out;
-  out.xyz.resize(static_cast<Eigen::Index>(keep.size()), 3);
-  out.normals.resize(static_cast<Eigen::Index>(keep.size()), 3);
-  for (std::size_t k = 0; k < keep.size(); ++k) {
-    out.xyz.row(static_cast<Eigen::Index>(k)) = cloud.xyz.row(keep[k]);
-    out.normals.row(static_cast<Eigen::Index>(k)) = cloud.normals.row(keep[k]);
-  }
-  return out;
+  return select_points(cloud, keep);
 }
 
 }  // namespace

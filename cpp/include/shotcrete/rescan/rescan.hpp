@@ -99,7 +99,8 @@ CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& 
 
 /// The points of `cloud` on the measured wall: in a valid cell of `grid` with a finite `wall_td_m`
 /// (per cell, e.g. the measured residual TD) and within band_m of it radially. The bay as the
-/// corrective round sees it, without the context or a surface crossing the bay's ends (the face).
+/// corrective round sees it, without the context or a surface crossing the bay's ends (the face);
+/// with the normals when the cloud has them (the corrective round estimates its own).
 Cloud wall_points(const Grid& grid, const Cloud& cloud, const Eigen::VectorXd& wall_td_m, double band_m);
 
 /// Measured vs predicted per cell over the cells where both are finite [m]: measured - predicted.

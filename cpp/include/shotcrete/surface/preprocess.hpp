@@ -1,4 +1,5 @@
 #pragma once
+#include <vector>
 // Cloud checks and PCL preprocessing: crop box, voxel downsampling, statistical outlier removal,
 // and k-NN normals oriented toward the tunnel axis.
 #include "shotcrete/config.hpp"
@@ -20,6 +21,8 @@ std::string unit_hint(double span, double max_extent_m);
 /// Applies io.unit_scale to the coordinates (normals unchanged).
 Cloud scale_cloud(const Cloud& cloud, double unit_scale);
 
+/// The points at `indices`, in that order (with their normals when the cloud has them).
+Cloud select_points(const Cloud& cloud, const std::vector<Eigen::Index>& indices);
 Cloud crop_box(const Cloud& cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m);
 Cloud voxel_downsample(const Cloud& cloud, double voxel_size_m);
 Cloud remove_statistical_outliers(const Cloud& cloud, int neighbors, double std_ratio);
