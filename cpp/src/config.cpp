@@ -155,6 +155,9 @@ void validate(const Config& config) {
     throw std::invalid_argument("config: preprocess.crop_min_m must be below crop_max_m on every axis");
   if (config.profile.axis_direction.norm() < 1e-9)
     throw std::invalid_argument("config: profile.axis_direction must not be zero");
+  if (!config.profile.section_path.empty() && config.profile.estimate_axis)
+    throw std::invalid_argument("config: profile.estimate_axis fits a circle and cannot be used with a design section "
+                                "(profile.section_path); give the axis (profile.axis_origin_m, axis_direction)");
   if (config.grid.bay == BaySelection::range && !(config.grid.bay_start_m < config.grid.bay_end_m))
     throw std::invalid_argument("config: grid.bay is range but grid.bay_start_m = " + std::to_string(config.grid.bay_start_m) +
                                 " is not below grid.bay_end_m = " + std::to_string(config.grid.bay_end_m));

@@ -6,7 +6,7 @@ from typing import Optional
 
 import typer
 
-from . import cli_deposition, cli_order, cli_rescan, cli_robot, synthetic_cloud
+from . import cli_deposition, cli_order, cli_rescan, cli_robot, cli_section, synthetic_cloud
 from .cli_common import (EXIT_NOT_EXECUTABLE, cli_config, console, print_json, progress_reporter, refuse_overwrite, say,
                          user_errors)
 from .config import default_config_path
@@ -121,6 +121,7 @@ cli_order.register(app)
 cli_deposition.register(app)
 cli_robot.register(app)
 cli_rescan.register(app)
+cli_section.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point alias

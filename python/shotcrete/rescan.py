@@ -56,9 +56,13 @@ def read_job(job_dir: str | Path, config) -> Job:
         radius = float(rep["design_radius_m"])
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"--job {path}: report.json is not a job report ({type(exc).__name__}: {exc})") from None
-    if abs(radius - config.profile.design_radius_m) > 1e-9:
-        raise ValueError(f"--job {path}: planned with design radius {radius} m, the config says "
-                         f"profile.design_radius_m {config.profile.design_radius_m} m (pass the job's config)")
+    try:
+        profile = _core.design_profile_from_config(config.profile)
+    except ValueError as exc:
+        raise ValueError(f"--job {path}: {exc}") from None
+    if abs(radius - profile.radius_m) > 1e-9:
+        raise ValueError(f"--job {path}: planned with design radius {radius} m, the config's design profile has "
+                         f"{profile.radius_m} m (profile.design_radius_m / section_path; pass the job's config)")
     with open(path / "cells.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     missing = [c for c in ("row", "col", "theta_rad", "d_m", "td_before_mm", "deposit_planned_mm",
@@ -70,8 +74,6 @@ def read_job(job_dir: str | Path, config) -> Job:
     except ValueError as exc:
         raise ValueError(f"--job {path}: cells.csv holds a value that is not a number ({exc})") from None
     axis = _core.TunnelAxis.from_direction(np.asarray(axis_d["origin_m"], float), np.asarray(axis_d["direction"], float))
-    profile = _core.DesignProfile()
-    profile.radius_m = radius
     grid = _core.grid_from_cells(axis, profile, config.grid.cell_size_m, col["row"].astype(int).tolist(),
                                  col["col"].astype(int).tolist(), col["theta_rad"].tolist(), col["d_m"].tolist(),
                                  (col["td_before_mm"] / 1000.0).tolist())
@@ -291,7 +293,7 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
         wall = wall[(d >= g.d0_m + rad) & (d <= g.d0_m + g.n_d * g.cell_size_m - rad)]
         pick = np.random.default_rng(0).choice(len(wall), min(per_point, len(wall)), replace=False)
         core = np.ascontiguousarray(wall[np.sort(pick)])
-        points = (core, _core.measure_points(job.grid.axis, core, before, after_reg, config.rescan))
+        points = (core, _core.measure_points(job.grid.axis, core, before, after_reg, config.rescan, job.grid.profile))
         timings["per_point"] = time.perf_counter() - t3
         summary["per_point"] = {"points": len(core), "thickness_mm": _stats_mm(points[1].distance_m),
                                 "lod95_mm": _stats_mm(points[1].lod95_m), "file": "points.ply"}

@@ -66,8 +66,9 @@ void bind_rescan(py::module_& m) {
         py::call_guard<py::gil_scoped_release>(),
         "M3C2 distances at core points along their normals (config: RescanConfig cylinder_*).");
   m.def("measure_points", &measure_points, py::arg("axis"), py::arg("core"), py::arg("before"), py::arg("after_registered"),
-        py::arg("config"), py::call_guard<py::gil_scoped_release>(),
-        "M3C2 at core points along the radial direction toward the axis; distance_m is the layer (positive: concrete).");
+        py::arg("config"), py::arg("profile") = DesignProfile::circle(1.0), py::call_guard<py::gil_scoped_release>(),
+        "M3C2 at core points along the design line's normal toward the axis (radial on the default circle); "
+        "distance_m is the layer (positive: concrete).");
   py::class_<CellThickness>(m, "CellThickness")
       .def_readonly("thickness_m", &CellThickness::thickness_m, "per cell, positive: concrete [m]; NaN: not measured")
       .def_readonly("lod95_m", &CellThickness::lod95_m, "per cell 95 % level of detection [m]")

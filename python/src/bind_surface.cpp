@@ -60,10 +60,37 @@ void bind_surface(py::module_& m) {
       .def_readonly("ez", &TunnelAxis::ez)
       .def("to_cylindrical", &TunnelAxis::to_cylindrical, py::arg("p"), "(r, theta, d) of a point")
       .def("to_cartesian", &TunnelAxis::to_cartesian, py::arg("r_m"), py::arg("theta_rad"), py::arg("d_m"));
-  py::class_<DesignProfile>(m, "DesignProfile")
+  py::class_<SectionVertex>(m, "SectionVertex")
+      .def(py::init([](double y_m, double z_m, double bulge) { return SectionVertex{y_m, z_m, bulge}; }), py::arg("y_m"),
+           py::arg("z_m"), py::arg("bulge") = 0.0)
+      .def_readwrite("y_m", &SectionVertex::y_m)
+      .def_readwrite("z_m", &SectionVertex::z_m)
+      .def_readwrite("bulge", &SectionVertex::bulge, "DXF bulge to the next vertex: tan(included angle / 4), ccw > 0");
+  py::class_<DesignProfile>(m, "DesignProfile",
+                            "Design line of the cross-section: a circle, or a section of lines and arcs (TD along its normal).")
       .def(py::init<>())
-      .def_readwrite("radius_m", &DesignProfile::radius_m)
-      .def("radius_at", &DesignProfile::radius_at, py::arg("theta_rad"));
+      .def_static("circle", &DesignProfile::circle, py::arg("radius_m"))
+      .def_static("from_section", &DesignProfile::from_section, py::arg("vertices"),
+                  "Section from vertices (y along the frame's ey, z up, m from the axis; DXF bulges). ValueError, one line, "
+                  "when it is not star-shaped about the axis or crosses the invert below it.")
+      .def_readwrite("radius_m", &DesignProfile::radius_m, "circle: radius; section: mean radius (arc length / angle) [m]")
+      .def_property_readonly("is_circle", &DesignProfile::is_circle)
+      .def_property_readonly("polyline_m", [](const DesignProfile& p) {
+        Eigen::MatrixX2d out(static_cast<Eigen::Index>(p.polyline_m.size()), 2);
+        for (std::size_t i = 0; i < p.polyline_m.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = p.polyline_m[i].transpose();
+        return out;
+      }, "section flattened to chords (N x 2: y, z) in increasing theta; empty for a circle")
+      .def_property_readonly("theta_min_rad", &DesignProfile::theta_min_rad)
+      .def_property_readonly("theta_max_rad", &DesignProfile::theta_max_rad)
+      .def("covers", &DesignProfile::covers, py::arg("theta_rad"))
+      .def("radius_at", &DesignProfile::radius_at, py::arg("theta_rad"), "distance from the axis to the line along theta [m]")
+      .def("normal_at", &DesignProfile::normal_at, py::arg("theta_rad"), "outward unit normal (y, z)")
+      .def("normal_cos_at", &DesignProfile::normal_cos_at, py::arg("theta_rad"))
+      .def("td_m", &DesignProfile::td_m, py::arg("r_m"), py::arg("theta_rad"), "TD along the line's normal [m]")
+      .def("radial_offset_m", &DesignProfile::radial_offset_m, py::arg("td_m"), py::arg("theta_rad"));
+  m.def("read_section_csv", &read_section_csv, py::arg("path"), "Vertices of a design section CSV (y_m,z_m[,bulge]).");
+  m.def("design_profile_from_config", &design_profile_from_config, py::arg("profile"),
+        "The circle of profile.design_radius_m or the section of profile.section_path.");
   py::class_<AxisFit>(m, "AxisFit")
       .def_readonly("axis", &AxisFit::axis)
       .def_readonly("radius_m", &AxisFit::radius_m)

@@ -59,6 +59,7 @@ struct PreprocessConfig {
 
 struct ProfileConfig {
   double design_radius_m = 5.6;                 // radius of the circular design profile
+  std::string section_path = "";  // design cross-section (CSV of lines and arcs, docs/architecture.md §3); empty: the circle
   Eigen::Vector3d axis_origin_m{0.0, 0.0, 0.0};  // a point on the tunnel axis
   Eigen::Vector3d axis_direction{1.0, 0.0, 0.0};  // advance direction (normalised on use)
   bool estimate_axis = false;                   // fit the axis to the cloud (docs/architecture.md §3)
@@ -92,6 +93,7 @@ struct RegionConfig {
 
 struct SynthConfig {
   double design_radius_m = 5.6;  // design line of the synthetic bay
+  std::string section_path = "";  // design section CSV (as profile.section_path); empty: the circle
   double length_m = 1.2;         // bay length between two arches
   double theta_min_rad = 0.0;    // right springline
   double theta_max_rad = 3.14159265358979;  // left springline

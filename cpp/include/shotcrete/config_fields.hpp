@@ -27,6 +27,7 @@ template <class F> void visit(PreprocessConfig*, F&& f) {
 }
 template <class F> void visit(ProfileConfig*, F&& f) {
   f("design_radius_m", &ProfileConfig::design_radius_m, 0.5, 50.0, "design profile radius [m]");
+  f("section_path", &ProfileConfig::section_path, 0, 0, "design cross-section CSV (y_m,z_m[,bulge]); empty = the circle of design_radius_m");
   f("axis_origin_m", &ProfileConfig::axis_origin_m, 0, 0, "a point on the tunnel axis [m]");
   f("axis_direction", &ProfileConfig::axis_direction, 0, 0, "axis direction (unit-free)");
   f("estimate_axis", &ProfileConfig::estimate_axis, 0, 0, "fit the axis to the cloud");
@@ -52,9 +53,10 @@ template <class F> void visit(RegionConfig*, F&& f) {
 }
 template <class F> void visit(SynthConfig*, F&& f) {
   f("design_radius_m", &SynthConfig::design_radius_m, 0.5, 50.0, "design radius [m]");
+  f("section_path", &SynthConfig::section_path, 0, 0, "design section CSV of the synthetic bay; empty = the circle");
   f("length_m", &SynthConfig::length_m, 0.1, 20.0, "bay length [m]");
-  f("theta_min_rad", &SynthConfig::theta_min_rad, -3.2, 3.2, "first wall angle [rad]");
-  f("theta_max_rad", &SynthConfig::theta_max_rad, -3.2, 3.2, "last wall angle [rad]");
+  f("theta_min_rad", &SynthConfig::theta_min_rad, -1.5708, 4.7124, "first wall angle, from the right springline [rad]");
+  f("theta_max_rad", &SynthConfig::theta_max_rad, -1.5708, 4.7124, "last wall angle [rad]");
   f("base_overbreak_m", &SynthConfig::base_overbreak_m, -1.0, 2.0, "uniform over-break [m]");
   f("pit_count", &SynthConfig::pit_count, 0, 100000, "number of dig pits");
   f("pit_depth_min_m", &SynthConfig::pit_depth_min_m, 0.0, 2.0, "smallest pit depth [m]");

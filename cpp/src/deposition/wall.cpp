@@ -23,7 +23,7 @@ void refresh(SprayedWall& wall) {
     const Eigen::Vector3d p = s.cloud.xyz.row(i).transpose();
     const Eigen::Vector3d cyl = grid.axis.to_cylindrical(p);
     sum.row(c) += s.cloud.xyz.row(i);
-    td[c] += cyl[0] - s.profile.radius_at(cyl[1]);
+    td[c] += s.profile.td_m(cyl[0], cyl[1]);
     count[c] += 1;
   }
   for (int c = 0; c < n; ++c) {
@@ -48,13 +48,16 @@ Eigen::Vector3d cell_normal_from_td(const Grid& grid, int c, const DesignProfile
     return 0.0;
   };
   const double theta = grid.theta_center(row);
-  const double r = profile.radius_at(theta) + grid.td_m[c];
+  const double r = profile.radius_at(theta) + profile.radial_offset_m(grid.td_m[c], theta);
   const double dr_dd = slope(row, col - 1, row, col + 1, grid.cell_size_m);
-  // d/ds along the wall arc at radius r: the theta step of a cell spans r * dtheta of arc.
-  const double dr_ds = slope(row - 1, col, row + 1, col, r * grid.dtheta_rad);
-  const Eigen::Vector3d radial = grid.axis.radial(theta);
-  const Eigen::Vector3d tangent = -std::sin(theta) * grid.axis.ey + std::cos(theta) * grid.axis.ez;
-  // Surface r(d, s): outward normal ~ radial - dr/dd ex - dr/ds t; the stored normals face the axis.
+  // d/ds along the wall arc at radius r: the theta step of a cell spans r * dtheta of arc (over
+  // cos(phi) where the design line is slanted against the ray).
+  const double dr_ds = slope(row - 1, col, row + 1, col, r * grid.dtheta_rad / profile.normal_cos_at(theta));
+  // TD is measured along the design line's normal n; t is the line's tangent in the section.
+  const Eigen::Vector3d radial = design_normal(grid.axis, profile, theta);
+  const Eigen::Vector3d tangent = grid.axis.ex.cross(radial);
+  // Surface TD(d, s) over the design line: outward normal ~ n - dTD/dd ex - dTD/ds t; the stored
+  // normals face the axis.
   return -(radial - dr_dd * grid.axis.ex - dr_ds * tangent).normalized();
 }
 

@@ -14,9 +14,16 @@ SyntheticBay make_synthetic_bay(const SynthConfig& c) {
   if (!(c.theta_max_rad > c.theta_min_rad)) throw std::invalid_argument("synth: theta_max_rad must exceed theta_min_rad");
   SyntheticBay bay;
   bay.config = c;
+  ProfileConfig pc;
+  pc.design_radius_m = c.design_radius_m;
+  pc.section_path = c.section_path;
+  bay.profile = design_profile_from_config(pc);
+  if (!bay.profile.is_circle() &&
+      !(std::max(c.theta_min_rad, bay.profile.theta_min_rad()) < std::min(c.theta_max_rad, bay.profile.theta_max_rad())))
+    throw std::invalid_argument("synth: synth.theta_min_rad..theta_max_rad misses the section's span");
   std::mt19937_64 rng(c.seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  const double s0 = c.theta_min_rad * c.design_radius_m, s1 = c.theta_max_rad * c.design_radius_m;
+  const double s0 = c.theta_min_rad * bay.profile.radius_m, s1 = c.theta_max_rad * bay.profile.radius_m;
   for (int i = 0; i < c.pit_count; ++i) {
     DigPit p;
     p.d_m = u(rng) * c.length_m;
@@ -29,14 +36,14 @@ SyntheticBay make_synthetic_bay(const SynthConfig& c) {
 }
 
 double SyntheticBay::td_at(double d_m, double theta_rad) const {
-  const double s = theta_rad * config.design_radius_m;
+  const double s = theta_rad * profile.radius_m;
   double td = config.base_overbreak_m;
   for (const auto& p : pits) {
     const double q = ((d_m - p.d_m) * (d_m - p.d_m) + (s - p.s_m) * (s - p.s_m)) / (p.radius_m * p.radius_m);
     if (q < 1.0) td += p.depth_m * std::pow(1.0 - q, config.pit_shape_alpha);
   }
   if (config.protrusion_height_m > 0.0) {
-    const double ds = s - config.protrusion_theta_rad * config.design_radius_m, dd = d_m - config.protrusion_d_m;
+    const double ds = s - config.protrusion_theta_rad * profile.radius_m, dd = d_m - config.protrusion_d_m;
     const double q = (dd * dd + ds * ds) / (config.protrusion_radius_m * config.protrusion_radius_m);
     if (q < 1.0) td -= config.protrusion_height_m * std::pow(1.0 - q, config.pit_shape_alpha);
   }
@@ -45,7 +52,8 @@ double SyntheticBay::td_at(double d_m, double theta_rad) const {
 
 Cloud SyntheticBay::sample(double cell_size_m) const {
   const auto& c = config;
-  const double arc = (c.theta_max_rad - c.theta_min_rad) * c.design_radius_m;
+  const double th0 = std::max(c.theta_min_rad, profile.theta_min_rad()), th1 = std::min(c.theta_max_rad, profile.theta_max_rad());
+  const double arc = (th1 - th0) * profile.radius_m;
   const auto n = static_cast<Eigen::Index>(std::llround(arc * c.length_m / (cell_size_m * cell_size_m) * c.points_per_cell));
   if (n < 1) throw std::invalid_argument("synth: the bay would have no points");
   // A second stream, so the pits do not change when only the sampling density does.
@@ -56,8 +64,8 @@ Cloud SyntheticBay::sample(double cell_size_m) const {
   cloud.xyz.resize(n, 3);
   for (Eigen::Index i = 0; i < n; ++i) {
     const double d = u(rng) * c.length_m;
-    const double theta = c.theta_min_rad + u(rng) * (c.theta_max_rad - c.theta_min_rad);
-    const double r = c.design_radius_m + td_at(d, theta) + (c.noise_m > 0 ? noise(rng) : 0.0);
+    const double theta = th0 + u(rng) * (th1 - th0);
+    const double r = profile.radius_at(theta) + profile.radial_offset_m(td_at(d, theta), theta) + (c.noise_m > 0 ? noise(rng) : 0.0);
     cloud.xyz.row(i) = axis.to_cartesian(r, theta, d).transpose();
   }
   return cloud;
@@ -118,6 +126,9 @@ Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, d
                                    std::uint64_t seed) const {
   const auto& c = config;
   if (!c.context_enabled) return Cloud{};
+  if (!profile.is_circle())
+    throw std::invalid_argument("synth: the scene context (synth.context_enabled) is built around a circle; "
+                                "it cannot be used with synth.section_path");
   const double density = points_per_cell / (cell_size_m * cell_size_m);  // points per m^2
   const double R = c.design_radius_m, h = c.context_invert_depth_m;
   std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ULL + 29);
@@ -183,10 +194,11 @@ AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Ei
   if (deposit_m.size() != lattice.size())
     throw std::invalid_argument("synth --after: " + std::to_string(deposit_m.size()) + " deposit values for a grid of " +
                                 std::to_string(lattice.size()) + " cells");
-  if (std::abs(lattice.profile.radius_m - c.design_radius_m) > 1e-6)
-    throw std::invalid_argument("synth --after: the job's design radius " + std::to_string(lattice.profile.radius_m) +
-                                " m is not synth.design_radius_m " + std::to_string(c.design_radius_m) +
-                                " m (another bay or another config)");
+  if (std::abs(lattice.profile.radius_m - bay.profile.radius_m) > 1e-6 ||
+      lattice.profile.polyline_m.size() != bay.profile.polyline_m.size())
+    throw std::invalid_argument("synth --after: the job's design profile (radius " + std::to_string(lattice.profile.radius_m) +
+                                " m) is not the synthetic bay's (radius " + std::to_string(bay.profile.radius_m) +
+                                " m; another bay or another config)");
   AfterScan out;
   out.layer_scale = c.after_flow_scale * (1.0 - c.after_rebound_fraction) / (1.0 - config.deposition.rebound_fraction);
   const RandomField field(c.after_noise_length_m, c.after_seed * 0x9E3779B97F4A7C15ULL + 5);
@@ -198,7 +210,8 @@ AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Ei
     const double v = deposit_m[cell];
     return lattice.valid[static_cast<size_t>(cell)] && std::isfinite(v) ? v : 0.0;
   };
-  const double R = c.design_radius_m;
+  const DesignProfile& prof = bay.profile;
+  const double R = prof.radius_m;
   auto layer = [&](double d, double theta) {
     // Bilinear between cell centres (clamped at the lattice's edges).
     const double fr = (theta - lattice.theta0_rad) / lattice.dtheta_rad - 0.5;
@@ -222,7 +235,8 @@ AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Ei
     out.true_thickness_m[cell] = sum / 64.0;
   }
   // The sprayed bay, sampled afresh.
-  const double arc = (c.theta_max_rad - c.theta_min_rad) * R;
+  const double th0 = std::max(c.theta_min_rad, prof.theta_min_rad()), th1 = std::min(c.theta_max_rad, prof.theta_max_rad());
+  const double arc = (th1 - th0) * R;
   const double cs = config.grid.cell_size_m;
   const long n = std::lround(arc * c.length_m / (cs * cs) * c.after_points_per_cell);
   std::mt19937_64 rng(c.after_seed * 0x9E3779B97F4A7C15ULL + 17);
@@ -232,8 +246,9 @@ AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Ei
   pts.reserve(static_cast<size_t>(n));
   for (long i = 0; i < n; ++i) {
     const double d = u(rng) * c.length_m;
-    const double theta = c.theta_min_rad + u(rng) * (c.theta_max_rad - c.theta_min_rad);
-    const double r = R + bay.td_at(d, theta) - layer(d, theta) + (c.after_noise_m > 0 ? noise(rng) : 0.0);
+    const double theta = th0 + u(rng) * (th1 - th0);
+    const double r = prof.radius_at(theta) + prof.radial_offset_m(bay.td_at(d, theta) - layer(d, theta), theta) +
+                     (c.after_noise_m > 0 ? noise(rng) : 0.0);
     pts.push_back(bay.axis.to_cartesian(r, theta, d));
   }
   const Cloud ctx = bay.sample_context(cs, c.after_points_per_cell, c.after_noise_m, c.after_seed);

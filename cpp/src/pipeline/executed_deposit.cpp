@@ -45,7 +45,7 @@ double on_wall_m3(const SprayedWall& wall, const Eigen::VectorXd& thickness_m) {
   for (Eigen::Index i = 0; i < thickness_m.size(); ++i) {
     const int c = wall.cell_of_point[static_cast<std::size_t>(i)];
     if (c < 0 || !g.valid[static_cast<std::size_t>(c)]) continue;
-    const Eigen::Vector3d radial = g.axis.radial(g.theta_center(g.row_of(c)));
+    const Eigen::Vector3d radial = design_normal(g.axis, g.profile, g.theta_center(g.row_of(c)));
     const double cos_tilt = std::max(0.5, std::abs(cloud.normals.row(i).dot(radial.transpose())));
     sum[static_cast<std::size_t>(c)] += thickness_m[i] / cos_tilt;
     ++count[static_cast<std::size_t>(c)];
@@ -54,35 +54,57 @@ double on_wall_m3(const SprayedWall& wall, const Eigen::VectorXd& thickness_m) {
   for (int c = 0; c < g.size(); ++c) {
     const auto k = static_cast<std::size_t>(c);
     if (count[k] == 0) continue;
-    const double radius = g.profile.radius_at(g.theta_center(g.row_of(c)));
-    volume += g.cell_size_m * g.cell_size_m * (radius + g.td_m[c]) / radius * sum[k] / count[k];
+    const double theta = g.theta_center(g.row_of(c)), radius = g.profile.radius_at(theta);
+    volume += g.cell_size_m * g.cell_size_m * (radius + g.profile.radial_offset_m(g.td_m[c], theta)) / radius * sum[k] / count[k];
   }
   return volume;
 }
 
-// Cell a ray from c (relative to the axis origin) along u meets on the cylinder of radius R about
-// the axis; -1 when it meets none of the grid's cells.
-int cell_on_cylinder(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector3d& u, double R) {
-  const TunnelAxis& ax = grid.axis;
+// Distance along a ray from c (relative to the axis origin) along u to the cylinder of radius R
+// about the axis; NaN when it meets none ahead.
+double ray_to_cylinder(const TunnelAxis& ax, const Eigen::Vector3d& c, const Eigen::Vector3d& u, double R) {
   const Eigen::Vector3d c_perp = c - c.dot(ax.ex) * ax.ex, u_perp = u - u.dot(ax.ex) * ax.ex;
   const double A = u_perp.squaredNorm(), B = 2.0 * c_perp.dot(u_perp), C = c_perp.squaredNorm() - R * R;
   const double disc = B * B - 4.0 * A * C;
-  if (!(A > 1e-12) || disc < 0.0) return -1;
+  if (!(A > 1e-12) || disc < 0.0) return std::numeric_limits<double>::quiet_NaN();
   const double t = (-B + std::sqrt(disc)) / (2.0 * A);
-  if (!(t > 0.0)) return -1;
+  return t > 0.0 ? t : std::numeric_limits<double>::quiet_NaN();
+}
+
+// Cell a ray from c (relative to the axis origin) along u meets on the surface td_m outside the
+// design line (along its normal); -1 when it meets none of the grid's cells. A circle's offset
+// surface is a cylinder (closed form); a section's is found by secant steps from the cylinder of
+// its mean radius.
+int cell_on_wall(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector3d& u, double td_m) {
+  const TunnelAxis& ax = grid.axis;
+  const DesignProfile& prof = grid.profile;
+  double t = ray_to_cylinder(ax, c, u, prof.radius_m + td_m);
+  if (!std::isfinite(t)) return -1;
+  if (!prof.is_circle()) {
+    auto f = [&](double s) {
+      const Eigen::Vector3d cyl = ax.to_cylindrical(ax.origin_m + c + s * u);
+      return cyl[0] - prof.radius_at(cyl[1]) - prof.radial_offset_m(td_m, cyl[1]);  // NaN off the span
+    };
+    double t0 = t, f0 = f(t0), t1 = t0 + 0.01, f1 = f(t1);
+    for (int it = 0; it < 12 && std::isfinite(f0) && std::isfinite(f1) && std::abs(f1) > 1e-6 && f1 != f0; ++it) {
+      const double t2 = t1 - f1 * (t1 - t0) / (f1 - f0);
+      t0 = t1, f0 = f1, t1 = t2, f1 = f(t1);
+    }
+    if (!std::isfinite(f1) || std::abs(f1) > 1e-4 || !(t1 > 0.0)) return -1;
+    t = t1;
+  }
   const Eigen::Vector3d cyl = ax.to_cylindrical(ax.origin_m + c + t * u);
   return grid.cell_at(cyl[1], cyl[2]);
 }
 
 // Share of the spot's volume whose rays meet the wall off every valid cell: the disc at H0 split
 // into rings of equal volume (1 - (1 - r^2/R^2)^beta = (k + 1/2) / rings) and directions; each ray
-// meets the design surface, then the cylinder through the TD of the cell it met there.
+// meets the design surface, then the surface through the TD of the cell it met there.
 double miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose& nozzle) {
   constexpr int kRings = 8, kDirections = 16;
   const Eigen::Vector3d a = nozzle.axis.normalized();
   const Eigen::Vector3d e1 = a.unitOrthogonal(), e2 = a.cross(e1);
   const Eigen::Vector3d c = nozzle.position_m - grid.axis.origin_m;
-  const double R = grid.profile.radius_m;
   int missed = 0;
   for (int k = 0; k < kRings; ++k) {
     const double f = (k + 0.5) / kRings;
@@ -90,9 +112,9 @@ double miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose&
     for (int j = 0; j < kDirections; ++j) {
       const double phi = 2.0 * M_PI * (j + 0.5 * (k % 2)) / kDirections;
       const Eigen::Vector3d u = (model.reference_standoff_m * a + rho * (std::cos(phi) * e1 + std::sin(phi) * e2)).normalized();
-      int cell = cell_on_cylinder(grid, c, u, R);
+      int cell = cell_on_wall(grid, c, u, 0.0);
       if (cell >= 0 && grid.valid[static_cast<std::size_t>(cell)])
-        cell = cell_on_cylinder(grid, c, u, R + grid.td_m[cell]);
+        cell = cell_on_wall(grid, c, u, grid.td_m[cell]);
       if (cell < 0 || !grid.valid[static_cast<std::size_t>(cell)]) ++missed;
     }
   }

@@ -346,6 +346,11 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.points_in = options.points_in;
   s.points_used = static_cast<long>(surface.cloud.size());
   s.design_radius_m = surface.profile.radius_m;
+  s.design_shape = surface.profile.is_circle() ? "circle" : "section";
+  s.design_section_path = config.profile.section_path;
+  s.design_theta_min_deg = surface.profile.theta_min_rad() * 180.0 / M_PI;
+  s.design_theta_max_deg = surface.profile.theta_max_rad() * 180.0 / M_PI;
+  s.design_arc_length_m = surface.profile.radius_m * (surface.profile.theta_max_rad() - surface.profile.theta_min_rad());
   s.axis_fit_rms_m = surface.axis_fit_rms_m;
   s.axis_estimated = surface.axis_fit.has_value();
   s.axis_origin_m = surface.axis.origin_m;
@@ -488,6 +493,9 @@ std::string JobSummary::to_json() const {
   w.key("grid_shape").begin_array().value(grid_n_theta).value(grid_n_d).end_array();
   w.field("points_in", points_in).field("points_used", points_used);
   w.field("design_radius_m", design_radius_m).field("axis_fit_rms_m", axis_fit_rms_m);
+  w.key("design_profile").begin_object().field("shape", design_shape).field("section_path", design_section_path);
+  w.field("theta_min_deg", design_theta_min_deg).field("theta_max_deg", design_theta_max_deg);
+  w.field("arc_length_m", design_arc_length_m).end_object();
   w.key("axis").begin_object().field("estimated", axis_estimated).key("origin_m").begin_array();
   for (int k = 0; k < 3; ++k) w.value(axis_origin_m[k]);
   w.end_array().key("direction").begin_array();

@@ -237,11 +237,17 @@ std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crossing_point(const 
 }
 
 // The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis.
-NozzlePose standoff_pose(const TunnelAxis& axis, const Eigen::Vector3d& p, const Eigen::Vector3d& nrm,
-                         const PlannerConfig& config) {
+NozzlePose standoff_pose(const TunnelAxis& axis, const DesignProfile& profile, const Eigen::Vector3d& p,
+                         const Eigen::Vector3d& nrm, const PlannerConfig& config) {
   NozzlePose pose;
   const Eigen::Vector3d q = p - axis.origin_m;
-  const Eigen::Vector3d radial = (q - q.dot(axis.ex) * axis.ex).normalized();
+  // Square to the design line: the radial direction on a circle, the section's normal on a section.
+  // (Off a section's ends, where it has no normal, radial.)
+  Eigen::Vector3d radial = (q - q.dot(axis.ex) * axis.ex).normalized();
+  if (!profile.is_circle()) {
+    const Eigen::Vector3d n = design_normal(axis, profile, axis.to_cylindrical(p)[1]);
+    if (n.allFinite()) radial = n;
+  }
   if (config.offset_along_normal && nrm.allFinite() && nrm.norm() > 0.5) {
     pose.axis = -nrm;
     pose.position_m = p + config.standoff_m * nrm;
@@ -305,7 +311,7 @@ LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double w
   for (int iu = u_lo; iu <= u_hi; ++iu) {
     const auto crossing = crossing_point(f, iu, wk);
     if (!crossing) continue;
-    k.poses.push_back(standoff_pose(f.grid.axis, crossing->first, crossing->second, config));
+    k.poses.push_back(standoff_pose(f.grid.axis, f.grid.profile, crossing->first, crossing->second, config));
     k.u.push_back(iu);
   }
   if (k.poses.size() == 1) {

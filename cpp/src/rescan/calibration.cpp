@@ -53,8 +53,9 @@ Grid grid_from_cells(const TunnelAxis& axis, const DesignProfile& profile, doubl
     g.count[static_cast<size_t>(cell)] = 1;
     g.td_m[cell] = td_before_m[i];
     const double th = g.theta_center(rows[i]);
-    g.mean_xyz.row(cell) = axis.to_cartesian(profile.radius_at(th) + td_before_m[i], th, g.d_center(cols[i])).transpose();
-    g.mean_normal.row(cell) = -axis.radial(th).transpose();
+    g.mean_xyz.row(cell) =
+        axis.to_cartesian(profile.radius_at(th) + profile.radial_offset_m(td_before_m[i], th), th, g.d_center(cols[i])).transpose();
+    g.mean_normal.row(cell) = -design_normal(axis, profile, th).transpose();
   }
   return g;
 }

@@ -121,7 +121,7 @@ ReferenceTest dry_reference(const Grid& grid, const Eigen::VectorXd& predicted_d
   const Grid g = grid;  // copied: the test outlives the caller's grid
   return [g, wet = std::move(wet), m, nt, nd, max_deviation_m](const Eigen::Vector3d& p) {
     const Eigen::Vector3d cyl = g.axis.to_cylindrical(p);
-    if (std::abs(cyl.x() - g.profile.radius_at(cyl.y())) > max_deviation_m) return true;  // off the wall band
+    if (!(std::abs(g.profile.td_m(cyl.x(), cyl.y())) <= max_deviation_m)) return true;  // off the wall band
     const int row = static_cast<int>(std::floor((cyl.y() - g.theta0_rad) / g.dtheta_rad)) + m;
     const int col = static_cast<int>(std::floor((cyl.z() - g.d0_m) / g.cell_size_m)) + m;
     if (row < 0 || row >= nt || col < 0 || col >= nd) return true;

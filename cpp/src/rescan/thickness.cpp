@@ -150,10 +150,10 @@ M3C2Result m3c2(const Points& core, const Points& normals, const Cloud& before, 
 }
 
 M3C2Result measure_points(const TunnelAxis& axis, const Points& core, const Cloud& before, const Cloud& after,
-                          const RescanConfig& c) {
+                          const RescanConfig& c, const DesignProfile& profile) {
   Points normals(core.rows(), 3);
   for (Eigen::Index i = 0; i < core.rows(); ++i)
-    normals.row(i) = -axis.radial(axis.to_cylindrical(core.row(i).transpose()).y()).transpose();
+    normals.row(i) = -design_normal(axis, profile, axis.to_cylindrical(core.row(i).transpose()).y()).transpose();
   return m3c2(core, normals, before, after, c);  // inward normal: the after wall lies ahead, the layer reads positive
 }
 
@@ -161,7 +161,10 @@ CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& 
   check_cloud_finite(before, "before");
   check_cloud_finite(after, "after");
   const int ncell = grid.size();
-  const double R = grid.profile.radius_m, radius = c.cylinder_radius_m, half = c.cylinder_half_length_m;
+  const DesignProfile& prof = grid.profile;
+  const double radius = c.cylinder_radius_m, half = c.cylinder_half_length_m;
+  double R = prof.radius_m;  // the design line's least distance from the axis
+  for (const auto& v : prof.polyline_m) R = std::min(R, v.norm());
   // Points closer to the axis than r_lo cannot reach a cylinder (centred within max TD of the design line).
   const double r_lo = std::max(0.25 * R, R - half - 1.0);
   const int kd = static_cast<int>(std::ceil(radius / grid.cell_size_m));
@@ -192,15 +195,19 @@ CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& 
     const int row = grid.row_of(cell), col = grid.col_of(cell);
     const double th_c = grid.theta_center(row), d_c = grid.d_center(col);
     const double td = grid.td_m[cell];
-    const double a0 = R + (std::isfinite(td) ? td : 0.0);  // the cylinder's centre: the wall as scanned
+    // The cylinder runs along the design line's normal n through its point at the cell's centre;
+    // positions along it are TDs. Its centre: the wall as scanned.
+    const double a0 = std::isfinite(td) ? td : 0.0;
+    const Eigen::Vector2d n = prof.normal_at(th_c), t(-n.y(), n.x());
+    const Eigen::Vector2d p0 = prof.radius_at(th_c) * Eigen::Vector2d(std::cos(th_c), std::sin(th_c));
     auto gather = [&](const std::vector<std::vector<Cyl>>& buckets) {
       std::vector<InCyl> proj;
       for (int i = row; i <= row + 2 * kt; ++i)
         for (int j = col; j <= col + 2 * kd; ++j)
           for (const Cyl& p : buckets[static_cast<size_t>(i) * nd + j]) {
-            // Along the cell's ray (radial at th_c, d_c) and across it.
-            const double dth = p.theta - th_c;
-            const double along = p.r * std::cos(dth), across_arc = p.r * std::sin(dth), across_d = p.d - d_c;
+            // Along the cell's normal and across it.
+            const Eigen::Vector2d q = p.r * Eigen::Vector2d(std::cos(p.theta), std::sin(p.theta)) - p0;
+            const double along = q.dot(n), across_arc = q.dot(t), across_d = p.d - d_c;
             if (across_arc * across_arc + across_d * across_d > radius * radius) continue;
             if (std::abs(along - a0) > half) continue;
             proj.push_back({along, across_d, across_arc});
@@ -210,7 +217,7 @@ CellThickness measure_cells(const Grid& grid, const Cloud& before, const Cloud& 
     const Stats b = gather(bb), a = gather(ba);
     out.before_count[cell] = static_cast<int>(b.n);
     out.after_count[cell] = static_cast<int>(a.n);
-    if (b.n >= c.min_cylinder_points) out.before_td_m[cell] = b.mean - R;
+    if (b.n >= c.min_cylinder_points) out.before_td_m[cell] = b.mean;
     if (b.n < c.min_cylinder_points || a.n < c.min_cylinder_points) continue;
     out.thickness_m[cell] = b.mean - a.mean;  // before lies farther from the axis
     out.before_std_m[cell] = b.std();
@@ -231,7 +238,7 @@ Cloud wall_points(const Grid& grid, const Cloud& cloud, const Eigen::VectorXd& w
     const Eigen::Vector3d cyl = grid.axis.to_cylindrical(cloud.xyz.row(i).transpose());
     const int cell = grid.cell_at(cyl.y(), cyl.z());
     if (cell < 0 || !grid.valid[static_cast<size_t>(cell)] || !std::isfinite(wall_td_m[cell])) continue;
-    if (std::abs(cyl.x() - grid.profile.radius_at(cyl.y()) - wall_td_m[cell]) <= band_m) keep.push_back(i);
+    if (std::abs(grid.profile.td_m(cyl.x(), cyl.y()) - wall_td_m[cell]) <= band_m) keep.push_back(i);
   }
   return select_points(cloud, keep);
 }

@@ -30,8 +30,11 @@ double missing_volume_m3(const Grid& g) {
   for (int c = 0; c < g.size(); ++c) {
     const double t = g.td_m[c];
     if (!g.valid[static_cast<std::size_t>(c)] || !(t > 0.0)) continue;
-    const double r = g.profile.radius_at(g.theta_center(g.row_of(c)));
-    v += g.dtheta_rad * g.cell_size_m * (r * t + 0.5 * t * t);
+    // The polar wedge between the design line and the wall t along the line's normal: t / cos(phi)
+    // along the ray (the ring sector on a circle).
+    const double theta = g.theta_center(g.row_of(c));
+    const double r = g.profile.radius_at(theta), dr = g.profile.radial_offset_m(t, theta);
+    v += g.dtheta_rad * g.cell_size_m * (r * dr + 0.5 * dr * dr);
   }
   return v;
 }
@@ -40,7 +43,7 @@ Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const Desig
   Eigen::VectorXd td(cloud.size());
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
     const Eigen::Vector3d c = axis.to_cylindrical(cloud.xyz.row(i).transpose());
-    td[i] = c[0] - profile.radius_at(c[1]);
+    td[i] = profile.td_m(c[0], c[1]);
   }
   return td;
 }
@@ -82,11 +85,11 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   std::size_t near_line = 0;
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
     cyl[i] = axis.to_cylindrical(cloud.xyz.row(i).transpose());
-    if (std::abs(cyl[i][0] - profile.radius_at(cyl[i][1])) > max_deviation_m) continue;
+    if (!(std::abs(profile.td_m(cyl[i][0], cyl[i][1])) <= max_deviation_m)) continue;  // NaN: off a section's span
     ++near_line;
     // A zero normal (none estimated) counts as wall: only a known tilt leaves a point out.
     const Eigen::Vector3d n = cloud.normals.row(i).transpose();
-    const bool facing_away = n.squaredNorm() > 0.25 && std::abs(n.dot(axis.radial(cyl[i][1]))) < cos_tilt * n.norm();
+    const bool facing_away = n.squaredNorm() > 0.25 && std::abs(n.dot(design_normal(axis, profile, cyl[i][1]))) < cos_tilt * n.norm();
     kind[i] = facing_away ? 1 : 2;
     auto& v = votes[lattice_key(cyl[i])];
     (facing_away ? v.second : v.first) += 1;
@@ -122,9 +125,14 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   }
   if (kept == 0) {
     std::ostringstream msg;
-    if (near_line == 0)
-      msg << "grid: no point lies within " << max_deviation_m << " m of the design radius " << profile.radius_m
-          << " m around the axis; check profile.design_radius_m, the axis, and that coordinates are metres";
+    if (near_line == 0) {
+      msg << "grid: no point lies within " << max_deviation_m << " m of the design ";
+      if (profile.is_circle())
+        msg << "radius " << profile.radius_m << " m";
+      else
+        msg << "section (profile.section_path)";
+      msg << " around the axis; check the design profile, the axis, and that coordinates are metres";
+    }
     else if (g.points_outside_bay == 0)
       msg << "grid: none of the " << near_line << " points near the design line faces the axis (normals tilted more than grid.max_normal_tilt_rad = "
           << config.max_normal_tilt_rad << " rad from radial): the cloud is no tunnel wall around this axis";
@@ -160,7 +168,7 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
     g.count[c] += 1;
     g.mean_xyz.row(c) += cloud.xyz.row(i);
     g.mean_normal.row(c) += cloud.normals.row(i);
-    r_sum[c] += cyl[i][0] - profile.radius_at(cyl[i][1]);
+    r_sum[c] += profile.td_m(cyl[i][0], cyl[i][1]);
   }
   g.td_m = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::quiet_NaN());
   for (int c = 0; c < n; ++c) {

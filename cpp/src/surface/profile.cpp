@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <fstream>
 #include <limits>
 #include <map>
 #include <iomanip>
@@ -48,6 +49,202 @@ Eigen::Vector3d TunnelAxis::radial(double theta_rad) const {
 
 TunnelAxis axis_from_config(const ProfileConfig& config) {
   return TunnelAxis::from_direction(config.axis_origin_m, config.axis_direction);
+}
+
+namespace {
+
+double cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) { return a.x() * b.y() - a.y() * b.x(); }
+
+// theta of a section-plane point in the frame's convention: [-pi/2, 3pi/2), the cut at the invert.
+double section_theta(const Eigen::Vector2d& p) {
+  double t = std::atan2(p.y(), p.x());
+  if (t < -0.5 * M_PI) t += 2.0 * M_PI;
+  return t;
+}
+
+std::string point_str(const Eigen::Vector2d& p) {
+  std::ostringstream o;
+  o << std::fixed << std::setprecision(3) << "(" << p.x() << ", " << p.y() << ")";
+  return o.str();
+}
+
+}  // namespace
+
+DesignProfile DesignProfile::circle(double radius_m) {
+  DesignProfile p;
+  p.radius_m = radius_m;
+  return p;
+}
+
+DesignProfile DesignProfile::from_section(const std::vector<SectionVertex>& vertices) {
+  if (vertices.size() < 2)
+    throw std::invalid_argument("design section: needs at least 2 vertices, got " + std::to_string(vertices.size()));
+  for (std::size_t i = 0; i < vertices.size(); ++i)
+    if (!std::isfinite(vertices[i].y_m) || !std::isfinite(vertices[i].z_m) || !std::isfinite(vertices[i].bulge))
+      throw std::invalid_argument("design section: vertex " + std::to_string(i + 1) + " is not finite");
+  // Arcs flattened to chords whose sagitta stays within 0.2 mm: TD on them is exact to that.
+  constexpr double kMaxSagittaM = 2e-4;
+  std::vector<Eigen::Vector2d> pts{{vertices[0].y_m, vertices[0].z_m}};
+  for (std::size_t i = 0; i + 1 < vertices.size(); ++i) {
+    const Eigen::Vector2d a(vertices[i].y_m, vertices[i].z_m), b(vertices[i + 1].y_m, vertices[i + 1].z_m);
+    const double chord = (b - a).norm();
+    if (chord < 1e-6) throw std::invalid_argument("design section: vertices " + std::to_string(i + 1) + " and " +
+                                                  std::to_string(i + 2) + " coincide at " + point_str(a));
+    const double bulge = vertices[i].bulge;
+    if (bulge == 0.0) {
+      pts.push_back(b);
+      continue;
+    }
+    if (std::abs(bulge) > 1e3) throw std::invalid_argument("design section: bulge of vertex " + std::to_string(i + 1) + " out of range");
+    const double angle = 4.0 * std::atan(bulge);  // included angle, signed (counter-clockwise > 0)
+    const double rho = chord / (2.0 * std::sin(std::abs(angle) / 2.0));
+    // Centre: from the chord's midpoint along its left normal (ccw arcs) by rho cos(angle/2).
+    const Eigen::Vector2d mid = 0.5 * (a + b), dir = (b - a) / chord, left(-dir.y(), dir.x());
+    const double h = rho * std::cos(std::abs(angle) / 2.0);
+    const Eigen::Vector2d centre = mid + (angle > 0 ? 1.0 : -1.0) * h * left;
+    const double step = 2.0 * std::acos(std::max(-1.0, 1.0 - kMaxSagittaM / rho));
+    const int pieces = std::max(1, static_cast<int>(std::ceil(std::abs(angle) / step)));
+    const double a0 = std::atan2(a.y() - centre.y(), a.x() - centre.x());
+    for (int k = 1; k < pieces; ++k) {
+      const double t = a0 + angle * k / pieces;
+      pts.emplace_back(centre.x() + rho * std::cos(t), centre.y() + rho * std::sin(t));
+    }
+    pts.push_back(b);
+  }
+  std::vector<double> th(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    if (pts[i].norm() < 1e-3) throw std::invalid_argument("design section: the profile passes through the axis at " + point_str(pts[i]));
+    th[i] = section_theta(pts[i]);
+  }
+  if (th.back() < th.front()) {
+    std::reverse(pts.begin(), pts.end());
+    std::reverse(th.begin(), th.end());
+  }
+  for (std::size_t i = 0; i + 1 < pts.size(); ++i) {
+    // Every ray from the axis must meet the line once: theta strictly increases along it (an edge
+    // along a ray does not; the cut at the invert shows as a jump of almost 2 pi).
+    const double dth = th[i + 1] - th[i];
+    if (!(dth > 1e-9) || dth > M_PI)
+      throw std::invalid_argument("design section: not star-shaped about the tunnel axis near " + point_str(pts[i]) +
+                                  " (a ray from the axis meets it twice, or it crosses the invert below the axis); "
+                                  "give the sprayed part, from one foot over the crown to the other, around the axis");
+  }
+  DesignProfile p;
+  double length = 0.0;
+  for (std::size_t i = 0; i + 1 < pts.size(); ++i) length += (pts[i + 1] - pts[i]).norm();
+  p.radius_m = length / (th.back() - th.front());
+  p.polyline_m = std::move(pts);
+  p.vertex_theta_rad = std::move(th);
+  return p;
+}
+
+double DesignProfile::theta_min_rad() const { return is_circle() ? -0.5 * M_PI : vertex_theta_rad.front(); }
+double DesignProfile::theta_max_rad() const { return is_circle() ? 1.5 * M_PI : vertex_theta_rad.back(); }
+bool DesignProfile::covers(double theta_rad) const {
+  return is_circle() || (theta_rad >= vertex_theta_rad.front() && theta_rad <= vertex_theta_rad.back());
+}
+
+int DesignProfile::segment_at(double theta_rad) const {
+  if (!std::isfinite(theta_rad)) return -1;
+  const auto it = std::upper_bound(vertex_theta_rad.begin(), vertex_theta_rad.end(), theta_rad);
+  const int k = static_cast<int>(it - vertex_theta_rad.begin()) - 1;
+  return std::clamp(k, 0, static_cast<int>(polyline_m.size()) - 2);
+}
+
+double DesignProfile::radius_at(double theta_rad) const {
+  if (is_circle()) return radius_m;
+  const int k = segment_at(theta_rad);
+  if (k < 0) return std::numeric_limits<double>::quiet_NaN();
+  // Ray t u meets the edge p + s e where cross(p + s e - t u, ...) vanishes: t = cross(p, e) / cross(u, e).
+  const Eigen::Vector2d u(std::cos(theta_rad), std::sin(theta_rad));
+  const Eigen::Vector2d p = polyline_m[k], e = polyline_m[k + 1] - polyline_m[k];
+  const double t = cross2(p, e) / cross2(u, e);
+  return t > 0.0 && std::isfinite(t) ? t : std::numeric_limits<double>::quiet_NaN();
+}
+
+Eigen::Vector2d DesignProfile::normal_at(double theta_rad) const {
+  const Eigen::Vector2d u(std::cos(theta_rad), std::sin(theta_rad));
+  if (is_circle()) return u;
+  const int k = segment_at(theta_rad);
+  if (k < 0) return {std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN()};
+  const Eigen::Vector2d e = (polyline_m[k + 1] - polyline_m[k]).normalized();
+  Eigen::Vector2d n(e.y(), -e.x());
+  return n.dot(u) < 0 ? Eigen::Vector2d(-n) : n;
+}
+
+double DesignProfile::normal_cos_at(double theta_rad) const {
+  if (is_circle()) return 1.0;
+  return normal_at(theta_rad).dot(Eigen::Vector2d(std::cos(theta_rad), std::sin(theta_rad)));
+}
+
+double DesignProfile::td_m(double r_m, double theta_rad) const {
+  if (is_circle()) return r_m - radius_m;
+  if (!covers(theta_rad)) return std::numeric_limits<double>::quiet_NaN();
+  return (r_m - radius_at(theta_rad)) * normal_cos_at(theta_rad);
+}
+
+double DesignProfile::radial_offset_m(double td_m, double theta_rad) const {
+  if (is_circle()) return td_m;
+  return td_m / normal_cos_at(theta_rad);
+}
+
+Eigen::Vector3d design_normal(const TunnelAxis& axis, const DesignProfile& profile, double theta_rad) {
+  if (profile.is_circle()) return axis.radial(theta_rad);
+  const Eigen::Vector2d n = profile.normal_at(theta_rad);
+  return n.x() * axis.ey + n.y() * axis.ez;
+}
+
+std::vector<SectionVertex> read_section_csv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::invalid_argument("design section: cannot open " + path);
+  std::vector<SectionVertex> out;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    const auto first = line.find_first_not_of(" \t\r");
+    if (first == std::string::npos || line[first] == '#') continue;
+    std::vector<std::string> cols;
+    std::stringstream ss(line);
+    std::string c;
+    while (std::getline(ss, c, ',')) cols.push_back(c);
+    auto trim = [](std::string v) {
+      const auto b = v.find_first_not_of(" \t\r"), e = v.find_last_not_of(" \t\r");
+      return b == std::string::npos ? std::string() : v.substr(b, e - b + 1);
+    };
+    for (auto& v : cols) v = trim(v);
+    if (out.empty() && !cols.empty() && cols[0] == "y_m") continue;  // header
+    if (cols.size() < 2 || cols.size() > 3)
+      throw std::invalid_argument("design section " + path + ", line " + std::to_string(number) +
+                                  ": expected y_m,z_m[,bulge], got '" + trim(line) + "'");
+    SectionVertex v;
+    double* dst[3] = {&v.y_m, &v.z_m, &v.bulge};
+    for (std::size_t j = 0; j < cols.size(); ++j) {
+      std::size_t used = 0;
+      try {
+        *dst[j] = std::stod(cols[j], &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != cols[j].size() || !std::isfinite(*dst[j]))
+        throw std::invalid_argument("design section " + path + ", line " + std::to_string(number) + ": '" + cols[j] +
+                                    "' is not a number");
+    }
+    out.push_back(v);
+  }
+  if (out.empty()) throw std::invalid_argument("design section " + path + ": no vertices");
+  return out;
+}
+
+DesignProfile design_profile_from_config(const ProfileConfig& config) {
+  if (config.section_path.empty()) return DesignProfile::circle(config.design_radius_m);
+  try {
+    return DesignProfile::from_section(read_section_csv(config.section_path));
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    if (what.find(config.section_path) != std::string::npos) throw;
+    throw std::invalid_argument(what + " (" + config.section_path + ")");
+  }
 }
 
 namespace {

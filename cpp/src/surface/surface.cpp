@@ -38,13 +38,13 @@ Surface build_surface(const Cloud& raw, const Config& config) {
   validate(config);
   Surface s;
   StageTimer timer(s.timings_s);
+  s.profile = design_profile_from_config(config.profile);  // a bad section file fails before any work
   Cloud cloud = config.io.unit_scale != 1.0 ? scale_cloud(raw, config.io.unit_scale) : raw;
   check_cloud(cloud, config.io);
   timer.lap("check");
   cloud = preprocess(cloud, config.preprocess);
   timer.lap("preprocess");
   s.axis = axis_from_config(config.profile);
-  s.profile.radius_m = config.profile.design_radius_m;
   cloud = estimate_normals(cloud, config.normals.k_neighbors, s.axis);
   timer.lap("normals");
   if (config.profile.estimate_axis) {

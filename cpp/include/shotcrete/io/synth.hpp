@@ -21,15 +21,18 @@ struct SyntheticBay {
   SynthConfig config;
   std::vector<DigPit> pits;
   TunnelAxis axis;  // x axis through the origin
+  DesignProfile profile;  // the circle of synth.design_radius_m, or the section of synth.section_path
 
   /// Noise-free TD (m) of the wall at (d, theta): over-break, pits, less the protrusion.
   double td_at(double d_m, double theta_rad) const;
-  /// Points on the wall with radial noise; about points_per_cell per cell of `cell_size_m`.
+  /// Points on the wall with radial noise; about points_per_cell per cell of `cell_size_m`. On a
+  /// section the wall lies td_at along the section's normal, over the part of theta_min..max it spans.
   Cloud sample(double cell_size_m = 0.05) const;
   /// The unsprayed surroundings (context_*), `points_per_cell` per cell area, noise along each
   /// surface's normal: the lined previous bay (d in [-context_previous_bay_m, 0), on the design
   /// line), the invert (plane z = -context_invert_depth_m, |y| <= r_design, under both bays) and the
   /// face (plane d = length_m inside the design circle, above the invert). Empty when disabled.
+  /// Circle only (std::invalid_argument on a section).
   Cloud sample_context(double cell_size_m, double points_per_cell, double noise_m, std::uint64_t seed) const;
   /// What a scanner sees before spraying: sample() plus sample_context() when context_enabled.
   Cloud sample_scan(double cell_size_m = 0.05) const;

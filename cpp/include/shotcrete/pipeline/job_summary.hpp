@@ -109,7 +109,10 @@ struct JobSummary {
   double grid_cell_size_m = 0.0;                 // grid.cell_size_m (the grid spans n_theta x n_d of them)
   double spot_diameter_m = 0.0;                  // 2 x deposition.spot_radius_m (the spot at the reference standoff)
   long points_in = 0, points_used = 0;  // raw cloud, preprocessed cloud
-  double design_radius_m = 0.0, axis_fit_rms_m = 0.0;
+  double design_radius_m = 0.0, axis_fit_rms_m = 0.0;  // a section's: its mean radius
+  // report.json `design_profile`: circle | section (profile.section_path), the arc it spans.
+  std::string design_shape = "circle", design_section_path;
+  double design_theta_min_deg = -90.0, design_theta_max_deg = 270.0, design_arc_length_m = 0.0;
   // report.json `axis`: the axis the TD was measured from (the job's frame; the CLI adds
   // local_origin_m back) and, when profile.estimate_axis, how well it fitted.
   bool axis_estimated = false;

@@ -77,10 +77,10 @@ struct M3C2Result {
 M3C2Result m3c2(const Points& core, const Points& normals, const Cloud& before, const Cloud& after,
                 const RescanConfig& config);
 
-/// m3c2 at wall points (per point on request): each core point's normal is the radial direction
-/// toward `axis` (the design surface's normal, as per cell).
+/// m3c2 at wall points (per point on request): each core point's normal is the design line's
+/// normal toward `axis` (the radial direction on a circle; as per cell).
 M3C2Result measure_points(const TunnelAxis& axis, const Points& core, const Cloud& before, const Cloud& after,
-                          const RescanConfig& config);
+                          const RescanConfig& config, const DesignProfile& profile = DesignProfile::circle(1.0));
 
 /// The layer per grid cell: M3C2 along the cell's ray (the design surface's normal at the cell
 /// centre: radial, the wall normal at the scale of the bay), the cylinder centred on the wall as

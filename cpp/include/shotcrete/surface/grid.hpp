@@ -1,6 +1,7 @@
 #pragma once
 // The unrolled wall grid: cells of cell_size_m along the axis (d) and of cell_size_m of arc at the
-// design radius (theta step = cell_size_m / r_design). Cell index = row * n_d + col with
+// design radius (theta step = cell_size_m / r_design; on a section, its mean radius, so cells
+// span cell_size_m of arc on average). Cell index = row * n_d + col with
 // row along theta (up the wall) and col along d (along the tunnel).
 #include <map>
 #include <optional>
@@ -29,7 +30,7 @@ struct Grid {
   std::vector<bool> valid;     // count >= min_points_per_cell
   Points mean_xyz;             // per cell, m (zero where invalid)
   Points mean_normal;          // per cell, unit, toward the axis (zero where invalid)
-  Eigen::VectorXd td_m;        // per cell mean TD = r_wall - r_design, m (NaN where invalid)
+  Eigen::VectorXd td_m;        // per cell mean TD (distance from the design line along its normal), m (NaN where invalid)
   long points_not_wall = 0;     // points near the design line left out: normal tilted beyond grid.max_normal_tilt_rad
   long points_outside_bay = 0;  // points near the design line left out: outside the bay's chainage range
 
@@ -81,12 +82,13 @@ struct BaySelectionResult {
 /// whole scan with a warning. Throws std::invalid_argument when a range misses the scan.
 BaySelectionResult select_bay(const Grid& whole_scan, const GridConfig& config);
 
-/// Concrete missing behind the design line [m^3]: a valid cell with TD t > 0 holds the ring sector
-/// between the design radius r at its theta and r + t, dtheta * dd * (r t + t^2 / 2) (the flat
-/// cell volume t * dd * r dtheta times 1 + t / (2 r)); cells with t <= 0 or invalid hold none.
+/// Concrete missing behind the design line [m^3]: a valid cell with TD t > 0 holds the polar wedge
+/// of its dtheta between the design line (R at its theta) and R + dr, dr = t / cos(phi) the
+/// radial offset of TD t: dtheta * dd * (R dr + dr^2 / 2). On a circle dr = t: the ring sector
+/// (the flat cell volume t * dd * R dtheta times 1 + t / (2 R)). Cells with t <= 0 or invalid hold none.
 double missing_volume_m3(const Grid& grid);
 
-/// Per-point TD (r - r_design) in metres.
+/// Per-point TD (DesignProfile::td_m: r - r_design on a circle) in metres.
 Eigen::VectorXd point_td(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile);
 
 /// Priority level of a TD in millimetres (docs/architecture.md §3).

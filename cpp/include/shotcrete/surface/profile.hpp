@@ -3,6 +3,9 @@
 #include "shotcrete/config.hpp"
 #include "shotcrete/types.hpp"
 
+#include <string>
+#include <vector>
+
 namespace shotcrete {
 
 /// The tunnel axis as a line with a right-handed frame: ex along the axis, ey horizontal across,
@@ -20,11 +23,68 @@ struct TunnelAxis {
   Eigen::Vector3d radial(double theta_rad) const;
 };
 
-/// Design line: radius as a function of theta (a circle today; horseshoe profiles can follow).
-struct DesignProfile {
-  double radius_m = 5.6;
-  double radius_at(double /*theta_rad*/) const { return radius_m; }
+/// A vertex of a design cross-section in the section plane: y along the axis frame's ey
+/// (horizontal, to the left looking along the advance), z up, metres from the tunnel axis. bulge
+/// (DXF LWPOLYLINE convention) shapes the edge to the next vertex: 0 a line, else an arc whose
+/// included angle is 4 atan(bulge), counter-clockwise when positive.
+struct SectionVertex {
+  double y_m = 0.0, z_m = 0.0, bulge = 0.0;
 };
+
+/// Design line of the cross-section: a circle of radius_m about the axis, or the sprayed part of a
+/// section made of lines and arcs (horseshoe, multi-centre), from one foot over the crown to the
+/// other, that every ray from the axis within its span meets once. TD is measured along the
+/// profile's normal, positive outside (concrete missing).
+struct DesignProfile {
+  /// Circle: its radius. Section: the mean radius (arc length / angle spanned), which sets the
+  /// grid's theta step so a cell spans cell_size_m of arc on average.
+  double radius_m = 5.6;
+  /// Section only: the edges flattened to chords (arcs within 0.2 mm), vertices in increasing
+  /// theta, and each vertex's theta. Empty: the circle.
+  std::vector<Eigen::Vector2d> polyline_m;
+  std::vector<double> vertex_theta_rad;
+
+  static DesignProfile circle(double radius_m);
+  /// Throws std::invalid_argument (one line naming the problem) for fewer than two vertices,
+  /// non-finite values, a profile some ray from the axis meets twice or tangentially (not
+  /// star-shaped about the axis), or one crossing the invert's cut (straight down from the axis).
+  static DesignProfile from_section(const std::vector<SectionVertex>& vertices);
+
+  bool is_circle() const { return polyline_m.empty(); }
+  double theta_min_rad() const;
+  double theta_max_rad() const;
+  bool covers(double theta_rad) const;
+  /// Distance from the axis to the design line along theta. Off a section's span its end chords
+  /// run on straight (the grid's end rows reach up to half a cell past the span); NaN where the
+  /// extended chord no longer meets the ray.
+  double radius_at(double theta_rad) const;
+  /// Cosine of the angle between the design line's outward normal and the radial direction at
+  /// theta (1 on a circle).
+  double normal_cos_at(double theta_rad) const;
+  /// Outward unit normal of the design line at theta in the section plane (y, z).
+  Eigen::Vector2d normal_at(double theta_rad) const;
+  /// TD [m] of a point at radius r_m and angle theta: its distance from the design line along the
+  /// line's normal, positive outside: (r - R(theta)) cos(phi), exact on a circle and a line. NaN
+  /// off a section's span (such a point is not wall).
+  double td_m(double r_m, double theta_rad) const;
+  /// Radial distance [m] from the design line at theta of a point at TD td_m: td / cos(phi).
+  double radial_offset_m(double td_m, double theta_rad) const;
+
+ private:
+  int segment_at(double theta_rad) const;
+};
+
+/// Outward unit normal of the design line at theta in the tunnel frame (the radial direction on a circle).
+Eigen::Vector3d design_normal(const TunnelAxis& axis, const DesignProfile& profile, double theta_rad);
+
+/// Reads a design cross-section from a CSV file: one vertex per line, `y_m,z_m[,bulge]`, blank
+/// lines and lines starting with '#' ignored, a header line `y_m,z_m[,bulge]` allowed. Throws
+/// std::invalid_argument naming the file and line on a malformed value.
+std::vector<SectionVertex> read_section_csv(const std::string& path);
+
+/// The design profile of a config: the circle of profile.design_radius_m, or the section of
+/// profile.section_path (CSV).
+DesignProfile design_profile_from_config(const ProfileConfig& config);
 
 /// The axis from the config, or fitted to the cloud when profile.estimate_axis is set.
 TunnelAxis axis_from_config(const ProfileConfig& config);
