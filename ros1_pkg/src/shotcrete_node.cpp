@@ -536,7 +536,7 @@ class ShotcreteNode {
     try {
       after = shotcrete::read_cloud(path);
     } catch (const std::exception& e) {
-      message = "after-scan " + path + ": " + e.what();
+      message = std::string("after-scan: ") + e.what();  // read_cloud names the file
       std_msgs::String msg;
       msg.data = "{\"ok\": false, \"error\": " + json_string(message) + "}";
       rescan_status_pub_.publish(msg);

@@ -6,7 +6,9 @@ the node plans and executes the same bay (the job's figures are checked to match
 measures the after-scan. The published thickness per cell, the registration, the flow factor and
 the corrective round are checked against the truth files and the job's cells.csv. Bad input
 (nothing executed yet, a missing file, NaN, an after-scan of another place, empty or NaN clouds on
-~after_scan) gives an error in the response and on ~rescan_status, and the node keeps serving."""
+~after_scan) gives an error in the response and on ~rescan_status, and the node keeps serving. Last,
+the node's own synthetic after-scan (an empty path, as demo.launch loop:=true runs it) against the
+same truth."""
 import csv
 import json
 import math
@@ -242,6 +244,24 @@ class RescanLoop(unittest.TestCase):
         # Still serving.
         res, _ = self.call(os.path.join(d, "missing.ply"))
         self.assertFalse(res.success)
+
+    def test_4_synthetic_after_scan_of_the_node(self):
+        # An empty path: the node's own synthetic after-scan (the core's make_after_scan of its executed
+        # deposit, the same generator and seed as `synth --after`): the same truth applies.
+        t0 = time.time()
+        res, st = self.call("")
+        self.assertTrue(res.success, res.message)
+        msg = self.thickness.wait(lambda m: m.width > 0, timeout=10, after=t0)
+        self.assertIsNotNone(msg)
+        tcsv = _csv(os.path.join(self.tmp, "after_truth.csv"))
+        pts = list(point_cloud2.read_points(msg, field_names=("intensity", "cell")))
+        self.assertGreater(len(pts), 0.99 * len(tcsv))
+        err = [p[0] * 1000.0 - tcsv[int(p[1])]["true_thickness_mm"] for p in pts]
+        self.assertLess(abs(_mean(err)), 1.0)
+        self.assertLess(_rms(err), 4.0)
+        self.assertAlmostEqual(st["calibration"]["flow_factor"], 0.85, delta=0.03 * 0.85)
+        self.assertIsNotNone(st["correction"])
+        self.assertEqual(st["source"], "the synthetic after-scan")
 
 
 if __name__ == "__main__":
