@@ -195,18 +195,18 @@ class ShotcreteNode {
     pnh_.param<std::string>("cloud_file", file, "");
     pnh_.param("synthetic", synthetic, false);
     if (!file.empty() && synthetic) throw std::invalid_argument("set either ~cloud_file or ~synthetic, not both");
-    Cloud cloud;
+    auto cloud = std::make_shared<Cloud>();
     std::string source;
     std::shared_ptr<const shotcrete::SyntheticBay> bay;
     std::shared_ptr<const Cloud> before_scan;
     if (!file.empty()) {
-      cloud = shotcrete::read_cloud(file);
+      *cloud = shotcrete::read_cloud(file);
       source = file;
     } else if (synthetic) {
       bay = std::make_shared<shotcrete::SyntheticBay>(shotcrete::make_synthetic_bay(config_.synth));
       // Planned on the bay's wall (as `shotcrete demo`); re-scans register on the scan with its
       // surroundings (synth.context_*, as `shotcrete synth` writes the before-scan).
-      cloud = bay->sample(config_.grid.cell_size_m);
+      *cloud = bay->sample(config_.grid.cell_size_m);
       before_scan = std::make_shared<Cloud>(bay->sample_scan(config_.grid.cell_size_m));
       source = "synthetic bay (seed " + std::to_string(config_.synth.seed) + ")";
     } else {
@@ -551,8 +551,8 @@ class ShotcreteNode {
   // Input
   // ---------------------------------------------------------------------------------------------
   void on_cloud(const sensor_msgs::PointCloud2::ConstPtr& msg) {
-    Cloud cloud;
-    const std::string reason = cloud_from_msg(*msg, frame_id_, cloud, static_cast<std::size_t>(max_points_));
+    auto cloud = std::make_shared<Cloud>();
+    const std::string reason = cloud_from_msg(*msg, frame_id_, *cloud, static_cast<std::size_t>(max_points_));
     if (!reason.empty()) {
       ROS_WARN("cloud on %s ignored: %s", cloud_sub_.getTopic().c_str(), reason.c_str());
       return;
@@ -581,13 +581,14 @@ class ShotcreteNode {
     rescan_and_report(&cloud, "topic " + after_sub_.getTopic(), message);
   }
 
-  /// `before_scan`: what a re-scan registers to (the scan with its surroundings); default `cloud`.
-  bool set_cloud(const Cloud& cloud, const std::string& source, std::string& error,
+  /// `before_scan`: what a re-scan registers to (the scan with its surroundings); default `cloud`
+  /// itself (kept, not copied).
+  bool set_cloud(std::shared_ptr<const Cloud> cloud, const std::string& source, std::string& error,
                  std::shared_ptr<const Cloud> before_scan = nullptr) {
     const auto t0 = Clock::now();
     auto surface = std::make_shared<Surface>();
     try {
-      *surface = shotcrete::build_surface(cloud, config_);
+      *surface = shotcrete::build_surface(*cloud, config_);
     } catch (const std::exception& e) {
       error = e.what();
       return false;
@@ -595,10 +596,10 @@ class ShotcreteNode {
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface_ = surface;
-      before_scan_ = before_scan ? before_scan : std::make_shared<Cloud>(cloud);
+      before_scan_ = before_scan ? before_scan : cloud;
       synthetic_bay_.reset();
       sprayed_m_.reset();
-      points_in_ = static_cast<long>(cloud.size());
+      points_in_ = static_cast<long>(cloud->size());
       plan_.reset();
       plan_problems_.clear();
       trajectory_.reset();
@@ -612,7 +613,7 @@ class ShotcreteNode {
     thickness_pub_.publish(cells_to_msg(shotcrete::Points(0, 3), Eigen::VectorXd(0), Eigen::VectorXd(0), {}, 1.0,
                                         frame_id_, ros::Time::now()));
     ROS_INFO("cloud from %s: %ld points in, %ld kept, %d grid cells (%d valid), levels %s, %.2f s", source.c_str(),
-             static_cast<long>(cloud.size()), static_cast<long>(surface->cloud.size()), surface->grid.size(),
+             static_cast<long>(cloud->size()), static_cast<long>(surface->cloud.size()), surface->grid.size(),
              surface->grid.valid_count(), levels_text(shotcrete::level_counts(surface->levels)).c_str(),
              seconds_since(t0));
     return true;
