@@ -20,9 +20,9 @@ from . import _core, plots, report
 JOB_FILES = ("report.json", "cells.csv")
 # A before-scan (or synthetic bay) whose TD along the cells' rays differs from the job's by more
 # than MATCH_TD_M in more than MATCH_MISS_SHARE of the cells is not the scan the job planned on
-# (a share, not an RMS: a few cells of a crossing surface the job gridded must not refuse it).
-MATCH_TD_M = 0.02
-MATCH_MISS_SHARE = 0.1
+# (the core's constants: rescan_job checks the before-scan with them).
+MATCH_TD_M = _core.RESCAN_MATCH_TD_M
+MATCH_MISS_SHARE = _core.RESCAN_MATCH_MISS_SHARE
 
 
 @dataclass
@@ -150,15 +150,12 @@ def read_pose(path: str | Path) -> np.ndarray:
 
 
 # The after-scan's points the corrective round plans on: within this of the measured wall (radially).
-WALL_BAND_M = 0.1
+WALL_BAND_M = _core.RESCAN_WALL_BAND_M
 
 
 def calibrated_config(config, factor: float):
     """A copy of ``config`` with the deposition rate scaled by the calibrated flow factor."""
-    cal = config.copy()
-    cal.deposition.peak_rate_mps = config.deposition.peak_rate_mps * factor
-    cal.validate()
-    return cal
+    return _core.calibrated_config(config, factor)
 
 
 def rotation_deg(R: np.ndarray) -> float:
@@ -210,54 +207,21 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
     that many of the before-scan's wall points (``_core.measure_points``; ``result.points``). ValueError / RuntimeError, one line, for
     unusable input (empty or NaN clouds, another bay, too little overlap, no reference area)."""
     progress = progress or (lambda stage, fraction: None)
-    timings = {}
-    for name, cloud in (("before", before), ("after", after)):
-        try:
-            _core.check_cloud(cloud, config.io)
-        except ValueError as exc:
-            raise ValueError(f"{name}-scan: {exc}") from None
-    if config.io.unit_scale != 1.0:
-        k = config.io.unit_scale
-        before, after = (_core.Cloud(np.ascontiguousarray(np.asarray(c.xyz) * k)) for c in (before, after))
-    progress("register", 0.0)
-    t0 = time.perf_counter()
+    from .robot import load_robot
+
     T0 = np.eye(4) if initial is None else np.asarray(initial, float)
-    reg = _core.register_scans(before, after, config, config.rescan.reference, job.grid, job.predicted_m, mask, T0)
-    timings["register"] = time.perf_counter() - t0
-    progress("register", 1.0)
-    t1 = time.perf_counter()
-    after_reg = _core.transform_cloud(after, reg.transform)
-    th = _core.measure_cells(job.grid, before, after_reg, config.rescan)
-    timings["measure"] = time.perf_counter() - t1
-    td_job = np.asarray(job.grid.td_m).reshape(-1)
-    before_td = np.asarray(th.before_td_m)
-    ok = np.isfinite(before_td) & np.isfinite(td_job)
-    if ok.sum() < 0.5 * job.grid.valid_count():
-        raise ValueError(f"before-scan: only {int(ok.sum())} of the job's {job.grid.valid_count()} cells hold "
-                         "before points (not the bay the job planned, or another axis)")
-    dev = np.abs(before_td[ok] - td_job[ok])
-    before_rms = float(np.sqrt(np.mean(dev ** 2)))
-    miss = float(np.mean(dev > MATCH_TD_M))
-    if miss > MATCH_MISS_SHARE:
-        raise ValueError(f"before-scan: {miss:.0%} of the job's cells show a TD more than {MATCH_TD_M * 1000:.0f} mm "
-                         "from the job's (not the scan the job planned on)")
-    if th.measured < 0.5 * job.grid.valid_count():
-        raise ValueError(f"after-scan: only {th.measured} of the job's {job.grid.valid_count()} cells could be "
-                         "measured (the after-scan does not cover the bay)")
+    # The one loop (register, measure, check, calibrate, correct) is the core's, as the ROS node runs it.
+    out = _core.rescan_job(job.grid, job.predicted_m, before, after, config, mask, T0,
+                           load_robot(config) if correct else None, progress)
+    timings = {"register": out.register_s, "measure": out.measure_s}
+    reg, th, cal, cmp = out.registration, out.thickness, out.calibration, out.comparison
     measured = np.asarray(th.thickness_m)
-    cmp = _core.compare_cells(measured, job.predicted_m)
-    try:
-        cal = _core.calibrate_flow(measured, job.predicted_m, config.rescan)
-    except ValueError as exc:
-        cal, cal_error = None, str(exc)
-    else:
-        cal_error = None
     summary = {
         "kind": "rescan", "job": str(job.path.resolve()), "predicted_from": job.source,
         "registration": {"reference": config.rescan.reference, **_pose_summary(reg.transform),
                          "rms_mm": reg.rms_m * 1000.0, "overlap": reg.overlap, "iterations": reg.iterations,
                          "target_points": reg.target_points, "source_points": reg.source_points},
-        "before_td_rms_mm": before_rms * 1000.0, "before_td_miss_share": miss,
+        "before_td_rms_mm": out.before_td_rms_m * 1000.0, "before_td_miss_share": out.before_td_miss_share,
         "cells": job.grid.valid_count(), "cells_measured": th.measured,
         "thickness_mm": _stats_mm(measured),
         "lod95_mm": _stats_mm(th.lod95_m),
@@ -266,26 +230,20 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
                                      "max_abs": cmp.max_abs_m * 1000.0, "cells": cmp.cells},
         "calibration": ({"flow_factor": cal.factor, "std_error": cal.std_error, "cells": cal.cells,
                          "rejected": cal.rejected, "residual_rms_mm": cal.residual_rms_m * 1000.0}
-                        if cal is not None else {"error": cal_error}),
+                        if cal is not None else {"error": out.calibration_error}),
     }
-    correction = corr_surface = cal_cfg = None
-    if correct and cal is not None:
-        progress("correction", 0.0)
-        t2 = time.perf_counter()
-        cal_cfg = calibrated_config(config, cal.factor)
-        wall = _core.wall_points(job.grid, after_reg, np.asarray(th.residual_td_m), WALL_BAND_M)
-        # wall_points is the bay already; sprayed near flush it would look lined to grid.bay detect.
-        plan_cfg = cal_cfg.copy()
-        plan_cfg.grid.bay = "whole"
-        corr_surface = _core.build_surface(wall, plan_cfg)
-        from .planning import plan_surface
-        correction = plan_surface(corr_surface, plan_cfg, progress)
-        timings["correction"] = time.perf_counter() - t2
-        summary["correction"] = correction_summary(corr_surface, correction, plan_cfg)
-        progress("correction", 1.0)
+    correction, corr_surface, cal_cfg = out.correction, out.correction_surface, out.calibrated
+    if correction is not None:
+        timings["correction"] = out.correction_s
+        summary["correction"] = correction_summary(corr_surface, correction, out.correction_config)
     points = None
     if per_point > 0:
         t3 = time.perf_counter()
+        if config.io.unit_scale != 1.0:  # the core scaled its own copies; these are in the input's units
+            k = config.io.unit_scale
+            before, after = (_core.Cloud(np.ascontiguousarray(np.asarray(c.xyz) * k)) for c in (before, after))
+        after_reg = _core.transform_cloud(after, reg.transform)
+        td_job = np.asarray(job.grid.td_m).reshape(-1)
         wall = np.asarray(_core.wall_points(job.grid, before, td_job, WALL_BAND_M).xyz)
         # Not within a cylinder radius of the bay's ends: the face or the lining would fill part of it.
         g, rad = job.grid, config.rescan.cylinder_radius_m

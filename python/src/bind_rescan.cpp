@@ -1,5 +1,7 @@
 #include "bindings.hpp"
 #include "shotcrete/io/synth.hpp"
+#include "shotcrete/pipeline/rescan_job.hpp"
+#include "shotcrete/robot/robot.hpp"
 #include "shotcrete/rescan/rescan.hpp"
 
 using namespace shotcrete;
@@ -30,19 +32,9 @@ void bind_rescan(py::module_& m) {
       "register_scans",
       [](const Cloud& before, const Cloud& after, const Config& config, const std::string& mode, const Grid* grid,
          const std::optional<Eigen::VectorXd>& predicted, const std::optional<Cloud>& mask, const Eigen::Matrix4d& initial) {
-        const RescanConfig& rc = config.rescan;
-        ReferenceTest test;
-        const ReferenceArea area = parse_enum<ReferenceArea>(mode.empty() ? enum_name(rc.reference) : mode, "rescan.reference");
-        if (area == ReferenceArea::dry) {
-          if (grid == nullptr || !predicted) throw std::invalid_argument("rescan.reference dry needs the job's grid and predicted deposit");
-          test = dry_reference(*grid, *predicted, rc, config.profile.max_deviation_m);
-        } else if (area == ReferenceArea::box) {
-          test = box_reference(rc);
-        } else {
-          if (!mask) throw std::invalid_argument("rescan.reference mask needs a mask cloud");
-          test = mask_reference(*mask, rc);
-        }
-        RescanConfig rc2 = rc;
+        const ReferenceArea area = parse_enum<ReferenceArea>(mode.empty() ? enum_name(config.rescan.reference) : mode, "rescan.reference");
+        const ReferenceTest test = reference_test(config, area, grid, predicted ? &*predicted : nullptr, mask ? &*mask : nullptr);
+        RescanConfig rc2 = config.rescan;
         rc2.reference = area;
         py::gil_scoped_release release;
         return register_scans(before, after, test, rc2, initial);
@@ -99,4 +91,38 @@ void bind_rescan(py::module_& m) {
       .def_readonly("residual_rms_m", &Calibration::residual_rms_m);
   m.def("calibrate_flow", &calibrate_flow, py::arg("measured_m"), py::arg("predicted_m"), py::arg("config"),
         "Flow scale factor: robust least squares of measured = factor x predicted (config: RescanConfig).");
+
+  m.attr("RESCAN_WALL_BAND_M") = kRescanWallBand_m;
+  m.attr("RESCAN_MATCH_TD_M") = kRescanMatchTd_m;
+  m.attr("RESCAN_MATCH_MISS_SHARE") = kRescanMatchMissShare;
+  m.def("calibrated_config", &calibrated_config, py::arg("config"), py::arg("flow_factor"),
+        "A copy of config with deposition.peak_rate_mps scaled by the calibrated flow factor (validated).");
+  py::class_<RescanOutcome>(m, "RescanOutcome", "What rescan_job computed (the loop on a finished job).")
+      .def_readonly("registration", &RescanOutcome::registration)
+      .def_readonly("thickness", &RescanOutcome::thickness)
+      .def_readonly("before_td_rms_m", &RescanOutcome::before_td_rms_m)
+      .def_readonly("before_td_miss_share", &RescanOutcome::before_td_miss_share)
+      .def_readonly("comparison", &RescanOutcome::comparison)
+      .def_readonly("calibration", &RescanOutcome::calibration, "Calibration, or None (calibration_error says why)")
+      .def_readonly("calibration_error", &RescanOutcome::calibration_error)
+      .def_readonly("calibrated", &RescanOutcome::calibrated, "config with the calibrated deposition rate, or None")
+      .def_readonly("correction_config", &RescanOutcome::correction_config, "calibrated with grid.bay whole, or None")
+      .def_readonly("correction_surface", &RescanOutcome::correction_surface, "Surface of the corrective round, or None")
+      .def_readonly("correction", &RescanOutcome::correction, "ArmPlan of the corrective round, or None")
+      .def_readonly("register_s", &RescanOutcome::register_s)
+      .def_readonly("measure_s", &RescanOutcome::measure_s)
+      .def_readonly("correction_s", &RescanOutcome::correction_s);
+  m.def(
+      "rescan_job",
+      [](const Grid& grid, const Eigen::VectorXd& predicted, const Cloud& before, const Cloud& after, const Config& config,
+         const std::optional<Cloud>& mask, const Eigen::Matrix4d& initial, const Robot* robot, const ProgressFn& progress) {
+        return rescan_job(grid, predicted, before, after, config, mask ? &*mask : nullptr, initial, robot, progress);
+      },
+      py::arg("grid"), py::arg("predicted_deposit_m"), py::arg("before"), py::arg("after"), py::arg("config"),
+      py::arg("mask") = py::none(), py::arg("initial") = Eigen::Matrix4d::Identity(), py::arg("robot") = nullptr,
+      py::arg("progress") = nullptr,
+      "The re-scan of a job (the CLI's and the ROS node's one loop): after registered to before on\n"
+      "config.rescan.reference, the layer per cell of the job's grid, measured vs predicted, the flow factor,\n"
+      "and with a robot the corrective round planned for the arm on the measured residual. ValueError /\n"
+      "RuntimeError, one line, for unusable input.");
 }

@@ -19,7 +19,7 @@ echo "[rostest] catkin build in $WS"
   -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCATKIN_ENABLE_TESTING=ON \
   -DCMAKE_CXX_COMPILER_LAUNCHER=${CMAKE_CXX_COMPILER_LAUNCHER:-ccache} >"$WS/configure.log" 2>&1 \
   || { cat "$WS/configure.log"; echo "[rostest] FAILED: catkin configure"; exit 1; }
-/usr/bin/cmake --build "$WS/build" -j"$JOBS" --target shotcrete_node \
+/usr/bin/cmake --build "$WS/build" -j"$JOBS" --target shotcrete_node shotcrete_ros_generate_messages \
   || { echo "[rostest] FAILED: catkin build"; exit 1; }
 echo "[rostest] catkin build $(elapsed "$t0") s"
 [ "${BUILD_ONLY:-0}" = 1 ] && exit 0

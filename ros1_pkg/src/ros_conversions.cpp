@@ -149,6 +149,43 @@ sensor_msgs::PointCloud2 cloud_to_msg(const shotcrete::Points& xyz, const Eigen:
   return msg;
 }
 
+sensor_msgs::PointCloud2 cells_to_msg(const shotcrete::Points& xyz, const Eigen::VectorXd& thickness_m,
+                                      const Eigen::VectorXd& lod95_m, const std::vector<int>& cells,
+                                      double color_max_m, const std::string& frame_id, const ros::Time& stamp) {
+  const auto n = static_cast<std::size_t>(xyz.rows());
+  if (static_cast<std::size_t>(thickness_m.size()) != n || static_cast<std::size_t>(lod95_m.size()) != n ||
+      cells.size() != n)
+    throw std::invalid_argument("cells_to_msg: " + std::to_string(n) + " points with " +
+                                std::to_string(thickness_m.size()) + " thicknesses, " +
+                                std::to_string(lod95_m.size()) + " lod95, " + std::to_string(cells.size()) + " cells");
+  sensor_msgs::PointCloud2 msg;
+  msg.header.frame_id = frame_id;
+  msg.header.stamp = stamp;
+  sensor_msgs::PointCloud2Modifier mod(msg);
+  using F = sensor_msgs::PointField;
+  mod.setPointCloud2Fields(7, "x", 1, F::FLOAT32, "y", 1, F::FLOAT32, "z", 1, F::FLOAT32, "intensity", 1, F::FLOAT32,
+                           "rgb", 1, F::FLOAT32, "lod95", 1, F::FLOAT32, "cell", 1, F::FLOAT32);
+  mod.resize(n);
+  sensor_msgs::PointCloud2Iterator<float> x(msg, "x"), y(msg, "y"), z(msg, "z"), in(msg, "intensity"),
+      lod(msg, "lod95"), cell(msg, "cell");
+  sensor_msgs::PointCloud2Iterator<std::uint8_t> rgb(msg, "rgb");
+  const double scale = color_max_m > 0 ? 1.0 / color_max_m : 1.0;
+  for (std::size_t i = 0; i < n; ++i, ++x, ++y, ++z, ++in, ++rgb, ++lod, ++cell) {
+    *x = static_cast<float>(xyz(i, 0));
+    *y = static_cast<float>(xyz(i, 1));
+    *z = static_cast<float>(xyz(i, 2));
+    *in = static_cast<float>(thickness_m[i]);
+    *lod = static_cast<float>(lod95_m[i]);
+    *cell = static_cast<float>(cells[i]);
+    const std_msgs::ColorRGBA c = colormap(thickness_m[i] * scale);
+    rgb[0] = static_cast<std::uint8_t>(std::lround(c.b * 255));
+    rgb[1] = static_cast<std::uint8_t>(std::lround(c.g * 255));
+    rgb[2] = static_cast<std::uint8_t>(std::lround(c.r * 255));
+    rgb[3] = 255;
+  }
+  return msg;
+}
+
 namespace {
 
 std::string type_name(XmlRpc::XmlRpcValue::Type t) {

@@ -26,6 +26,14 @@ sensor_msgs::PointCloud2 cloud_to_msg(const shotcrete::Points& xyz, const Eigen:
                                       double td_color_max_m, const std::string& frame_id,
                                       const ros::Time& stamp);
 
+/// The measured layer per cell (~thickness): float32 x, y, z (the cell's wall after spraying),
+/// intensity (= thickness in metres), rgb (thickness through the colour map on [0, color_max_m]),
+/// lod95 (the measurement's 95 % level of detection, m) and cell (the grid cell index, exact in a
+/// float32 below 2^24).
+sensor_msgs::PointCloud2 cells_to_msg(const shotcrete::Points& xyz, const Eigen::VectorXd& thickness_m,
+                                      const Eigen::VectorXd& lod95_m, const std::vector<int>& cells,
+                                      double color_max_m, const std::string& frame_id, const ros::Time& stamp);
+
 /// Colour map for t in [0, 1] (blue -> cyan -> green -> yellow -> red), clamped outside.
 std_msgs::ColorRGBA colormap(double t, float alpha = 1.0f);
 

@@ -2,7 +2,13 @@
 //
 // Input:     ~cloud_in (sensor_msgs/PointCloud2, tunnel frame), or ~cloud_file, or ~synthetic + ~seed.
 // Services:  ~plan (std_srvs/Trigger: success + the job summary as JSON, the core's JobSummary, as
-//            in report.json), ~execute (success + a one-line summary).
+//            in report.json), ~execute (success + a one-line summary), ~rescan (shotcrete_ros/Rescan:
+//            the after-scan's file, empty for the synthetic after-scan; success + the status as JSON).
+// Rescan:    ~after_scan (PointCloud2) or ~rescan: the after-scan registered to the before-scan on
+//            reference areas, the layer measured per cell, the flow calibrated and the corrective
+//            round planned, all by the core's rescan_job (as `shotcrete rescan`); published on
+//            ~thickness (PointCloud2 per measured cell, intensity = layer [m]), ~corrective_passes
+//            (MarkerArray, as ~passes) and ~rescan_status (String: the status JSON, or the error).
 // Published: ~cloud (PointCloud2, TD as intensity and rgb; republished while concrete is deposited),
 //            ~grid_levels, ~passes (MarkerArray), ~summary (String: the plan's JSON summary),
 //            ~clearance (MarkerArray: each link's collision shapes at the posture of its least
@@ -31,6 +37,8 @@
 #include <thread>
 
 #include "ros_conversions.hpp"
+#include "shotcrete_ros/Rescan.h"
+#include "shotcrete/pipeline/rescan_job.hpp"
 #include "shotcrete/collision/clearance.hpp"
 #include "shotcrete/pipeline/arm_plan.hpp"
 #include "shotcrete/pipeline/executed_deposit.hpp"
@@ -72,6 +80,46 @@ std::string levels_text(const std::map<int, int>& counts) {
   return s.str();
 }
 
+/// A number for the status JSON (null when not finite).
+std::string num(double v, int precision = 3) {
+  if (!std::isfinite(v)) return "null";
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(precision) << v;
+  return s.str();
+}
+
+/// `text` as a JSON string (quotes, backslashes and control characters escaped).
+std::string json_string(const std::string& text) {
+  std::string out = "\"";
+  for (char c : text) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\u%04x", static_cast<unsigned>(static_cast<unsigned char>(c)));
+      out += buf;
+    } else {
+      out += c;
+    }
+  }
+  return out + "\"";
+}
+
+/// {"cells", "mean", "min", "max", "rms"} of the finite values, in mm.
+std::string stats_mm(const Eigen::VectorXd& values_m) {
+  int n = 0;
+  double sum = 0, sq = 0, lo = INFINITY, hi = -INFINITY;
+  for (Eigen::Index i = 0; i < values_m.size(); ++i) {
+    const double v = values_m[i] * 1000.0;
+    if (!std::isfinite(v)) continue;
+    ++n, sum += v, sq += v * v, lo = std::min(lo, v), hi = std::max(hi, v);
+  }
+  if (n == 0) return "{\"cells\": 0}";
+  return "{\"cells\": " + std::to_string(n) + ", \"mean\": " + num(sum / n) + ", \"min\": " + num(lo) +
+         ", \"max\": " + num(hi) + ", \"rms\": " + num(std::sqrt(sq / n)) + "}";
+}
+
 geometry_msgs::Point point_msg(const Eigen::Vector3d& p) {
   geometry_msgs::Point m;
   m.x = p.x();
@@ -105,6 +153,15 @@ class ShotcreteNode {
     pnh_.param("cloud_rate_hz", cloud_rate_hz_, 2.0);
     pnh_.param("td_color_max_m", td_color_max_m_, 0.0);  // 0 = the largest TD of the scan
     pnh_.param("max_points", max_points_, 20000000);     // larger clouds on ~cloud_in are refused
+    std::vector<double> pose;
+    if (pnh_.getParam("rescan_initial_pose", pose)) {  // 16 numbers, row-major: after -> before start
+      if (pose.size() != 16) throw std::invalid_argument("~rescan_initial_pose needs 16 numbers (a 4x4 row-major)");
+      for (int i = 0; i < 16; ++i) initial_pose_(i / 4, i % 4) = pose[i];
+      const Eigen::Matrix3d R = initial_pose_.topLeftCorner<3, 3>();
+      if (!initial_pose_.allFinite() || (R * R.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-6 ||
+          (initial_pose_.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).norm() > 1e-9)
+        throw std::invalid_argument("~rescan_initial_pose is not a rigid transform");
+    }
     if (max_points_ < 1) throw std::invalid_argument("~max_points must be >= 1, got " + std::to_string(max_points_));
     if (!(time_scale_ > 0) || !(joint_rate_hz_ >= 1) || !(cloud_rate_hz_ > 0))
       throw std::invalid_argument("~execute_time_scale and ~cloud_rate_hz must be > 0, ~joint_state_rate_hz >= 1");
@@ -120,6 +177,9 @@ class ShotcreteNode {
     levels_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("grid_levels", 1, true);
     passes_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("passes", 1, true);
     clearance_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("clearance", 1, true);
+    thickness_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("thickness", 1, true);
+    corrective_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("corrective_passes", 1, true);
+    rescan_status_pub_ = pnh_.advertise<std_msgs::String>("rescan_status", 1, true);
     summary_pub_ = pnh_.advertise<std_msgs::String>("summary", 1, true);
     joint_pub_ = nh_.advertise<sensor_msgs::JointState>("joint_states", 10);
     tf_static_pub_ = nh_.advertise<tf2_msgs::TFMessage>("tf_static", 1, true);
@@ -128,6 +188,8 @@ class ShotcreteNode {
     cloud_sub_ = pnh_.subscribe("cloud_in", 2, &ShotcreteNode::on_cloud, this);
     plan_srv_ = pnh_.advertiseService("plan", &ShotcreteNode::on_plan, this);
     execute_srv_ = pnh_.advertiseService("execute", &ShotcreteNode::on_execute, this);
+    after_sub_ = pnh_.subscribe("after_scan", 1, &ShotcreteNode::on_after_scan, this);
+    rescan_srv_ = pnh_.advertiseService("rescan", &ShotcreteNode::on_rescan, this);
     // The arm is shown at rest until an execution streams the trajectory.
     idle_timer_ = nh_.createWallTimer(ros::WallDuration(0.1), [this](const ros::WallTimerEvent&) {
       if (!executing_) publish_joints(q_current_, ros::Time::now());
@@ -141,19 +203,27 @@ class ShotcreteNode {
     pnh_.param<std::string>("cloud_file", file, "");
     pnh_.param("synthetic", synthetic, false);
     if (!file.empty() && synthetic) throw std::invalid_argument("set either ~cloud_file or ~synthetic, not both");
-    Cloud cloud;
+    auto cloud = std::make_shared<Cloud>();
     std::string source;
+    std::shared_ptr<const shotcrete::SyntheticBay> bay;
+    std::shared_ptr<const Cloud> before_scan;
     if (!file.empty()) {
-      cloud = shotcrete::read_cloud(file);
+      *cloud = shotcrete::read_cloud(file);
       source = file;
     } else if (synthetic) {
-      cloud = shotcrete::make_synthetic_bay(config_.synth).sample(config_.grid.cell_size_m);
+      bay = std::make_shared<shotcrete::SyntheticBay>(shotcrete::make_synthetic_bay(config_.synth));
+      // Planned on the bay's wall (as `shotcrete demo`); re-scans register on the scan with its
+      // surroundings (synth.context_*, as `shotcrete synth` writes the before-scan).
+      *cloud = bay->sample(config_.grid.cell_size_m);
+      before_scan = std::make_shared<Cloud>(bay->sample_scan(config_.grid.cell_size_m));
       source = "synthetic bay (seed " + std::to_string(config_.synth.seed) + ")";
     } else {
       return false;
     }
     std::string error;
-    if (!set_cloud(cloud, source, error)) throw std::invalid_argument("cloud from " + source + ": " + error);
+    if (!set_cloud(cloud, source, error, before_scan)) throw std::invalid_argument("cloud from " + source + ": " + error);
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    synthetic_bay_ = bay;
     return true;
   }
 
@@ -214,8 +284,9 @@ class ShotcreteNode {
       trajectory_ = trajectory;
       executed_ = executed;
       plan_problems_ = problems;
+      sprayed_m_.reset();  // nothing of this plan sprayed yet
     }
-    publish_passes(*surface, *plan);
+    publish_passes(*surface, *plan, passes_pub_);
     if (job.clearance && trajectory) publish_clearance(*job.clearance, *trajectory);
     else clearance_pub_.publish(visualization_msgs::MarkerArray{});
     std_msgs::String msg;
@@ -314,7 +385,173 @@ class ShotcreteNode {
     s << ", deposited max " << executed->deposited_m.maxCoeff() * 1000 << " mm, levels_after="
       << levels_text(shotcrete::level_counts(sprayed.levels));
     summary = s.str();
-    return ros::ok();
+    if (!ros::ok()) return false;
+    // What ~rescan measures against: the executed deposit per cell of the grid planned on.
+    auto deposit = std::make_shared<Eigen::VectorXd>(surface->grid.td_m - executed->td_after_m);
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    sprayed_m_ = deposit;
+    return true;
+  }
+
+  /// The loop on the executed job (the core's rescan_job, as `shotcrete rescan`): `after` (nullptr:
+  /// the synthetic after-scan of the executed deposit, with ~synthetic) registered to the
+  /// before-scan, the layer per cell, the flow factor and the corrective round; publishes
+  /// ~thickness, ~corrective_passes and ~rescan_status. `status`: the status JSON, or the reason.
+  bool rescan(const Cloud* after_in, const std::string& source, std::string& status) {
+    std::unique_lock<std::mutex> work(work_mutex_, std::try_to_lock);
+    if (!work.owns_lock()) {
+      status = "busy: a plan, an execution or a rescan is running";
+      return false;
+    }
+    std::shared_ptr<const Surface> surface;
+    std::shared_ptr<const Cloud> before;
+    std::shared_ptr<const Eigen::VectorXd> sprayed;
+    std::shared_ptr<const shotcrete::SyntheticBay> bay;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      surface = surface_, before = before_scan_, sprayed = sprayed_m_, bay = synthetic_bay_;
+    }
+    if (!surface || !before) {
+      status = "no before-scan: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
+      return false;
+    }
+    if (!sprayed) {
+      status = "nothing sprayed yet: call " + pnh_.resolveName("plan") + " and " + pnh_.resolveName("execute") +
+               " first (the rescan measures what the executed plan laid)";
+      return false;
+    }
+    const auto t0 = Clock::now();
+    Cloud after;
+    if (after_in != nullptr) {
+      after = *after_in;
+    } else if (bay) {
+      after = shotcrete::make_after_scan(*bay, surface->grid, sprayed->unaryExpr([](double v) {
+                                           return std::isfinite(v) ? v : 0.0;
+                                         }), config_).cloud;
+    } else {
+      status = "no after-scan file given; the synthetic after-scan needs ~synthetic";
+      return false;
+    }
+    shotcrete::RescanOutcome out;
+    std::optional<shotcrete::JobSummary> correction;
+    try {
+      double last_report = -1.0;
+      out = shotcrete::rescan_job(surface->grid, *sprayed, *before, after, config_, nullptr, initial_pose_, robot_.get(),
+                                  [&](const std::string& stage, double fraction) {
+                                    const double t = seconds_since(t0);
+                                    if (t - last_report >= 2.0) {
+                                      ROS_INFO("rescan: %s %.0f %%", stage.c_str(), 100.0 * fraction);
+                                      last_report = t;
+                                    }
+                                  });
+      if (out.correction)
+        correction = shotcrete::summarise_job(*out.correction_surface, *out.correction, *robot_, *out.correction_config,
+                                              {static_cast<long>(out.correction_surface->cloud.size())});
+    } catch (const std::exception& e) {
+      status = std::string("rescan of ") + source + " failed: " + e.what();
+      return false;
+    }
+    const auto& grid = surface->grid;
+    const auto& th = out.thickness;
+    const auto& reg = out.registration;
+    // ~thickness: one point per measured cell, on the wall as sprayed (before - layer along its ray).
+    std::vector<int> cells;
+    for (int c = 0; c < grid.size(); ++c)
+      if (grid.valid[c] && std::isfinite(th.thickness_m[c]) && std::isfinite(th.before_td_m[c])) cells.push_back(c);
+    shotcrete::Points xyz(static_cast<Eigen::Index>(cells.size()), 3);
+    Eigen::VectorXd layer(xyz.rows()), lod(xyz.rows());
+    for (std::size_t i = 0; i < cells.size(); ++i) {
+      const int c = cells[i];
+      const double r = grid.profile.radius_m + th.before_td_m[c] - th.thickness_m[c];
+      xyz.row(static_cast<Eigen::Index>(i)) =
+          grid.axis.to_cartesian(r, grid.theta_center(grid.row_of(c)), grid.d_center(grid.col_of(c))).transpose();
+      layer[static_cast<Eigen::Index>(i)] = th.thickness_m[c];
+      lod[static_cast<Eigen::Index>(i)] = th.lod95_m[c];
+    }
+    const double color_max = layer.size() ? std::max(1e-3, layer.maxCoeff()) : 1.0;
+    thickness_pub_.publish(cells_to_msg(xyz, layer, lod, cells, color_max, frame_id_, ros::Time::now()));
+    if (out.correction) publish_passes(*out.correction_surface, out.correction->plan, corrective_pub_);
+    else clear_passes(corrective_pub_);
+    clear_passes(passes_pub_);  // the executed plan is done: what is left to spray is the corrective round
+
+    const Eigen::Matrix3d R = reg.transform.topLeftCorner<3, 3>();
+    const double angle_deg = std::atan2(Eigen::Vector3d(R(2, 1) - R(1, 2), R(0, 2) - R(2, 0), R(1, 0) - R(0, 1)).norm() / 2,
+                                        (R.trace() - 1) / 2) * 180.0 / M_PI;
+    const Eigen::Vector3d t = reg.transform.topRightCorner<3, 1>();
+    std::string matrix = "[";
+    for (int i = 0; i < 4; ++i) {
+      matrix += i ? ", [" : "[";
+      for (int j = 0; j < 4; ++j) matrix += (j ? ", " : "") + num(reg.transform(i, j), 9);
+      matrix += "]";
+    }
+    matrix += "]";
+    std::ostringstream js;
+    js << "{\"ok\": true, \"source\": " << json_string(source) << ", \"registration\": {\"reference\": "
+       << json_string(std::string(shotcrete::enum_name(config_.rescan.reference))) << ", \"rms_mm\": " << num(reg.rms_m * 1000)
+       << ", \"overlap\": " << num(reg.overlap, 4) << ", \"iterations\": " << reg.iterations
+       << ", \"matrix\": " << matrix << ", \"rotation_deg\": " << num(angle_deg, 4) << ", \"translation_m\": [" << num(t.x(), 4) << ", "
+       << num(t.y(), 4) << ", " << num(t.z(), 4) << "], \"target_points\": " << reg.target_points
+       << ", \"source_points\": " << reg.source_points << "}, \"before_td_rms_mm\": " << num(out.before_td_rms_m * 1000)
+       << ", \"cells\": " << grid.valid_count() << ", \"cells_measured\": " << th.measured
+       << ", \"thickness_mm\": " << stats_mm(th.thickness_m) << ", \"lod95_mm\": " << stats_mm(th.lod95_m)
+       << ", \"residual_td_mm\": " << stats_mm(th.residual_td_m) << ", \"measured_vs_predicted_mm\": {\"bias\": "
+       << num(out.comparison.bias_m * 1000) << ", \"rms\": " << num(out.comparison.rms_m * 1000)
+       << ", \"max_abs\": " << num(out.comparison.max_abs_m * 1000) << ", \"cells\": " << out.comparison.cells
+       << "}, \"calibration\": ";
+    if (out.calibration)
+      js << "{\"flow_factor\": " << num(out.calibration->factor, 5) << ", \"std_error\": "
+         << num(out.calibration->std_error, 5) << ", \"cells\": " << out.calibration->cells << ", \"rejected\": "
+         << out.calibration->rejected << ", \"residual_rms_mm\": " << num(out.calibration->residual_rms_m * 1000)
+         << ", \"deposition_peak_rate_mps\": " << num(out.calibrated->deposition.peak_rate_mps, 6) << "}";
+    else
+      js << "{\"error\": " << json_string(out.calibration_error) << "}";
+    js << ", \"correction\": " << (correction ? correction->to_json() : "null") << ", \"timings_s\": {\"register\": "
+       << num(out.register_s) << ", \"measure\": " << num(out.measure_s) << ", \"correction\": "
+       << num(out.correction_s) << ", \"total\": " << num(seconds_since(t0)) << "}}";
+    status = js.str();
+    ROS_INFO("rescan of %s in %.1f s: registration rms %.1f mm overlap %.2f, %d of %d cells measured, layer mean %.1f mm, "
+             "flow factor %s, corrective round: %s (status on %s)",
+             source.c_str(), seconds_since(t0), reg.rms_m * 1000, reg.overlap, th.measured, grid.valid_count(),
+             th.thickness_m.unaryExpr([](double v) { return std::isfinite(v) ? v : 0.0; }).sum() * 1000 /
+                 std::max(1, th.measured),
+             out.calibration ? num(out.calibration->factor, 4).c_str() : out.calibration_error.c_str(),
+             correction ? (std::to_string(correction->rounds) + " rounds, " + std::to_string(correction->passes) + " passes").c_str()
+                        : "none",
+             rescan_status_pub_.getTopic().c_str());
+    return true;
+  }
+
+  /// Runs rescan and reports it: the status (or the error as {"ok": false, "error": ...}) on
+  /// ~rescan_status and in the log.
+  bool rescan_and_report(const Cloud* after, const std::string& source, std::string& message) {
+    bool ok = false;
+    try {
+      ok = rescan(after, source, message);
+    } catch (const std::exception& e) {
+      message = std::string("rescan failed: ") + e.what();
+    }
+    std_msgs::String msg;
+    msg.data = ok ? message : "{\"ok\": false, \"error\": " + json_string(message) + "}";
+    rescan_status_pub_.publish(msg);
+    if (!ok) ROS_WARN("rescan: %s", message.c_str());
+    return ok;
+  }
+
+  /// ~rescan with a file (empty: the synthetic after-scan).
+  bool rescan_file(const std::string& path, std::string& message) {
+    if (path.empty()) return rescan_and_report(nullptr, "the synthetic after-scan", message);
+    Cloud after;
+    try {
+      after = shotcrete::read_cloud(path);
+    } catch (const std::exception& e) {
+      message = std::string("after-scan: ") + e.what();  // read_cloud names the file
+      std_msgs::String msg;
+      msg.data = "{\"ok\": false, \"error\": " + json_string(message) + "}";
+      rescan_status_pub_.publish(msg);
+      ROS_WARN("rescan: %s", message.c_str());
+      return false;
+    }
+    return rescan_and_report(&after, path, message);
   }
 
  private:
@@ -322,8 +559,8 @@ class ShotcreteNode {
   // Input
   // ---------------------------------------------------------------------------------------------
   void on_cloud(const sensor_msgs::PointCloud2::ConstPtr& msg) {
-    Cloud cloud;
-    const std::string reason = cloud_from_msg(*msg, frame_id_, cloud, static_cast<std::size_t>(max_points_));
+    auto cloud = std::make_shared<Cloud>();
+    const std::string reason = cloud_from_msg(*msg, frame_id_, *cloud, static_cast<std::size_t>(max_points_));
     if (!reason.empty()) {
       ROS_WARN("cloud on %s ignored: %s", cloud_sub_.getTopic().c_str(), reason.c_str());
       return;
@@ -338,11 +575,28 @@ class ShotcreteNode {
       ROS_WARN("cloud on %s ignored: %s", cloud_sub_.getTopic().c_str(), error.c_str());
   }
 
-  bool set_cloud(const Cloud& cloud, const std::string& source, std::string& error) {
+  void on_after_scan(const sensor_msgs::PointCloud2::ConstPtr& msg) {
+    Cloud cloud;
+    std::string message = cloud_from_msg(*msg, frame_id_, cloud, static_cast<std::size_t>(max_points_));
+    if (!message.empty()) {
+      message = "after-scan on " + after_sub_.getTopic() + " ignored: " + message;
+      std_msgs::String status;
+      status.data = "{\"ok\": false, \"error\": " + json_string(message) + "}";
+      rescan_status_pub_.publish(status);
+      ROS_WARN("rescan: %s", message.c_str());
+      return;
+    }
+    rescan_and_report(&cloud, "topic " + after_sub_.getTopic(), message);
+  }
+
+  /// `before_scan`: what a re-scan registers to (the scan with its surroundings); default `cloud`
+  /// itself (kept, not copied).
+  bool set_cloud(std::shared_ptr<const Cloud> cloud, const std::string& source, std::string& error,
+                 std::shared_ptr<const Cloud> before_scan = nullptr) {
     const auto t0 = Clock::now();
     auto surface = std::make_shared<Surface>();
     try {
-      *surface = shotcrete::build_surface(cloud, config_);
+      *surface = shotcrete::build_surface(*cloud, config_);
     } catch (const std::exception& e) {
       error = e.what();
       return false;
@@ -350,7 +604,10 @@ class ShotcreteNode {
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface_ = surface;
-      points_in_ = static_cast<long>(cloud.size());
+      before_scan_ = before_scan ? before_scan : cloud;
+      synthetic_bay_.reset();
+      sprayed_m_.reset();
+      points_in_ = static_cast<long>(cloud->size());
       plan_.reset();
       plan_problems_.clear();
       trajectory_.reset();
@@ -359,9 +616,12 @@ class ShotcreteNode {
     color_max_m_ = td_color_max_m_ > 0 ? td_color_max_m_ : std::max(1e-3, td.maxCoeff());
     publish_cloud(surface->cloud.xyz, td);
     publish_levels(*surface);
-    clear_passes();
+    clear_passes(passes_pub_);
+    clear_passes(corrective_pub_);
+    thickness_pub_.publish(cells_to_msg(shotcrete::Points(0, 3), Eigen::VectorXd(0), Eigen::VectorXd(0), {}, 1.0,
+                                        frame_id_, ros::Time::now()));
     ROS_INFO("cloud from %s: %ld points in, %ld kept, %d grid cells (%d valid), levels %s, %.2f s", source.c_str(),
-             static_cast<long>(cloud.size()), static_cast<long>(surface->cloud.size()), surface->grid.size(),
+             static_cast<long>(cloud->size()), static_cast<long>(surface->cloud.size()), surface->grid.size(),
              surface->grid.valid_count(), levels_text(shotcrete::level_counts(surface->levels)).c_str(),
              seconds_since(t0));
     return true;
@@ -378,6 +638,11 @@ class ShotcreteNode {
       res.message = std::string("plan failed: ") + e.what();
     }
     if (!res.success) ROS_WARN("plan: %s", res.message.c_str());  // plan() logs a success itself
+    return true;
+  }
+
+  bool on_rescan(shotcrete_ros::Rescan::Request& req, shotcrete_ros::Rescan::Response& res) {
+    res.success = rescan_file(req.path, res.message);
     return true;
   }
 
@@ -493,14 +758,14 @@ class ShotcreteNode {
     levels_pub_.publish(arr);
   }
 
-  void clear_passes() {
+  static void clear_passes(ros::Publisher& pub) {
     visualization_msgs::MarkerArray arr;
     arr.markers.push_back(delete_all());
-    passes_pub_.publish(arr);
+    pub.publish(arr);
   }
 
   /// Passes (line list coloured by speed), region outlines on the design line, transit links.
-  void publish_passes(const Surface& surface, const Plan& plan) {
+  void publish_passes(const Surface& surface, const Plan& plan, ros::Publisher& pub) {
     visualization_msgs::MarkerArray arr;
     arr.markers.push_back(delete_all());
     const auto& grid = plan.grid_before.size() > 0 ? plan.grid_before : surface.grid;
@@ -541,7 +806,7 @@ class ShotcreteNode {
       for (auto* m : {&passes, &boxes, &links})
         if (!m->points.empty()) arr.markers.push_back(*m);
     }
-    passes_pub_.publish(arr);
+    pub.publish(arr);
   }
 
   /// Per link with collision geometry: its shapes at the trajectory sample of its least distance to
@@ -642,10 +907,15 @@ class ShotcreteNode {
   std::string plan_problems_;  // of plan_ (JobSummary problems); ~execute refuses while not empty
   std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
   std::shared_ptr<const shotcrete::ExecutedDeposit> executed_;  // of trajectory_
+  std::shared_ptr<const Cloud> before_scan_;  // what ~rescan registers to (the input, or the synthetic scan)
+  std::shared_ptr<const shotcrete::SyntheticBay> synthetic_bay_;  // with ~synthetic: the after-scan's generator
+  std::shared_ptr<const Eigen::VectorXd> sprayed_m_;  // per grid cell: the executed deposit, once ~execute ran
+  Eigen::Matrix4d initial_pose_ = Eigen::Matrix4d::Identity();  // ~rescan_initial_pose: after -> before start
 
   ros::Publisher cloud_pub_, levels_pub_, passes_pub_, clearance_pub_, summary_pub_, joint_pub_, tf_static_pub_;
-  ros::Subscriber cloud_sub_;
-  ros::ServiceServer plan_srv_, execute_srv_;
+  ros::Publisher thickness_pub_, corrective_pub_, rescan_status_pub_;
+  ros::Subscriber cloud_sub_, after_sub_;
+  ros::ServiceServer plan_srv_, execute_srv_, rescan_srv_;
   ros::WallTimer idle_timer_;
 };
 
@@ -664,19 +934,24 @@ int main(int argc, char** argv) {
   }
   ros::AsyncSpinner spinner(3);  // services block while planning / executing; topics keep flowing
   spinner.start();
-  bool auto_plan = false, auto_execute = false;
+  bool auto_plan = false, auto_execute = false, auto_rescan = false;
+  std::string after_scan_file;
   pnh.param("auto_plan", auto_plan, false);
   pnh.param("auto_execute", auto_execute, false);
+  pnh.param("auto_rescan", auto_rescan, false);          // after auto_execute: ~rescan of ~after_scan_file
+  pnh.param<std::string>("after_scan_file", after_scan_file, "");  // empty: the synthetic after-scan
   try {
     const bool have_cloud = node->load_initial_cloud();
     if (have_cloud && auto_plan) {
       std::string summary;
       if (node->plan(summary)) {
         if (auto_execute) {
-          if (node->execute(summary))
+          if (node->execute(summary)) {
             ROS_INFO("execute: %s", summary.c_str());
-          else
+            if (auto_rescan) node->rescan_file(after_scan_file, summary);
+          } else {
             ROS_WARN("execute: %s", summary.c_str());
+          }
         }
       } else {
         ROS_ERROR("plan: %s", summary.c_str());

@@ -46,6 +46,9 @@ class Params(unittest.TestCase):
             ("range_node", {"synth/length_m": 50.0}, "length_m"),
             ("mode_node", {"planner/mode": "fastest"},
              "/mode_node/planner/mode = 'fastest': expected one of graded, optimal"),
+            ("pose_size_node", {"rescan_initial_pose": [1.0, 0.0, 0.0]}, "~rescan_initial_pose needs 16 numbers"),
+            ("pose_rigid_node", {"rescan_initial_pose": [2.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0]},
+             "~rescan_initial_pose is not a rigid transform"),
         ]
         for name, params, text in cases:
             code, out = self.run_node(name, params)

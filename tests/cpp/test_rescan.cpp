@@ -8,6 +8,7 @@
 
 #include "shotcrete/config.hpp"
 #include "shotcrete/io/synth.hpp"
+#include "shotcrete/pipeline/rescan_job.hpp"
 #include "shotcrete/rescan/rescan.hpp"
 
 using namespace shotcrete;
@@ -362,4 +363,48 @@ TEST(Rescan, GridFromCellsRefusesAnotherLattice) {
   EXPECT_THROW(grid_from_cells(bay.axis, prof, 0.04, {0, 1}, {0, 0}, {0.025 / 5.6, 0.075 / 5.6}, {0.025, 0.025}, {0.1, 0.1}),
                std::invalid_argument);
   EXPECT_THROW(grid_from_cells(bay.axis, prof, 0.05, {0}, {0}, {std::nan("")}, {0.025}, {0.1}), std::invalid_argument);
+}
+
+// rescan_job (the CLI's and the ROS node's one loop) is the stage functions composed: the same pose,
+// layer, comparison and factor as calling them one by one; its refusals name the scan at fault.
+TEST(RescanJob, ComposesTheStagesAndRefusesScansThatAreNotTheJobs) {
+  const Pair p = make_pair();
+  const RescanOutcome out = rescan_job(p.grid, p.deposit, p.before, p.after.cloud, p.config);
+  const auto ref = dry_reference(p.grid, p.deposit, p.config.rescan, p.config.profile.max_deviation_m);
+  const Registration reg = register_scans(p.before, p.after.cloud, ref, p.config.rescan);
+  EXPECT_TRUE(out.registration.transform.isApprox(reg.transform, 1e-12));
+  const CellThickness th = measure_cells(p.grid, p.before, transform_cloud(p.after.cloud, reg.transform), p.config.rescan);
+  EXPECT_EQ(out.thickness.measured, th.measured);
+  EXPECT_TRUE(out.thickness.thickness_m.array().isNaN().matrix() == th.thickness_m.array().isNaN().matrix());
+  EXPECT_LT((out.thickness.thickness_m - th.thickness_m).array().isNaN().select(0.0, (out.thickness.thickness_m -
+            th.thickness_m).array()).abs().maxCoeff(), 1e-12);
+  const Comparison cmp = compare_cells(th.thickness_m, p.deposit);
+  EXPECT_DOUBLE_EQ(out.comparison.rms_m, cmp.rms_m);
+  ASSERT_TRUE(out.calibration.has_value()) << out.calibration_error;
+  EXPECT_DOUBLE_EQ(out.calibration->factor, calibrate_flow(th.thickness_m, p.deposit, p.config.rescan).factor);
+  EXPECT_NEAR(out.calibration->factor / p.after.layer_scale, 1.0, 0.02);
+  EXPECT_LT(out.before_td_rms_m, 0.005);  // the before-scan's TD along the rays is the grid's
+  EXPECT_FALSE(out.correction.has_value());  // no robot: no corrective round
+  const Config cal = calibrated_config(p.config, 0.9);
+  EXPECT_DOUBLE_EQ(cal.deposition.peak_rate_mps, 0.9 * p.config.deposition.peak_rate_mps);
+
+  auto message = [&](const Grid& g, const Eigen::VectorXd& dep, const Cloud& before, const Cloud& after) {
+    try {
+      rescan_job(g, dep, before, after, p.config);
+    } catch (const std::exception& e) {
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos);
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_EQ(message(p.grid, Eigen::VectorXd::Zero(3), p.before, p.after.cloud).rfind("rescan: predicted deposit", 0), 0u);
+  EXPECT_EQ(message(p.grid, p.deposit, p.before, Cloud{}).rfind("after-scan: ", 0), 0u);
+  Cloud nan = p.before;
+  nan.xyz(5, 2) = std::nan("");
+  EXPECT_EQ(message(p.grid, p.deposit, nan, p.after.cloud).rfind("before-scan: ", 0), 0u);
+  // A job whose TD is 50 mm off the before-scan's everywhere: not the scan it planned on.
+  Grid other = p.grid;
+  other.td_m.array() += 0.05;
+  const std::string m = message(other, p.deposit, p.before, p.after.cloud);
+  EXPECT_NE(m.find("not the scan the job planned on"), std::string::npos) << m;
 }
