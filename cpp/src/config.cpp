@@ -155,6 +155,8 @@ void validate(const Config& config) {
     throw std::invalid_argument("config: preprocess.crop_min_m must be below crop_max_m on every axis");
   if (config.profile.axis_direction.norm() < 1e-9)
     throw std::invalid_argument("config: profile.axis_direction must not be zero");
+  if (!config.profile.alignment_path.empty() && config.profile.estimate_axis)
+    throw std::invalid_argument("config: profile.alignment_path gives the axis; profile.estimate_axis would replace it (set one)");
   if (!config.profile.section_path.empty() && config.profile.estimate_axis)
     throw std::invalid_argument("config: profile.estimate_axis fits a circle and cannot be used with a design section "
                                 "(profile.section_path); give the axis (profile.axis_origin_m, axis_direction)");

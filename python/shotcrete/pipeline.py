@@ -39,6 +39,8 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         t0 = time.perf_counter()
         cloud = cloud() if callable(cloud) else cloud
         given_cloud, given_config = cloud, config  # provenance: what the user gave
+        # profile.alignment_path: the axis where the scan lies, in the input's frame (double precision).
+        config, on_alignment = _core.with_alignment_axis(config, np.asarray(cloud.xyz) * config.io.unit_scale)
         frame = LocalFrame.of(cloud, config)  # survey coordinates: run in a local frame, write back
         cloud, config = frame.to_local(cloud, config)
         surface, timings = surface_step(cloud, config, progress)
@@ -48,6 +50,12 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         result = summary.to_dict()
         result["local_origin_m"] = frame.origin_m.tolist()  # outputs are in the input's frame
         result["axis"]["origin_m"] = (np.asarray(result["axis"]["origin_m"]) + frame.origin_m).tolist()
+        if on_alignment is not None:
+            result["alignment"] = alignment_entry(given_config.profile.alignment_path, on_alignment)
+            if on_alignment.deviation_m > ALIGNMENT_WARN_M:
+                result["warnings"].append(
+                    f"the alignment curves {on_alignment.deviation_m * 1000:.0f} mm off the straight axis over the scan "
+                    f"(chainage {on_alignment.start_m:.2f}..{on_alignment.end_m:.2f} m): TD is uncertain by up to that")
         for link in (result.get("clearance") or {}).get("links", []):
             link["closest_m"] = (link["closest_m"] + frame.origin_m).tolist()
 
@@ -65,6 +73,15 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         report.write_html(tmp, result, [(g, cap, str(p.relative_to(tmp))) for g, cap, p in figures], facts)
     progress("report", 1.0)
     return result
+
+
+ALIGNMENT_WARN_M = 0.01  # a straight axis further than this from the alignment over the scan is worth a warning
+
+
+def alignment_entry(path: str, at) -> dict:
+    """report.json ``alignment``: where on the alignment the job's axis lies and how straight it is there."""
+    return {"path": path, "chainage_m": at.chainage_m, "start_m": at.start_m, "end_m": at.end_m,
+            "deviation_m": at.deviation_m, "scan_offset_m": at.scan_offset_m}
 
 
 def surface_step(cloud, config, progress: Progress):

@@ -89,6 +89,26 @@ void bind_surface(py::module_& m) {
       .def("td_m", &DesignProfile::td_m, py::arg("r_m"), py::arg("theta_rad"), "TD along the line's normal [m]")
       .def("radial_offset_m", &DesignProfile::radial_offset_m, py::arg("td_m"), py::arg("theta_rad"));
   m.def("read_section_csv", &read_section_csv, py::arg("path"), "Vertices of a design section CSV (y_m,z_m[,bulge]).");
+  py::class_<AlignmentPoint>(m, "AlignmentPoint")
+      .def_readonly("chainage_m", &AlignmentPoint::chainage_m)
+      .def_readonly("xyz_m", &AlignmentPoint::xyz_m);
+  m.def("read_alignment_csv", &read_alignment_csv, py::arg("path"), "Points of an alignment CSV (chainage_m,x_m,y_m,z_m).");
+  py::class_<AxisOnAlignment>(m, "AxisOnAlignment")
+      .def_readonly("axis", &AxisOnAlignment::axis)
+      .def_readonly("chainage_m", &AxisOnAlignment::chainage_m, "chainage of the axis origin (the job frame's d = 0)")
+      .def_readonly("start_m", &AxisOnAlignment::start_m)
+      .def_readonly("end_m", &AxisOnAlignment::end_m)
+      .def_readonly("deviation_m", &AxisOnAlignment::deviation_m, "largest distance of the alignment from the straight axis")
+      .def_readonly("scan_offset_m", &AxisOnAlignment::scan_offset_m);
+  m.def("axis_on_alignment", &axis_on_alignment, py::arg("alignment"), py::arg("centre_m"), py::arg("half_span_m"),
+        py::arg("max_offset_m") = 20.0, "The straight axis standing for the alignment around a scan's centre.");
+  m.def("with_alignment_axis", [](const Config& config, const Points& xyz_m) {
+        AxisOnAlignment at;
+        Config out = with_alignment_axis(config, xyz_m, &at);
+        return std::make_pair(out, config.profile.alignment_path.empty() ? py::object(py::none()) : py::cast(at));
+      }, py::arg("config"), py::arg("xyz_m"),
+      "(config, AxisOnAlignment or None): the config with the axis of profile.alignment_path where the points lie "
+      "(grid.bay_start_m/bay_end_m taken as chainages); unchanged without an alignment.");
   m.def("design_profile_from_config", &design_profile_from_config, py::arg("profile"),
         "The circle of profile.design_radius_m or the section of profile.section_path.");
   py::class_<AxisFit>(m, "AxisFit")

@@ -596,7 +596,13 @@ class ShotcreteNode {
     const auto t0 = Clock::now();
     auto surface = std::make_shared<Surface>();
     try {
-      *surface = shotcrete::build_surface(*cloud, config_);
+      // profile.alignment_path: the axis from the alignment where this scan lies.
+      shotcrete::AxisOnAlignment at;
+      const shotcrete::Config config = shotcrete::with_alignment_axis(config_, cloud->xyz, &at);
+      if (!config_.profile.alignment_path.empty())
+        ROS_INFO("axis from the alignment at chainage %.3f m (straight over %.3f..%.3f m, deviation %.4f m)",
+                 at.chainage_m, at.start_m, at.end_m, at.deviation_m);
+      *surface = shotcrete::build_surface(*cloud, config);
     } catch (const std::exception& e) {
       error = e.what();
       return false;

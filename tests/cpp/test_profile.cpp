@@ -206,3 +206,78 @@ TEST(Profile, SurfaceOnASectionFromTheConfig) {
   cfg.profile.section_path = data("profiles/missing.csv");
   EXPECT_THROW(build_surface(bay.sample(cfg.grid.cell_size_m), cfg), std::invalid_argument);
 }
+
+namespace {
+// A horizontal curve of radius rho (centre at (0, rho, 0)) with a grade, starting at chainage 0 at
+// the origin heading +x: the alignment's exact point at chainage c.
+Eigen::Vector3d curve_point(double c, double rho, double grade) {
+  const double a = c / rho;
+  return {rho * std::sin(a), rho * (1.0 - std::cos(a)), grade * c};
+}
+std::vector<AlignmentPoint> curve_alignment(double rho, double grade, double from, double to, double step) {
+  std::vector<AlignmentPoint> out;
+  for (double c = from; c <= to + 1e-9; c += step) out.push_back({c, curve_point(c, rho, grade)});
+  return out;
+}
+}  // namespace
+
+TEST(Alignment, AxisOnACurveIsItsChordThroughTheScan) {
+  // Radius 300 m, 2 % grade, points every metre. A scan centred 3 m above the alignment in the
+  // section at chainage 125.4 m (square to the graded axis), 4 m long.
+  const double rho = 300.0, grade = 0.02, c = 125.4;
+  const auto a = curve_alignment(rho, grade, 0.0, 400.0, 1.0);
+  const Eigen::Vector3d t0 = Eigen::Vector3d(std::cos(c / rho), std::sin(c / rho), grade).normalized();
+  const Eigen::Vector3d up = (Eigen::Vector3d::UnitZ() - t0.z() * t0).normalized();
+  const Eigen::Vector3d centre = curve_point(c, rho, grade) + 3.0 * up;
+  const AxisOnAlignment at = axis_on_alignment(a, centre, 2.0);
+  EXPECT_NEAR(at.chainage_m, c, 0.02);  // the chords of a 1 m sampling
+  EXPECT_NEAR(at.scan_offset_m, 3.0, 0.01);
+  // The tangent of the curve at c (horizontal heading c / rho, rising by the grade).
+  const Eigen::Vector3d tangent = Eigen::Vector3d(std::cos(c / rho), std::sin(c / rho), grade).normalized();
+  EXPECT_LT(std::acos(std::min(1.0, at.axis.ex.dot(tangent))), 1e-4);
+  // Sagitta of a 4 m chord on 300 m: 4^2 / (8 x 300) = 6.7 mm; through the mean, about 2/3 of it
+  // on one side and 1/3 on the other.
+  EXPECT_GT(at.deviation_m, 0.3 * 16.0 / (8 * rho));
+  EXPECT_LT(at.deviation_m, 16.0 / (8 * rho) + 1e-4);
+  // The origin lies on the straight axis abreast of chainage c, within the sagitta of the curve.
+  EXPECT_LT((at.axis.origin_m - curve_point(c, rho, grade)).norm(), 16.0 / (8 * rho) + 1e-4);
+}
+
+TEST(Alignment, ConfigTakesTheAxisAndTheBayRangeAsChainages) {
+  const std::string path = write_temp("align.csv", [] {
+    std::string t = "# a straight alignment along +y, 1 % grade\nchainage_m,x_m,y_m,z_m\n";
+    for (int k = 0; k <= 100; ++k) t += std::to_string(1000.0 + k) + ",5.0," + std::to_string(200.0 + k) + "," + std::to_string(0.01 * k) + "\n";
+    return t;
+  }());
+  Config cfg;
+  cfg.profile.alignment_path = path;
+  cfg.grid.bay = BaySelection::range;
+  cfg.grid.bay_start_m = 1030.0;
+  cfg.grid.bay_end_m = 1031.2;
+  Points xyz(3, 3);
+  xyz << 4.0, 229.0, 3.0, 6.0, 231.0, 3.0, 5.0, 230.0, NAN;  // centre (5, 230, 3): chainage 1030
+  AxisOnAlignment at;
+  const Config out = with_alignment_axis(cfg, xyz, &at);
+  EXPECT_NEAR(at.chainage_m, 1030.0, 0.05);
+  EXPECT_NEAR(out.profile.axis_direction.normalized().dot(Eigen::Vector3d(0, 1, 0.01).normalized()), 1.0, 1e-9);
+  EXPECT_NEAR(out.grid.bay_start_m, 1030.0 - at.chainage_m, 1e-9);
+  EXPECT_NEAR(out.grid.bay_end_m - out.grid.bay_start_m, 1.2, 1e-9);
+  EXPECT_NEAR(at.deviation_m, 0.0, 1e-9);
+  // Off the alignment, beyond its end, or a malformed file: refused by name.
+  Points far(1, 3);
+  far << 500.0, 230.0, 0.0;
+  EXPECT_THROW(with_alignment_axis(cfg, far, nullptr), std::invalid_argument);
+  Points beyond(1, 3);
+  beyond << 5.0, 400.0, 0.0;
+  EXPECT_THROW(with_alignment_axis(cfg, beyond, nullptr), std::invalid_argument);
+  cfg.profile.alignment_path = write_temp("align_bad.csv", "0,0,0,0\n0,1,0,0\n");
+  try {
+    with_alignment_axis(cfg, xyz, nullptr);
+    ADD_FAILURE() << "accepted a chainage that does not increase";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("line 2"), std::string::npos) << e.what();
+  }
+  // Without an alignment the config is unchanged.
+  Config plain;
+  EXPECT_EQ(with_alignment_axis(plain, xyz, nullptr).profile.axis_direction, plain.profile.axis_direction);
+}

@@ -130,3 +130,60 @@ def test_plan_on_a_horseshoe_side_wall(tmp_path, run_cli):
     tilt = np.array([math.degrees(math.acos(profile.normal_cos_at(t))) for t in th])
     assert tilt.max() > 5.0  # the case is one where ray and normal differ
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 2.0
+
+
+def _turned(xyz, yaw, grade, offset):
+    """Rotate about z by yaw, tilt the axis up by the grade (about the y axis), then offset."""
+    pitch = -math.atan(grade)
+    rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+    ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
+    return np.asarray(xyz) @ (rz @ ry).T + offset, rz @ ry
+
+
+def test_alignment_in_survey_coordinates_gives_the_axis_the_bay_was_built_on(tmp_path, run_cli, small_config, small_cloud):
+    """A bay turned 30 deg, on a 5 % grade, in survey coordinates, with the alignment the survey
+    gives (chainage 1000 m at the bay's start): the job's axis is the bay's own, so the grid, TD
+    and required volume equal the bay's at the origin; report.json says where on the alignment."""
+    offset = np.array([500000.0, 4000000.0, 300.0])
+    xyz, rot = _turned(small_cloud.xyz, math.radians(30), 0.05, offset)
+    ply = tmp_path / "geo.ply"
+    shotcrete.write_cloud(ply, shotcrete.Cloud(xyz))
+    chain = np.arange(-20.0, 21.0, 1.0)
+    axis_pts, _ = _turned(np.c_[chain, np.zeros_like(chain), np.zeros_like(chain)], math.radians(30), 0.05, offset)
+    align = tmp_path / "alignment.csv"
+    align.write_text("chainage_m,x_m,y_m,z_m\n" + "".join(f"{1000 + c:.3f},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}\n"
+                                                         for c, p in zip(chain, axis_pts)))
+    base = rot @ np.asarray(small_config.robot.base_position_m) + offset
+    common = ("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
+              "planner:\n  max_rounds: 1\nclearance:\n  enabled: false\n")
+    geo_cfg, ref_cfg = tmp_path / "geo.yaml", tmp_path / "ref.yaml"
+    geo_cfg.write_text(common + f"profile:\n  alignment_path: {align}\n"
+                       f"robot:\n  base_position_m: [{base[0]:.6f}, {base[1]:.6f}, {base[2]:.6f}]\n")
+    ref_cfg.write_text(common)
+    ref_ply = tmp_path / "ref.ply"
+    shotcrete.write_cloud(ref_ply, small_cloud)
+    reps = {}
+    for name, cloud, cfg in (("geo", ply, geo_cfg), ("ref", ref_ply, ref_cfg)):
+        r = run_cli("plan", cloud, "--config", cfg, "--out", tmp_path / name, "--json")
+        assert r.exit_code in (0, 3), r.output
+        reps[name] = json.loads((tmp_path / name / "report.json").read_text())
+    geo, ref = reps["geo"], reps["ref"]
+    at = geo["alignment"]
+    assert at["path"] == str(align) and at["deviation_m"] < 1e-6
+    # The section through the scan's centre: the bay's middle, chainage 1000 + 0.3 m.
+    assert at["chainage_m"] == pytest.approx(1000.3, abs=0.02)
+    # The CSV holds 0.1 mm: over the scan's span of the alignment that is a few thousandths of a degree.
+    assert np.degrees(np.arccos(np.clip(np.dot(geo["axis"]["direction"], rot[:, 0]), -1, 1))) < 0.01
+    # The same grid, to a cell at its rim (the axis is the bay's to the CSV's 0.1 mm).
+    assert abs(geo["cells"] - ref["cells"]) <= 3 and geo["grid_shape"] == ref["grid_shape"]
+    assert geo["required_volume_m3"] == pytest.approx(ref["required_volume_m3"], rel=1e-3)
+    assert geo["td_before_mm"]["mean"] == pytest.approx(ref["td_before_mm"]["mean"], abs=0.1)
+    # The alignment and an estimated axis are two answers to one question: refused together.
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(f"profile:\n  alignment_path: {align}\n  estimate_axis: true\n")
+    r = run_cli("plan", ply, "--config", bad, "--out", tmp_path / "bad")
+    assert r.exit_code == 2 and "alignment_path" in r.output
+    far = tmp_path / "far.yaml"
+    far.write_text(f"profile:\n  alignment_path: {align}\n")
+    r = run_cli("plan", ref_ply, "--config", far, "--out", tmp_path / "far")
+    assert r.exit_code == 2 and "from the alignment" in r.output

@@ -62,6 +62,7 @@ struct ProfileConfig {
   std::string section_path = "";  // design cross-section (CSV of lines and arcs, docs/architecture.md §3); empty: the circle
   Eigen::Vector3d axis_origin_m{0.0, 0.0, 0.0};  // a point on the tunnel axis
   Eigen::Vector3d axis_direction{1.0, 0.0, 0.0};  // advance direction (normalised on use)
+  std::string alignment_path = "";  // alignment CSV (chainage_m,x_m,y_m,z_m): the axis where the scan lies; empty: the two above
   bool estimate_axis = false;                   // fit the axis to the cloud (docs/architecture.md §3)
   bool estimate_axis_origin = true;  // with estimate_axis: fit the centre too; false keeps axis_origin_m
   double min_fit_arc_rad = 2.618;    // a fitted axis needs the wall to cover this arc around it (150 deg)

@@ -30,6 +30,7 @@ template <class F> void visit(ProfileConfig*, F&& f) {
   f("section_path", &ProfileConfig::section_path, 0, 0, "design cross-section CSV (y_m,z_m[,bulge]); empty = the circle of design_radius_m");
   f("axis_origin_m", &ProfileConfig::axis_origin_m, 0, 0, "a point on the tunnel axis [m]");
   f("axis_direction", &ProfileConfig::axis_direction, 0, 0, "axis direction (unit-free)");
+  f("alignment_path", &ProfileConfig::alignment_path, 0, 0, "alignment CSV (chainage_m,x_m,y_m,z_m) giving the axis where the scan lies; empty = axis_origin_m/axis_direction");
   f("estimate_axis", &ProfileConfig::estimate_axis, 0, 0, "fit the axis to the cloud");
   f("estimate_axis_origin", &ProfileConfig::estimate_axis_origin, 0, 0, "with estimate_axis: fit the centre too (false: keep axis_origin_m)");
   f("min_fit_arc_rad", &ProfileConfig::min_fit_arc_rad, 0.05, 6.2832, "arc the wall must cover around a fitted axis [rad]");

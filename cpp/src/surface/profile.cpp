@@ -236,6 +236,154 @@ std::vector<SectionVertex> read_section_csv(const std::string& path) {
   return out;
 }
 
+namespace {
+// Splits a CSV data line into trimmed cells (empty for blank and '#' lines).
+std::vector<std::string> csv_cells(const std::string& line) {
+  std::vector<std::string> cols;
+  const auto first = line.find_first_not_of(" \t\r");
+  if (first == std::string::npos || line[first] == '#') return cols;
+  std::stringstream ss(line);
+  std::string c;
+  while (std::getline(ss, c, ',')) {
+    const auto b = c.find_first_not_of(" \t\r"), e = c.find_last_not_of(" \t\r");
+    cols.push_back(b == std::string::npos ? std::string() : c.substr(b, e - b + 1));
+  }
+  return cols;
+}
+std::string fixed(double v, int decimals) {
+  std::ostringstream o;
+  o << std::fixed << std::setprecision(decimals) << v;
+  return o.str();
+}
+double csv_number(const std::string& cell, const std::string& where) {
+  std::size_t used = 0;
+  double v = 0.0;
+  try {
+    v = std::stod(cell, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used == 0 || used != cell.size() || !std::isfinite(v))
+    throw std::invalid_argument(where + ": '" + cell + "' is not a number");
+  return v;
+}
+}  // namespace
+
+std::vector<AlignmentPoint> read_alignment_csv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::invalid_argument("alignment: cannot open " + path);
+  std::vector<AlignmentPoint> out;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    const std::vector<std::string> cols = csv_cells(line);
+    if (cols.empty() || (out.empty() && cols[0] == "chainage_m")) continue;
+    const std::string where = "alignment " + path + ", line " + std::to_string(number);
+    if (cols.size() != 4) throw std::invalid_argument(where + ": expected chainage_m,x_m,y_m,z_m");
+    AlignmentPoint p;
+    p.chainage_m = csv_number(cols[0], where);
+    p.xyz_m = {csv_number(cols[1], where), csv_number(cols[2], where), csv_number(cols[3], where)};
+    if (!out.empty() && !(p.chainage_m > out.back().chainage_m))
+      throw std::invalid_argument(where + ": chainage " + cols[0] + " does not increase");
+    out.push_back(p);
+  }
+  if (out.size() < 2) throw std::invalid_argument("alignment " + path + ": needs at least 2 points");
+  return out;
+}
+
+namespace {
+// Alignment point at chainage c (linear between the points; clamped to the ends).
+Eigen::Vector3d alignment_at(const std::vector<AlignmentPoint>& a, double c) {
+  if (c <= a.front().chainage_m) return a.front().xyz_m;
+  if (c >= a.back().chainage_m) return a.back().xyz_m;
+  const auto it = std::upper_bound(a.begin(), a.end(), c, [](double v, const AlignmentPoint& p) { return v < p.chainage_m; });
+  const AlignmentPoint &q = *it, &p = *(it - 1);
+  const double f = (c - p.chainage_m) / (q.chainage_m - p.chainage_m);
+  return p.xyz_m + f * (q.xyz_m - p.xyz_m);
+}
+}  // namespace
+
+AxisOnAlignment axis_on_alignment(const std::vector<AlignmentPoint>& a, const Eigen::Vector3d& centre_m,
+                                  double half_span_m, double max_offset_m) {
+  if (a.size() < 2) throw std::invalid_argument("alignment: needs at least 2 points");
+  if (!centre_m.allFinite() || !(half_span_m > 0) || !std::isfinite(half_span_m))
+    throw std::invalid_argument("alignment: the scan's centre and half span must be finite (and the span > 0)");
+  // Nearest point of the polyline to the scan's centre: the section through the centre, which is
+  // square to the (graded) alignment.
+  double best = std::numeric_limits<double>::infinity(), c = a.front().chainage_m;
+  for (std::size_t i = 0; i + 1 < a.size(); ++i) {
+    const Eigen::Vector3d e = a[i + 1].xyz_m - a[i].xyz_m;
+    const double f = e.squaredNorm() > 0 ? std::clamp((centre_m - a[i].xyz_m).dot(e) / e.squaredNorm(), 0.0, 1.0) : 0.0;
+    const double dist = (a[i].xyz_m + f * e - centre_m).norm();
+    if (dist < best) best = dist, c = a[i].chainage_m + f * (a[i + 1].chainage_m - a[i].chainage_m);
+  }
+  std::ostringstream where;
+  where << std::fixed << std::setprecision(1) << "(" << centre_m.x() << ", " << centre_m.y() << ", " << centre_m.z() << ")";
+  if (best > max_offset_m)
+    throw std::invalid_argument("alignment: the scan's centre " + where.str() + " lies " + fixed(best, 1) +
+                                " m from the alignment (more than " + fixed(max_offset_m, 1) +
+                                " m): another tunnel, or the alignment is not in the scan's coordinates");
+  if (c <= a.front().chainage_m || c >= a.back().chainage_m)
+    throw std::invalid_argument("alignment: the scan lies beyond the alignment's end (chainage " +
+                                fixed(a.front().chainage_m, 2) + ".." + fixed(a.back().chainage_m, 2) + " m)");
+  AxisOnAlignment out;
+  out.chainage_m = c;
+  out.scan_offset_m = best;
+  out.start_m = std::max(a.front().chainage_m, c - half_span_m);
+  out.end_m = std::min(a.back().chainage_m, c + half_span_m);
+  const Eigen::Vector3d dir = alignment_at(a, out.end_m) - alignment_at(a, out.start_m);
+  if (!(dir.norm() > 1e-6)) throw std::invalid_argument("alignment: the alignment does not move over the scan");
+  // Through the mean of the alignment over the span (samples every 0.1 m), so the straight axis
+  // splits the curve's deviation both ways rather than cutting its chord.
+  const int n = std::max(2, static_cast<int>(std::ceil((out.end_m - out.start_m) / 0.1)) + 1);
+  std::vector<Eigen::Vector3d> samples(static_cast<std::size_t>(n));
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (int k = 0; k < n; ++k) {
+    samples[static_cast<std::size_t>(k)] = alignment_at(a, out.start_m + (out.end_m - out.start_m) * k / (n - 1));
+    mean += samples[static_cast<std::size_t>(k)];
+  }
+  mean /= n;
+  const Eigen::Vector3d u = dir.normalized();
+  const Eigen::Vector3d at_c = alignment_at(a, c);
+  const Eigen::Vector3d origin = mean + (at_c - mean).dot(u) * u;  // on the line, abreast of chainage c
+  out.axis = TunnelAxis::from_direction(origin, u);
+  for (const auto& p : samples) {
+    const Eigen::Vector3d r = p - origin;
+    out.deviation_m = std::max(out.deviation_m, (r - r.dot(u) * u).norm());
+  }
+  return out;
+}
+
+Config with_alignment_axis(const Config& config, const Points& xyz_m, AxisOnAlignment* where) {
+  if (config.profile.alignment_path.empty()) return config;
+  const std::vector<AlignmentPoint> alignment = read_alignment_csv(config.profile.alignment_path);
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  long n = 0;
+  for (Eigen::Index i = 0; i < xyz_m.rows(); ++i)
+    if (xyz_m.row(i).allFinite()) sum += xyz_m.row(i).transpose(), ++n;
+  if (n == 0) throw std::invalid_argument("alignment: the scan has no finite points");
+  const Eigen::Vector3d centre = sum / static_cast<double>(n);
+  // The span: first along the alignment at the centre, then the scan's extent along that axis.
+  AxisOnAlignment at = axis_on_alignment(alignment, centre, 1.0);
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (Eigen::Index i = 0; i < xyz_m.rows(); ++i) {
+    if (!xyz_m.row(i).allFinite()) continue;
+    const double d = (xyz_m.row(i).transpose() - centre).dot(at.axis.ex);
+    lo = std::min(lo, d), hi = std::max(hi, d);
+  }
+  at = axis_on_alignment(alignment, centre, std::max(0.5, 0.5 * (hi - lo)));
+  Config out = config;
+  out.profile.axis_origin_m = at.axis.origin_m;
+  out.profile.axis_direction = at.axis.ex;
+  if (out.grid.bay == BaySelection::range) {
+    out.grid.bay_start_m -= at.chainage_m;
+    out.grid.bay_end_m -= at.chainage_m;
+  }
+  if (where) *where = at;
+  return out;
+}
+
 DesignProfile design_profile_from_config(const ProfileConfig& config) {
   if (config.section_path.empty()) return DesignProfile::circle(config.design_radius_m);
   try {

@@ -89,6 +89,42 @@ DesignProfile design_profile_from_config(const ProfileConfig& config);
 /// The axis from the config, or fitted to the cloud when profile.estimate_axis is set.
 TunnelAxis axis_from_config(const ProfileConfig& config);
 
+/// A point of the tunnel's alignment (its axis as designed) at a chainage, in the scan's frame.
+struct AlignmentPoint {
+  double chainage_m = 0.0;
+  Eigen::Vector3d xyz_m{0, 0, 0};
+};
+
+/// Reads an alignment CSV: one point per line, `chainage_m,x_m,y_m,z_m`, chainage strictly
+/// increasing, '#' comments and a header allowed; a curve is given by its points (e.g. every metre).
+/// Throws std::invalid_argument naming the file and line.
+std::vector<AlignmentPoint> read_alignment_csv(const std::string& path);
+
+/// The job's axis taken from the alignment where the scan lies (docs/architecture.md §3, "Alignment").
+struct AxisOnAlignment {
+  TunnelAxis axis;            // a straight axis through the alignment over the scan's stretch
+  double chainage_m = 0.0;    // chainage of the axis origin (the job frame's d = 0)
+  double start_m = 0.0, end_m = 0.0;  // chainage span the straight axis stands for
+  double deviation_m = 0.0;   // largest distance of the alignment from the straight axis over it
+  double scan_offset_m = 0.0; // distance of the scan's centre from the alignment
+};
+
+/// The straight axis that stands for the alignment over the scan: the scan's centre (`centre_m`,
+/// e.g. the mean of its points) is projected onto the alignment (chainage c: the section through it); the axis runs along
+/// the chord from c - half_span_m to c + half_span_m (clamped to the alignment), through the mean
+/// of the alignment over it, origin at chainage c. Throws std::invalid_argument for fewer than two
+/// points, a scan centre more than max_offset_m from the alignment or off its ends, or a non-finite input.
+AxisOnAlignment axis_on_alignment(const std::vector<AlignmentPoint>& alignment, const Eigen::Vector3d& centre_m,
+                                  double half_span_m, double max_offset_m = 20.0);
+
+/// The config a scan is planned with when profile.alignment_path is set: the axis from the
+/// alignment where the scan's points (xyz_m, metres in the config's frame; non-finite rows
+/// ignored) lie, the half span half their extent along it, and grid.bay_start_m/bay_end_m, given
+/// as chainages of the alignment, turned into distances from the axis origin. Without an
+/// alignment, the config unchanged (`where` untouched). Throws std::invalid_argument as
+/// read_alignment_csv and axis_on_alignment, or for a scan without finite points.
+Config with_alignment_axis(const Config& config, const Points& xyz_m, AxisOnAlignment* where = nullptr);
+
 /// The axis fitted to a cloud with normals (docs/architecture.md §3, "Axis estimation").
 struct AxisFit {
   TunnelAxis axis;          // origin: on the axis where the scan starts (0.5 % quantile), or the given one
