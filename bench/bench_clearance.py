@@ -2,9 +2,8 @@
 against the wall's points (FCL + octomap octree as the broad phase, a KD-tree of the points as the
 narrow phase), and transits re-routed by the seed method.
 
-- accuracy: the exact read-out (WallOctree.exact_distance: FCL on a coarse octree, then the points
-  near the shape from a KD-tree, measured exactly; what settles every octree reading below a
-  margin) for 10,000 random link poses (the URDF's collision cylinders, near the default wall)
+- accuracy: the exact read-out (WallOctree.exact_distance: the octree's bound, then the points
+  within it from a KD-tree, measured exactly) for 10,000 random link poses (the URDF's collision cylinders, near the default wall)
   against the exact distance to every wall point (brute force, numpy), against half a leaf; and
   how far the octree reading alone (what the check's minima still are) reads short, never long;
   1,000 poses at 2 cm leaves;
@@ -87,7 +86,7 @@ def accuracy(cfg, n_poses: int, seed: int = 1) -> dict:
         shorts, refined = np.asarray(shorts), np.asarray(refined)
         out[f"resolution_{res}"] = {
             "poses": n, "leaves": tree.occupied_leaves, "half_leaf_mm": res / 2 * 1e3,
-            # The exact read-out: exact_distance (coarse octree, then the points near the shape measured).
+            # The exact read-out: exact_distance (the octree's bound, then the points within it measured).
             "error_mm": {"mean": float(refined.mean() * 1e3), "max": float(refined.max() * 1e3)},
             "query_ms_mean": t_refined / n * 1e3,
             "within_half_leaf": bool(refined.max() <= res / 2),
@@ -207,7 +206,7 @@ def targets(result: dict) -> dict:
             "target": "<= half an octree cell (25 mm at 5 cm) vs the exact point-capsule distance, 10 k random poses",
             "poses": acc["poses"], "max_error_mm": acc["error_mm"]["max"], "half_cell_mm": acc["half_leaf_mm"],
             "pass": acc["within_half_leaf"] and acc["poses"] >= 10000,
-            "query": "WallOctree.exact_distance (settles the counts below the margins)",
+            "query": "WallOctree.exact_distance (the check itself still uses the octree reading)",
             "octree_reading_max_short_mm": acc["octree_short_mm"]["max"],
             "octree_reading_within_half_cell": acc["octree_short_mm"]["max"] <= acc["half_leaf_mm"],
             "note": "the report's least distances per link are still octree readings"}
