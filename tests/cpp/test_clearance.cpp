@@ -1,6 +1,6 @@
-// Clearance: point-shape distances in closed form, the FCL octree query against a brute-force
-// minimum over the wall's points, the self-check pairs, and check_clearance's bounded skipping
-// against a check of every sample.
+// Clearance: point-shape distances in closed form, the FCL octree query and the exact read-outs
+// (exact_distance, distance_below) against a brute-force minimum over the wall's points, the
+// self-check pairs, and check_clearance's bounded skipping against a check of every sample.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -139,17 +139,22 @@ TEST(Clearance, RobotShapesFramesAndSelfPairs) {
   }
 }
 
-// check_clearance's skipping gives the minima and counts of a check of every sample.
+// check_clearance's skipping gives the minima (within 10 mm above) and the counts of a check of
+// every sample, also for a link pair (checked against FCL's shape distance at every sample); in
+// stretches over two threads, the same result on every run.
 TEST(Clearance, BoundedSkippingEqualsEverySample) {
   const Robot robot = Robot::load(RobotConfig{});
-  // The arm swept by the slew and the boom: 400 samples at 50 Hz.
+  // The arm swept by the slew and the boom: 400 samples at 50 Hz, repeated 11 times (4400
+  // samples: two stretches, split inside a repeat).
+  constexpr int kPeriod = 400, kRepeats = 11;
   TimedTrajectory traj;
   const Eigen::VectorXd q0 = robot.neutral();
-  for (int k = 0; k < 400; ++k) {
+  for (int k = 0; k < kPeriod * kRepeats; ++k) {
+    const int i = k % kPeriod;
     Eigen::VectorXd q = q0;
-    q[0] += 1.2 * std::sin(k * 0.02);
-    q[1] = std::clamp(q0[1] + 0.6 * std::sin(k * 0.013), robot.lower_limits()[1], robot.upper_limits()[1]);
-    q[2] = std::clamp(1.5 + 1.5 * std::sin(k * 0.03), robot.lower_limits()[2], robot.upper_limits()[2]);
+    q[0] += 1.2 * std::sin(i * 0.02);
+    q[1] = std::clamp(q0[1] + 0.6 * std::sin(i * 0.013), robot.lower_limits()[1], robot.upper_limits()[1]);
+    q[2] = std::clamp(1.5 + 1.5 * std::sin(i * 0.03), robot.lower_limits()[2], robot.upper_limits()[2]);
     traj.t_s.push_back(k * 0.02);
     traj.q.push_back(q);
   }
@@ -161,12 +166,15 @@ TEST(Clearance, BoundedSkippingEqualsEverySample) {
   ClearanceConfig cfg;
   cfg.link_margin_m = 1.0;
   const ClearanceReport rep = check_clearance(robot, traj, tree, cfg);
-  // Every sample, every shape, no skipping.
+  // Every sample of one repeat, every shape and link pair, no skipping.
   const auto& shapes = robot.collision_shapes();
+  const auto pairs = self_check_pairs(robot);
   std::map<std::string, double> min_m;
   std::map<std::string, int> below;
-  for (std::size_t k = 0; k < traj.size(); ++k) {
-    const auto frames = robot.link_frames(traj.q[k]);
+  double self_min = std::numeric_limits<double>::infinity();
+  int self_below = 0;
+  for (int k = 0; k < kPeriod; ++k) {
+    const auto frames = robot.link_frames(traj.q[static_cast<std::size_t>(k)]);
     std::map<std::string, bool> b;
     for (const auto& s : shapes) {
       const double d = tree.distance(s, frames[s.frame]);
@@ -175,17 +183,39 @@ TEST(Clearance, BoundedSkippingEqualsEverySample) {
       b[s.link] = b[s.link] || d < margin;
     }
     for (const auto& [l, v] : b) below[l] += v ? 1 : 0;
+    bool sb = false;
+    for (const auto& [a, c] : pairs) {
+      const double d = shape_distance(shapes[a], frames[shapes[a].frame], shapes[c], frames[shapes[c].frame]);
+      self_min = std::min(self_min, d);
+      sb = sb || d < cfg.self_margin_m;
+    }
+    self_below += sb ? 1 : 0;
   }
   int total_below = 0;
   for (const auto& lc : rep.links) {
     EXPECT_GE(lc.min_m, min_m.at(lc.link) - 1e-12) << lc.link;  // a sample it skipped may be closer,
     EXPECT_LE(lc.min_m, min_m.at(lc.link) + 0.01) << lc.link;   // by less than the tolerance
-    EXPECT_EQ(lc.samples_below_margin, below.at(lc.link)) << lc.link;
+    EXPECT_EQ(lc.samples_below_margin, kRepeats * below.at(lc.link)) << lc.link;
     total_below += lc.samples_below_margin;
   }
+  EXPECT_GE(rep.self.min_m, self_min - 1e-12);
+  EXPECT_LE(rep.self.min_m, self_min + 0.01);
+  EXPECT_EQ(rep.self.samples_below_margin, kRepeats * self_below);
+  EXPECT_LT(rep.self_queries, static_cast<long long>(traj.size() * pairs.size()) / 4);  // b's motion relative to a
   EXPECT_GT(total_below, 0);                                       // the test exercises the count
   EXPECT_LT(rep.wall_queries, static_cast<long long>(traj.size() * shapes.size()));  // and the skipping
-  EXPECT_EQ(rep.samples, 400);
+  EXPECT_EQ(rep.samples, kPeriod * kRepeats);
+  // Deterministic: the stretches do not depend on the threads' timing.
+  const ClearanceReport again = check_clearance(robot, traj, tree, cfg);
+  ASSERT_EQ(again.links.size(), rep.links.size());
+  for (std::size_t l = 0; l < rep.links.size(); ++l) {
+    EXPECT_EQ(again.links[l].min_m, rep.links[l].min_m);
+    EXPECT_EQ(again.links[l].at_time_s, rep.links[l].at_time_s);
+    EXPECT_EQ(again.links[l].samples_below_margin, rep.links[l].samples_below_margin);
+  }
+  EXPECT_EQ(again.self.min_m, rep.self.min_m);
+  EXPECT_EQ(again.wall_queries, rep.wall_queries);
+  EXPECT_EQ(again.self_queries, rep.self_queries);
 }
 
 // A pose that puts the boom through the wall reads 0 for the boom and counts below the margin.

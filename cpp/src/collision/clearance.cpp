@@ -5,9 +5,16 @@
 #include <octomap/OcTree.h>
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/point_types.h>
+#ifdef _OPENMP
+#include <omp.h>
+#else
+inline int omp_get_thread_num() { return 0; }
+#endif
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <exception>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -78,6 +85,10 @@ constexpr double kMinTolerance_m = 0.01;
 // How far past the threshold a wall query looks: larger answers more samples per query, smaller
 // makes each query cheaper (bench_clearance.py).
 constexpr double kQuerySlack_m = 0.25;
+
+// The trajectory is checked in stretches of at least this many samples (at most kMaxChunks),
+// spread over kThreads threads: the machine's two cores.
+constexpr std::size_t kChunkSamples = 2048, kMaxChunks = 2, kThreads = 2;
 
 }  // namespace
 
@@ -227,6 +238,17 @@ int ClearanceReport::samples_below_margin() const {
 // ------------------------------------------------------------------------------------------------
 // check_clearance
 // ------------------------------------------------------------------------------------------------
+namespace {
+
+// One stretch of samples checked on its own (its first sample queries every shape and pair).
+struct ChunkResult {
+  std::vector<LinkClearance> links;
+  SelfClearance self;
+  long long wall_queries = 0, self_queries = 0;
+};
+
+}  // namespace
+
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -257,52 +279,100 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
 
   std::vector<std::array<Eigen::Vector3d, 8>> corners;
   for (const auto& s : shapes) corners.push_back(box_corners(s));
-  // Per shape and per pair: the distance at the last query less the motion since (a lower bound).
-  const double inf = std::numeric_limits<double>::infinity();
-  std::vector<double> wall_lower(shapes.size(), -inf), pair_lower(pairs.size(), -inf);
-  std::vector<Eigen::Isometry3d> prev;
-  std::vector<char> below(rep.links.size());
+  // Fixed stretches of samples, whatever the number of threads: the result (minima, counts,
+  // queries) depends on the trajectory only.
+  const std::size_t n_chunks = std::clamp<std::size_t>(n / kChunkSamples, 1, kMaxChunks);
+  std::vector<ChunkResult> results(n_chunks);
+  std::atomic<std::size_t> done{0};
   const std::size_t report_every = std::max<std::size_t>(1, n / 100);
-  for (std::size_t k = 0; k < n; ++k) {
-    if (progress && k % report_every == 0) progress("clearance", static_cast<double>(k) / static_cast<double>(n));
-    const auto frames = robot.link_frames(trajectory.q[k]);
-    std::vector<double> step(shapes.size(), 0.0);
-    if (!prev.empty())
-      for (std::size_t s = 0; s < shapes.size(); ++s)
-        step[s] = max_displacement(corners[s], frames[shapes[s].frame], prev[shapes[s].frame]);
-    std::fill(below.begin(), below.end(), 0);
-    for (std::size_t s = 0; s < shapes.size(); ++s) {
-      LinkClearance& lc = rep.links[static_cast<std::size_t>(link_of[s])];
-      const double lower = wall_lower[s] -= step[s];
-      // Skipped when it can be neither below the margin nor more than the tolerance below the
-      // least distance so far: counts exact, minima within kMinTolerance_m.
-      if (lower >= lc.margin_m && lower >= lc.min_m - kMinTolerance_m) continue;
-      // Asked only up to the threshold plus a slack: "at least that far" is all the skipping
-      // needs, and the bound makes FCL's traversal several times faster.
-      const double threshold = std::max(lc.min_m, lc.margin_m);
-      const double at_most = std::isfinite(threshold) ? threshold + kQuerySlack_m : std::numeric_limits<double>::max();
-      Eigen::Vector3d closest;
-      const double d = wall.distance(shapes[s], frames[shapes[s].frame], &closest, at_most);
-      ++rep.wall_queries;
-      wall_lower[s] = d;
-      if (d < lc.min_m) lc.min_m = d, lc.at_time_s = trajectory.t_s[k], lc.closest_m = closest;
-      if (d < lc.margin_m) below[static_cast<std::size_t>(link_of[s])] = 1;
+  std::exception_ptr failure;
+  std::mutex failure_mutex;
+
+  auto run_chunk = [&](std::size_t c, bool reports) {
+    const std::size_t begin = n * c / n_chunks, end = n * (c + 1) / n_chunks;
+    ChunkResult& out = results[c];
+    out.links = rep.links;
+    out.self = rep.self;
+    // Per shape and per pair: the distance at the last query and the poses then. The distance now
+    // is at least that less how far the shape has moved since (the farthest corner of its
+    // bounding box from where it was: every point of a rigid shape moves at most that far).
+    const double inf = std::numeric_limits<double>::infinity();
+    std::vector<double> wall_at(shapes.size(), -inf), pair_at(pairs.size(), -inf);
+    std::vector<Eigen::Isometry3d> wall_pose(shapes.size());
+    std::vector<Eigen::Isometry3d> pair_pose(pairs.size());  // b relative to a
+    std::vector<char> below(out.links.size());
+    for (std::size_t k = begin; k < end; ++k) {
+      const std::size_t count = done.fetch_add(1, std::memory_order_relaxed);
+      if (reports && progress && count % report_every == 0) progress("clearance", static_cast<double>(count) / static_cast<double>(n));
+      const auto frames = robot.link_frames(trajectory.q[k]);
+      auto moved = [&](std::size_t s, const Eigen::Isometry3d& then) {
+        return max_displacement(corners[s], frames[shapes[s].frame], then);
+      };
+      std::fill(below.begin(), below.end(), 0);
+      for (std::size_t s = 0; s < shapes.size(); ++s) {
+        LinkClearance& lc = out.links[static_cast<std::size_t>(link_of[s])];
+        // Skipped when it can be neither below the margin nor more than the tolerance below the
+        // least distance so far: counts exact, minima within kMinTolerance_m.
+        const double threshold = std::max(lc.margin_m, lc.min_m - kMinTolerance_m);
+        if (wall_at[s] - threshold > 0 && wall_at[s] - moved(s, wall_pose[s]) >= threshold) continue;
+        const Eigen::Isometry3d& pose = frames[shapes[s].frame];
+        // Asked only up to the threshold plus a slack: "at least that far" is all the skipping
+        // needs, and the bound makes FCL's traversal several times faster.
+        Eigen::Vector3d closest;
+        double d = wall.distance(shapes[s], pose, &closest, std::isfinite(threshold) ? threshold + kQuerySlack_m : std::numeric_limits<double>::max());
+        ++out.wall_queries;
+        wall_pose[s] = pose;
+        wall_at[s] = d;
+        if (d < lc.min_m) lc.min_m = d, lc.at_time_s = trajectory.t_s[k], lc.closest_m = closest;
+        if (d < lc.margin_m) below[static_cast<std::size_t>(link_of[s])] = 1;
+      }
+      for (std::size_t l = 0; l < out.links.size(); ++l) out.links[l].samples_below_margin += below[l];
+      bool self_below = false;
+      const double self_threshold = std::max(config.self_margin_m, out.self.min_m - kMinTolerance_m);
+      for (std::size_t p = 0; p < pairs.size(); ++p) {
+        const auto [a, b] = pairs[p];
+        const auto ua = static_cast<std::size_t>(a), ub = static_cast<std::size_t>(b);
+        // Their distance depends on b's pose relative to a only: b's motion in a's frame bounds it.
+        const Eigen::Isometry3d relative = frames[shapes[ua].frame].inverse() * frames[shapes[ub].frame];
+        if (pair_at[p] - self_threshold > 0 &&
+            pair_at[p] - max_displacement(corners[ub], relative, pair_pose[p]) >=
+                std::max(config.self_margin_m, out.self.min_m - kMinTolerance_m))
+          continue;
+        const double d = shape_distance(shapes[ua], frames[shapes[ua].frame], shapes[ub], frames[shapes[ub].frame]);
+        ++out.self_queries;
+        pair_at[p] = d;
+        pair_pose[p] = relative;
+        if (d < out.self.min_m)
+          out.self.min_m = d, out.self.at_time_s = trajectory.t_s[k], out.self.link_a = shapes[ua].link, out.self.link_b = shapes[ub].link;
+        self_below = self_below || d < config.self_margin_m;
+      }
+      out.self.samples_below_margin += self_below ? 1 : 0;
     }
-    for (std::size_t l = 0; l < rep.links.size(); ++l) rep.links[l].samples_below_margin += below[l];
-    bool self_below = false;
-    for (std::size_t p = 0; p < pairs.size(); ++p) {
-      const auto [a, b] = pairs[p];
-      const double lower = pair_lower[p] -= step[static_cast<std::size_t>(a)] + step[static_cast<std::size_t>(b)];
-      if (lower >= config.self_margin_m && lower >= rep.self.min_m - kMinTolerance_m) continue;
-      const double d = shape_distance(shapes[a], frames[shapes[a].frame], shapes[b], frames[shapes[b].frame]);
-      ++rep.self_queries;
-      pair_lower[p] = d;
-      if (d < rep.self.min_m)
-        rep.self.min_m = d, rep.self.at_time_s = trajectory.t_s[k], rep.self.link_a = shapes[a].link, rep.self.link_b = shapes[b].link;
-      self_below = self_below || d < config.self_margin_m;
+  };
+  const int threads = static_cast<int>(std::min<std::size_t>(n_chunks, kThreads));
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) if (threads > 1)
+  for (long c = 0; c < static_cast<long>(n_chunks); ++c) {
+    try {
+      run_chunk(static_cast<std::size_t>(c), omp_get_thread_num() == 0);  // progress from the caller's thread only
+    } catch (...) {
+      const std::lock_guard<std::mutex> lock(failure_mutex);
+      if (!failure) failure = std::current_exception();
     }
-    rep.self.samples_below_margin += self_below ? 1 : 0;
-    prev = frames;
+  }
+  if (failure) std::rethrow_exception(failure);
+  // Merged in sample order: the earliest of equal minima wins, as in one pass.
+  for (const ChunkResult& c : results) {
+    for (std::size_t l = 0; l < rep.links.size(); ++l) {
+      LinkClearance& to = rep.links[l];
+      const LinkClearance& from = c.links[l];
+      if (from.min_m < to.min_m) to.min_m = from.min_m, to.at_time_s = from.at_time_s, to.closest_m = from.closest_m;
+      to.samples_below_margin += from.samples_below_margin;
+    }
+    if (c.self.min_m < rep.self.min_m)
+      rep.self.min_m = c.self.min_m, rep.self.at_time_s = c.self.at_time_s, rep.self.link_a = c.self.link_a, rep.self.link_b = c.self.link_b;
+    rep.self.samples_below_margin += c.self.samples_below_margin;
+    rep.wall_queries += c.wall_queries;
+    rep.self_queries += c.self_queries;
   }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (progress) progress("clearance", 1.0);

@@ -27,6 +27,10 @@ struct Robot::Impl {
   double max_reach_m = 0.0;
   std::vector<std::string> link_names;  // base_link, then the child link of each chain segment
   std::vector<CollisionShape> shapes;
+  // Per chain segment: the frame from its joint to its tip. KDL's Joint::pose caches the last
+  // rotation in the chain itself, so link_frames (run from several threads by check_clearance)
+  // composes the joints' poses from these without it.
+  std::vector<KDL::Frame> segment_tip;
 };
 
 namespace robot_detail {

@@ -152,6 +152,7 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
   Impl& im = *robot.impl_;
   if (!tree.getChain("base_link", "nozzle_tip", im.chain))
     throw std::invalid_argument("URDF: no kinematic chain from base_link to nozzle_tip");
+  for (const auto& seg : im.chain.segments) im.segment_tip.push_back(seg.getJoint().pose(0.0).Inverse() * seg.getFrameToTip());
   const auto acc = parse_extra_limits(xml);
   const int n = static_cast<int>(im.chain.getNrOfJoints());
   if (n < 5) throw std::invalid_argument("URDF: the chain has " + std::to_string(n) + " joints; a 5-DOF task needs >= 5");
@@ -282,9 +283,14 @@ std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q) cons
   out.push_back(impl_->base);
   KDL::Frame f = KDL::Frame::Identity();
   int j = 0;
-  for (const auto& seg : impl_->chain.segments) {
-    const bool moving = seg.getJoint().getType() != KDL::Joint::None;
-    f = f * seg.pose(moving ? q[j++] : 0.0);
+  for (std::size_t i = 0; i < impl_->chain.segments.size(); ++i) {
+    const KDL::Joint& joint = impl_->chain.segments[i].getJoint();
+    const double qi = joint.getType() != KDL::Joint::None ? q[j++] : 0.0;
+    // Joint::pose(q) without its cache (kdl_parser's joints: axis joints, unit scale, no offset).
+    const KDL::Frame at_joint = joint.getType() == KDL::Joint::RotAxis
+                                    ? KDL::Frame(KDL::Rotation::Rot2(joint.JointAxis(), qi), joint.JointOrigin())
+                                    : joint.pose(qi);
+    f = f * at_joint * impl_->segment_tip[i];
     out.push_back(impl_->base * to_eigen(f));
   }
   return out;

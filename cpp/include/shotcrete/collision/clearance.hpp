@@ -87,11 +87,13 @@ struct ClearanceReport {
   int samples_below_margin() const;  // over the links and the self check
 };
 
-/// The space allowance along `trajectory`. A sample is checked exactly unless a lower bound proves
-/// it cannot set a new minimum or fall below the margin: the distance at the last exact query less
-/// how far the shape has moved since (every point of a rigid shape moves at most as far as the
-/// farthest corner of its bounding box). The counts below the margins are therefore those of a
-/// check of every sample, and the minima lie within 10 mm above its minima.
+/// The space allowance along `trajectory`. A sample is checked unless a lower bound proves it
+/// cannot set a new minimum or fall below the margin: the distance at the last query less how far
+/// the shape has moved since (every point of a rigid shape moves at most as far as the farthest
+/// corner of its bounding box; a link pair's distance changes by at most b's motion relative to
+/// a). The counts below the margins are therefore those of a check of every sample, and the
+/// minima lie within 10 mm above its minima. Two fixed stretches of the trajectory run on two
+/// threads: the result does not depend on their timing.
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress = {});
 
