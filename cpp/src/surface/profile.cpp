@@ -194,48 +194,6 @@ Eigen::Vector3d design_normal(const TunnelAxis& axis, const DesignProfile& profi
   return n.x() * axis.ey + n.y() * axis.ez;
 }
 
-std::vector<SectionVertex> read_section_csv(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw std::invalid_argument("design section: cannot open " + path);
-  std::vector<SectionVertex> out;
-  std::string line;
-  int number = 0;
-  while (std::getline(in, line)) {
-    ++number;
-    const auto first = line.find_first_not_of(" \t\r");
-    if (first == std::string::npos || line[first] == '#') continue;
-    std::vector<std::string> cols;
-    std::stringstream ss(line);
-    std::string c;
-    while (std::getline(ss, c, ',')) cols.push_back(c);
-    auto trim = [](std::string v) {
-      const auto b = v.find_first_not_of(" \t\r"), e = v.find_last_not_of(" \t\r");
-      return b == std::string::npos ? std::string() : v.substr(b, e - b + 1);
-    };
-    for (auto& v : cols) v = trim(v);
-    if (out.empty() && !cols.empty() && cols[0] == "y_m") continue;  // header
-    if (cols.size() < 2 || cols.size() > 3)
-      throw std::invalid_argument("design section " + path + ", line " + std::to_string(number) +
-                                  ": expected y_m,z_m[,bulge], got '" + trim(line) + "'");
-    SectionVertex v;
-    double* dst[3] = {&v.y_m, &v.z_m, &v.bulge};
-    for (std::size_t j = 0; j < cols.size(); ++j) {
-      std::size_t used = 0;
-      try {
-        *dst[j] = std::stod(cols[j], &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used == 0 || used != cols[j].size() || !std::isfinite(*dst[j]))
-        throw std::invalid_argument("design section " + path + ", line " + std::to_string(number) + ": '" + cols[j] +
-                                    "' is not a number");
-    }
-    out.push_back(v);
-  }
-  if (out.empty()) throw std::invalid_argument("design section " + path + ": no vertices");
-  return out;
-}
-
 namespace {
 // Splits a CSV data line into trimmed cells (empty for blank and '#' lines).
 std::vector<std::string> csv_cells(const std::string& line) {
@@ -268,6 +226,25 @@ double csv_number(const std::string& cell, const std::string& where) {
   return v;
 }
 }  // namespace
+
+std::vector<SectionVertex> read_section_csv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::invalid_argument("design section: cannot open " + path);
+  std::vector<SectionVertex> out;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    const std::vector<std::string> cols = csv_cells(line);
+    if (cols.empty() || (out.empty() && cols[0] == "y_m")) continue;  // blank, comment, header
+    const std::string where = "design section " + path + ", line " + std::to_string(number);
+    if (cols.size() < 2 || cols.size() > 3) throw std::invalid_argument(where + ": expected y_m,z_m[,bulge]");
+    out.push_back({csv_number(cols[0], where), csv_number(cols[1], where), cols.size() == 3 ? csv_number(cols[2], where) : 0.0});
+  }
+  if (out.empty()) throw std::invalid_argument("design section " + path + ": no vertices");
+  return out;
+}
+
 
 std::vector<AlignmentPoint> read_alignment_csv(const std::string& path) {
   std::ifstream in(path);
