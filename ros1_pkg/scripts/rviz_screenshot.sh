@@ -45,7 +45,14 @@ xvfb-run -a -s "-screen 0 1280x900x24" bash -c '
     echo "[screenshot] rescan: $(printf "%s" "$status" | /usr/bin/python3 -c "import json, sys; s = json.load(sys.stdin); print(\"flow factor\", s[\"calibration\"].get(\"flow_factor\"), \"layer mm\", round(s[\"thickness_mm\"][\"mean\"], 1), \"corrective passes\", (s[\"correction\"] or {}).get(\"passes\"))" 2>/dev/null || printf "%.200s" "$status")"
   fi
   sleep "$SHOT_DELAY_S"
-  import -window root "$SHOT_OUT"
+  # rviz can take a while for its first frame on a loaded machine: a screen of one colour is
+  # taken again (up to 4 times, 10 s apart); the check below judges the last shot.
+  for attempt in 1 2 3 4; do
+    import -window root "$SHOT_OUT"
+    [ "$(convert "$SHOT_OUT" -format "%k" info:)" -gt 50 ] && break
+    echo "[screenshot] shot $attempt is one colour (rviz not drawn yet); again in 10 s"
+    sleep 10
+  done
 '
 
 # Not blank: background (40, 40, 48) and the floor grid are grey; the robot, the TD-coloured wall
