@@ -506,3 +506,34 @@ TEST(RegionSpray, PumpSpellsAndRampsKeepTheVolume) {
   // Each switch ramps over ramp_s: about ramp_s * rate samples at part flow per switch.
   EXPECT_GE(ramping, spray.flow.switches() * static_cast<int>(0.9 * cfg.flow.ramp_s / dt));
 }
+
+// The profile of a region's pieces (library-internal, timing/detail.hpp).
+#include "../../cpp/src/timing/detail.hpp"
+
+TEST(RegionProfile, AnEasedTurnSlowsItsArcEvenBelowTheCentripetalCap) {
+  // Passes at 0.1 m/s joined by a half circle of radius 0.1 m: the cap sqrt(0.5 x 0.1) = 0.22 m/s
+  // lies above the pass speed, so the arc runs at the pass speed. A gap eased to a quarter of its
+  // accelerations (time_region_within_limits) must slow the arc by sqrt(1/4), so its centripetal
+  // acceleration v^2 / r eases with the scale too (it did not: a graded demo kept a turn 1.1 %
+  // over a joint acceleration limit through every easing).
+  using namespace shotcrete;
+  using timing_detail::PieceSpec;
+  const TimingParams params = TimingParams::from_config(TimingConfig{});
+  auto arc_min_speed = [&](double scale) {
+    const double r = 0.1, v = 0.1;
+    std::vector<PieceSpec> specs = {
+        {SegmentKind::Lead, 0.3, v, v, {}, {}, PieceMotion::ByKind, 1.0},
+        {SegmentKind::Pass, 1.0, v, v, {}, {}, PieceMotion::ByKind, 1.0},
+        {SegmentKind::Turn, M_PI * r, v, v, {}, {}, PieceMotion::ByKind, scale},
+        {SegmentKind::Pass, 1.0, v, v, {}, {}, PieceMotion::ByKind, 1.0},
+        {SegmentKind::Lead, 0.3, v, v, {}, {}, PieceMotion::ByKind, 1.0}};
+    const SpeedProfile prof = timing_detail::profile_from_specs(specs, params);
+    // Lowest speed between the end of the first pass and the start of the second (the arc).
+    double lo = 1e9;
+    const double s0 = 1.3, s1 = 1.3 + M_PI * r;
+    for (double s = s0 + 1e-3; s < s1 - 1e-3; s += 1e-3) lo = std::min(lo, prof.at(prof.time_at_distance(s)).v_mps);
+    return lo;
+  };
+  EXPECT_NEAR(arc_min_speed(1.0), 0.1, 1e-9);
+  EXPECT_NEAR(arc_min_speed(0.25), 0.05, 1e-6);
+}

@@ -59,7 +59,11 @@ SpeedPiece change_over(double v0, double v1, double length_m) {
 double turn_speed_of(const std::vector<PieceSpec>& specs, std::size_t j, const TimingParams& params) {
   const double turn_accel = params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2;
   const auto& t = specs[j];
-  return turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps, t.accel_scale * turn_accel);
+  const double v = turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps, t.accel_scale * turn_accel);
+  // An eased gap (accel_scale < 1, time_region_within_limits) whose arc would run at the pass
+  // speeds under the cap: slow the arc too, so its centripetal part eases with the scale.
+  if (!(v > 0.0) && t.accel_scale < 1.0) return std::sqrt(t.accel_scale) * std::max(t.v_in, t.v_out);
+  return v;
 }
 bool turn_with_own_speed(const std::vector<PieceSpec>& specs, std::size_t j, const TimingParams& params) {
   return specs[j].kind == SegmentKind::Turn && turn_speed_of(specs, j, params) > 0.0;
