@@ -31,8 +31,7 @@ def register(app: typer.Typer) -> None:
                 ox, oy = (float(v) for v in origin.split(","))
             except ValueError:
                 raise ValueError(f"--origin {origin!r}: expected 'X,Y'") from None
-            verts = sec.read_section(path, layer=layer, units=units, origin=(ox, oy), mirror=mirror) \
-                if path.suffix.lower() == ".dxf" else sec.read_section(path)
+            verts = sec.read_section(path, layer=layer, units=units, origin=(ox, oy), mirror=mirror)
             profile = _core.DesignProfile.from_section(verts)
             refuse_overwrite(out, force, "--out")
             refuse_overwrite(plot, force, "--plot")

@@ -40,7 +40,9 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         cloud = cloud() if callable(cloud) else cloud
         given_cloud, given_config = cloud, config  # provenance: what the user gave
         # profile.alignment_path: the axis where the scan lies, in the input's frame (double precision).
-        config, on_alignment = _core.with_alignment_axis(config, np.asarray(cloud.xyz) * config.io.unit_scale)
+        on_alignment = None
+        if config.profile.alignment_path:  # (no copy of a large cloud in metres otherwise)
+            config, on_alignment = _core.with_alignment_axis(config, np.asarray(cloud.xyz) * config.io.unit_scale)
         frame = LocalFrame.of(cloud, config)  # survey coordinates: run in a local frame, write back
         cloud, config = frame.to_local(cloud, config)
         surface, timings = surface_step(cloud, config, progress)

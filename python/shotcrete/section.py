@@ -55,7 +55,8 @@ def read_dxf_section(path: str | Path, layer: str | None = None, units: str = "m
 
 
 def read_section(path: str | Path, **dxf_options) -> list[_core.SectionVertex]:
-    """Vertices of a section file: .dxf (``read_dxf_section``) or the CSV (``_core.read_section_csv``)."""
+    """Vertices of a section file: .dxf (``read_dxf_section`` with ``dxf_options``) or the CSV
+    (``_core.read_section_csv``; the DXF options do not apply)."""
     if Path(path).suffix.lower() == ".dxf":
         return read_dxf_section(path, **dxf_options)
     return _core.read_section_csv(str(path))

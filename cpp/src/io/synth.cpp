@@ -18,8 +18,7 @@ SyntheticBay make_synthetic_bay(const SynthConfig& c) {
   pc.design_radius_m = c.design_radius_m;
   pc.section_path = c.section_path;
   bay.profile = design_profile_from_config(pc);
-  if (!bay.profile.is_circle() &&
-      !(std::max(c.theta_min_rad, bay.profile.theta_min_rad()) < std::min(c.theta_max_rad, bay.profile.theta_max_rad())))
+  if (const auto [th0, th1] = bay.wall_theta_span(); !bay.profile.is_circle() && !(th0 < th1))
     throw std::invalid_argument("synth: synth.theta_min_rad..theta_max_rad misses the section's span");
   std::mt19937_64 rng(c.seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
@@ -33,6 +32,10 @@ SyntheticBay make_synthetic_bay(const SynthConfig& c) {
     bay.pits.push_back(p);
   }
   return bay;
+}
+
+std::pair<double, double> SyntheticBay::wall_theta_span() const {
+  return {std::max(config.theta_min_rad, profile.theta_min_rad()), std::min(config.theta_max_rad, profile.theta_max_rad())};
 }
 
 double SyntheticBay::td_at(double d_m, double theta_rad) const {
@@ -52,7 +55,7 @@ double SyntheticBay::td_at(double d_m, double theta_rad) const {
 
 Cloud SyntheticBay::sample(double cell_size_m) const {
   const auto& c = config;
-  const double th0 = std::max(c.theta_min_rad, profile.theta_min_rad()), th1 = std::min(c.theta_max_rad, profile.theta_max_rad());
+  const auto [th0, th1] = wall_theta_span();
   const double arc = (th1 - th0) * profile.radius_m;
   const auto n = static_cast<Eigen::Index>(std::llround(arc * c.length_m / (cell_size_m * cell_size_m) * c.points_per_cell));
   if (n < 1) throw std::invalid_argument("synth: the bay would have no points");
@@ -235,7 +238,7 @@ AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Ei
     out.true_thickness_m[cell] = sum / 64.0;
   }
   // The sprayed bay, sampled afresh.
-  const double th0 = std::max(c.theta_min_rad, prof.theta_min_rad()), th1 = std::min(c.theta_max_rad, prof.theta_max_rad());
+  const auto [th0, th1] = bay.wall_theta_span();
   const double arc = (th1 - th0) * R;
   const double cs = config.grid.cell_size_m;
   const long n = std::lround(arc * c.length_m / (cs * cs) * c.after_points_per_cell);

@@ -53,6 +53,12 @@ TunnelAxis axis_from_config(const ProfileConfig& config) {
 
 namespace {
 
+std::string fmt(double v, int decimals) {
+  std::ostringstream o;
+  o << std::fixed << std::setprecision(decimals) << v;
+  return o.str();
+}
+
 double cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) { return a.x() * b.y() - a.y() * b.x(); }
 
 // theta of a section-plane point in the frame's convention: [-pi/2, 3pi/2), the cut at the invert.
@@ -208,11 +214,6 @@ std::vector<std::string> csv_cells(const std::string& line) {
   }
   return cols;
 }
-std::string fixed(double v, int decimals) {
-  std::ostringstream o;
-  o << std::fixed << std::setprecision(decimals) << v;
-  return o.str();
-}
 double csv_number(const std::string& cell, const std::string& where) {
   std::size_t used = 0;
   double v = 0.0;
@@ -298,12 +299,12 @@ AxisOnAlignment axis_on_alignment(const std::vector<AlignmentPoint>& a, const Ei
   std::ostringstream where;
   where << std::fixed << std::setprecision(1) << "(" << centre_m.x() << ", " << centre_m.y() << ", " << centre_m.z() << ")";
   if (best > max_offset_m)
-    throw std::invalid_argument("alignment: the scan's centre " + where.str() + " lies " + fixed(best, 1) +
-                                " m from the alignment (more than " + fixed(max_offset_m, 1) +
+    throw std::invalid_argument("alignment: the scan's centre " + where.str() + " lies " + fmt(best, 1) +
+                                " m from the alignment (more than " + fmt(max_offset_m, 1) +
                                 " m): another tunnel, or the alignment is not in the scan's coordinates");
   if (c <= a.front().chainage_m || c >= a.back().chainage_m)
     throw std::invalid_argument("alignment: the scan lies beyond the alignment's end (chainage " +
-                                fixed(a.front().chainage_m, 2) + ".." + fixed(a.back().chainage_m, 2) + " m)");
+                                fmt(a.front().chainage_m, 2) + ".." + fmt(a.back().chainage_m, 2) + " m)");
   AxisOnAlignment out;
   out.chainage_m = c;
   out.scan_offset_m = best;
@@ -374,11 +375,6 @@ DesignProfile design_profile_from_config(const ProfileConfig& config) {
 
 namespace {
 
-std::string fmt(double v, int decimals) {
-  std::ostringstream o;
-  o << std::fixed << std::setprecision(decimals) << v;
-  return o.str();
-}
 
 /// Axis direction from the normals: the eigenvector of N^T N with the smallest eigenvalue (wall
 /// normals of a cylinder are perpendicular to its axis), refitted twice without the normals tilted

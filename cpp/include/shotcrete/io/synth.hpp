@@ -1,6 +1,7 @@
 #pragma once
 // Synthetic tunnel bay: a half-cylinder wall outside the design line by a base over-break plus
 // random dig pits dT = Tmax (1 - d^2/D^2)^alpha, sampled with radial scanner noise. Seeded.
+#include <utility>
 #include <vector>
 
 #include "shotcrete/config.hpp"
@@ -23,6 +24,8 @@ struct SyntheticBay {
   TunnelAxis axis;  // x axis through the origin
   DesignProfile profile;  // the circle of synth.design_radius_m, or the section of synth.section_path
 
+  /// The wall's theta range: synth.theta_min_rad..theta_max_rad within the design line's span.
+  std::pair<double, double> wall_theta_span() const;
   /// Noise-free TD (m) of the wall at (d, theta): over-break, pits, less the protrusion.
   double td_at(double d_m, double theta_rad) const;
   /// Points on the wall with radial noise; about points_per_cell per cell of `cell_size_m`. On a
