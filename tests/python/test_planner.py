@@ -160,3 +160,19 @@ def _check_cycle_time(report, traj, config):
     tr = report["trajectory"]
     assert tr["max_nozzle_speed_ratio"] == pytest.approx(speed, rel=0.05)
     assert tr["max_nozzle_accel_ratio"] == pytest.approx(accel, rel=0.25)  # a gradient of a gradient is coarser
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_graded_mode_leaves_no_cell_overfilled_on_the_default_bay(seed):
+    # Issue 15: the thesis method on seeds 1-3 of the default bay leaves no cell at level -1
+    # (the planner's deposit, which follows the timed path and the pump; the executed deposit
+    # differs by well under a millimetre RMS, test_executed.py). The thesis's objective as
+    # written left 123 / 14 / 51 cells below -50 mm here.
+    cfg = shotcrete.load_config()
+    cfg.synth.seed = seed
+    cfg.planner.mode = "graded"
+    surface = shotcrete.build_surface(shotcrete.synthetic_cloud(cfg), cfg)
+    valid = np.asarray(surface.grid.valid).reshape(-1)
+    plan = shotcrete.plan_bay(surface, cfg)
+    r_mm = np.asarray(plan.td_after_m)[valid] * 1000.0
+    assert r_mm.min() >= -50.0, f"seed {seed}: {int(np.sum(r_mm < -50))} cells below -50 mm, min {r_mm.min():.1f} mm"

@@ -114,6 +114,9 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("finish_tolerance_m", &PlannerConfig::finish_tolerance_m, 0.001, 0.05, "optimal mode: flush tolerance [m]");
   f("edge_overrun_m", &PlannerConfig::edge_overrun_m, 0.0, 0.5, "pass run-on past the bay ends [m]");
   f("levelling_spacing_ratio", &PlannerConfig::levelling_spacing_ratio, 0.2, 1.0, "optimal mode: pass spacing / two-pass spacing");
+  f("graded_thesis_objective", &PlannerConfig::graded_thesis_objective, 0, 0, "graded mode: the thesis's speed objective as written (one target per region, no over-fill guard)");
+  f("graded_overfill_allowance_m", &PlannerConfig::graded_overfill_allowance_m, 0.0, 0.05, "graded mode: fill past flush a cell may take before it counts as over-filled [m]");
+  f("graded_guard_weight", &PlannerConfig::graded_guard_weight, 0.0, 1e4, "graded mode: cost of over-fill past the allowance per unit off target (0: no guard)");
 }
 template <class F> void visit(OrderingConfig*, F&& f) {
   f("method", &OrderingConfig::method, 0, 0, "aco | ga | nn | exact | best");

@@ -18,12 +18,37 @@ struct PassSpeeds {
   std::string note;                // why the target cannot be met, if so
 };
 
-/// BOBYQA speeds of the passes of one region: minimise sum |Td - T_c(v)| over the region's cells.
-/// unit_per_pass[j][slot]: thickness on a cell slot from pass j at 1 m/s; slots: the region's cells.
-/// v_max: per pass upper bound (the machine's speed cap, at most max_speed_mps, above min_speed_mps).
-/// One pass is solved exactly by a golden-section search. Throws std::runtime_error if NLopt fails.
-PassSpeeds optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const std::vector<int>& slots,
-                           double target_m, const PlannerConfig& cfg, const std::vector<double>& v_max);
+/// What the passes of one region should lay, per cell slot (unit_per_pass's index).
+struct SpeedTargets {
+  std::vector<int> slots;            // the region's cells
+  std::vector<double> target_m;      // per region slot: the thickness it should get
+  std::vector<int> guard_slots;      // cells kept from over-filling (what the passes reach outside the
+                                     // region; in the last round also the region's own cells)
+  std::vector<double> guard_max_m;   // per guard slot: the most it may get before it is over-filled
+  double guard_weight = 1.0;         // cost of a metre over a guard limit, relative to a metre off target
+};
+
+/// BOBYQA speeds of the passes of one region: minimise
+///   sum_region |t_c - T_c(v)| + guard_weight * sum_guard max(0, T_c(v) - max_c)
+/// (the thesis's sum |Td - T_s(V)|, with a target per cell, and the cells around the region that
+/// its spray reaches kept from over-filling). unit_per_pass[j][slot]: thickness on a cell slot from
+/// pass j at 1 m/s. v_max: per pass upper bound (the machine's speed cap, at most max_speed_mps,
+/// above min_speed_mps). One pass is solved exactly by a golden-section search. Throws
+/// std::invalid_argument on an ill-posed problem, std::runtime_error if NLopt fails.
+PassSpeeds optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const SpeedTargets& targets,
+                           const PlannerConfig& cfg, const std::vector<double>& v_max);
+
+/// Part of a pass with the machine's speed cap: at the pass's dwell w [s/m] (1 / speed) it lays
+/// unit * max(w, w_floor_s_per_m), for the arm slows to its cap there whatever the pass speed
+/// (w_floor = 1 / cap; 0 for the part where no cap binds).
+struct PassPart {
+  std::size_t pass = 0;
+  double w_floor_s_per_m = 0.0;
+  Eigen::VectorXd unit;  // thickness per cell slot at 1 m/s
+};
+/// The same with passes given as parts (each pass needs at least one).
+PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_passes, const SpeedTargets& targets,
+                           const PlannerConfig& cfg, const std::vector<double>& v_max);
 
 // ---------------------------------------------------------------------------------------------
 // Levelling rounds: one dwell per segment
