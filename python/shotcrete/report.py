@@ -191,7 +191,7 @@ def _bay_note(bay) -> str:
     if not bay:
         return ""
     whole = abs(bay["start_m"] - bay["scan_start_m"]) < 1e-9 and abs(bay["end_m"] - bay["scan_end_m"]) < 1e-9
-    left_out = bay.get("points_outside_bay", 0) + bay.get("points_not_wall", 0)
+    left_out = bay.get("points_outside_bay", 0) + bay.get("points_not_wall", 0) + bay.get("points_obstacle", 0)
     if whole and left_out == 0:
         return ""
     how = {"detect": "detected: the stretch that is not lining", "range": "grid.bay_start_m..bay_end_m",
@@ -199,7 +199,8 @@ def _bay_note(bay) -> str:
     return html.escape(f"; chainage {bay['start_m']:.2f}..{bay['end_m']:.2f} m of the scan's "
                        f"{bay['scan_start_m']:.2f}..{bay['scan_end_m']:.2f} m ({how}); "
                        f"{left_out:,} points near the design line left out of the grid "
-                       f"({bay.get('points_not_wall', 0):,} facing away from the axis: face, floor)")
+                       f"({bay.get('points_not_wall', 0):,} facing away from the axis: face, floor; "
+                       f"{bay.get('points_obstacle', 0):,} in front of the wall: duct)")
 
 
 def fmt_sig(value: float, sig: int = 3) -> str:

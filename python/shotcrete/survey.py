@@ -16,24 +16,21 @@ import numpy as np
 
 from . import _core
 
-ORIGIN_STEP_M = 100.0
-FAR_M = 1000.0  # a config point farther than this from a shifted cloud was not given in its frame
+ORIGIN_STEP_M = 100.0  # the core's kLocalOriginStepM
+FAR_M = 1000.0  # the core's kFarFromCloudM: a config point farther than this from a shifted cloud was not given in its frame
 
 
 def local_origin(xyz_m: np.ndarray) -> np.ndarray:
     """The bounding box centre of ``xyz_m`` (N, 3) in metres, rounded to whole ORIGIN_STEP_M
-    (non-finite points ignored; (0, 0, 0) for a cloud without finite points)."""
-    xyz = np.asarray(xyz_m, dtype=np.float64)
-    finite = xyz[np.isfinite(xyz).all(axis=1)] if len(xyz) else xyz
-    if len(finite) == 0:
-        return np.zeros(3)
-    centre = (finite.min(axis=0) + finite.max(axis=0)) / 2.0
-    return np.round(centre / ORIGIN_STEP_M) * ORIGIN_STEP_M + 0.0  # + 0.0: no -0.0 in reports
+    (non-finite points ignored; (0, 0, 0) for a cloud without finite points). The core computes it."""
+    xyz = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+    return np.asarray(_core.local_origin(xyz))
 
 
 @dataclass(frozen=True)
 class LocalFrame:
-    """input frame (metres) = local frame + origin_m."""
+    """input frame (metres) = local frame + origin_m. The origin and the shift are the core's
+    (``_core.local_frame_origin``, ``_core.to_local_frame``), which the ROS node calls too."""
 
     origin_m: np.ndarray
 
@@ -41,47 +38,18 @@ class LocalFrame:
     def of(cloud: _core.Cloud, config: _core.Config) -> "LocalFrame":
         """The local frame of a cloud in its input units (config.io.unit_scale); none (origin 0)
         for a cloud wider than io.max_extent_m, which the surface stage refuses with a units hint."""
-        xyz_m = np.asarray(cloud.xyz) * config.io.unit_scale
-        finite = xyz_m[np.isfinite(xyz_m).all(axis=1)] if len(xyz_m) else xyz_m
-        if len(finite) and np.ptp(finite, axis=0).max() > config.io.max_extent_m:
-            return LocalFrame(np.zeros(3))
-        return LocalFrame(local_origin(xyz_m))
+        return LocalFrame(np.asarray(_core.local_frame_origin(cloud.xyz, config.io)))
 
     @property
     def shifted(self) -> bool:
         return bool(np.any(self.origin_m != 0.0))
 
     def to_local(self, cloud: _core.Cloud, config: _core.Config) -> tuple[_core.Cloud, _core.Config]:
-        """The cloud (in its input units) and a copy of the config, both moved into the local frame."""
+        """The cloud (in its input units) and a copy of the config, both moved into the local frame;
+        ValueError naming the key when the robot base or the given axis lies far from the cloud."""
         if not self.shifted:
             return cloud, config
-        self._check_config_near(config)
-        local = _moved(cloud, -self.origin_m / config.io.unit_scale)
-        cfg = config.copy()
-        cfg.profile.axis_origin_m = np.asarray(config.profile.axis_origin_m) - self.origin_m
-        cfg.preprocess.crop_min_m = np.asarray(config.preprocess.crop_min_m) - self.origin_m
-        cfg.preprocess.crop_max_m = np.asarray(config.preprocess.crop_max_m) - self.origin_m
-        cfg.robot.base_position_m = np.asarray(config.robot.base_position_m) - self.origin_m
-        return local, cfg
-
-    def _check_config_near(self, config: _core.Config) -> None:
-        """ValueError when the robot base, or the given axis, is far from a cloud in survey coordinates."""
-        where = ", ".join(f"{v:,.0f}" for v in self.origin_m)
-        base = np.asarray(config.robot.base_position_m, dtype=float)
-        axis_o = np.asarray(config.profile.axis_origin_m, dtype=float)
-        axis_d = np.asarray(config.profile.axis_direction, dtype=float)
-        axis_d = axis_d / np.linalg.norm(axis_d)
-        rel = self.origin_m - axis_o
-        checks = [("robot.base_position_m", np.linalg.norm(base - self.origin_m))]
-        if not config.profile.estimate_axis:
-            checks.append(("profile.axis_origin_m", np.linalg.norm(rel - rel.dot(axis_d) * axis_d)))
-        elif not config.profile.estimate_axis_origin:  # a surveyed origin kept, the direction fitted
-            checks.append(("profile.axis_origin_m", np.linalg.norm(rel)))
-        for key, dist in checks:
-            if dist > FAR_M:
-                raise ValueError(f"the cloud lies in survey coordinates around ({where}) m but {key} is "
-                                 f"{dist / 1000:,.1f} km from it: give {key} in the cloud's frame "
-                                 "(docs/architecture.md §3, survey coordinates)")
+        return _core.to_local_frame(self.origin_m, cloud, config)
 
     def points_to_input(self, points_m: np.ndarray) -> np.ndarray:
         """(..., 3) local points [m] in the input's frame."""

@@ -4,6 +4,7 @@
 #include "shotcrete/surface/preprocess.hpp"
 #include "shotcrete/surface/profile.hpp"
 #include "shotcrete/surface/surface.hpp"
+#include "shotcrete/io/survey.hpp"
 #include "shotcrete/io/synth.hpp"
 
 using namespace shotcrete;
@@ -109,6 +110,19 @@ void bind_surface(py::module_& m) {
       }, py::arg("config"), py::arg("xyz_m"),
       "(config, AxisOnAlignment or None): the config with the axis of profile.alignment_path where the points lie "
       "(grid.bay_start_m/bay_end_m taken as chainages); unchanged without an alignment.");
+  m.def("local_origin", [](const Points& xyz_m) -> Eigen::Vector3d { return local_origin(xyz_m); }, py::arg("xyz_m"),
+        "The bounding-box centre of the finite rows (metres), rounded to whole 100 m; (0, 0, 0) for none.");
+  m.def("local_frame_origin", &local_frame_origin, py::arg("xyz"), py::arg("io"),
+        "The local origin [m] of a cloud in its input units (io.unit_scale); (0, 0, 0) for a cloud wider than "
+        "io.max_extent_m (docs/architecture.md §3, survey coordinates).");
+  m.def("to_local_frame", [](const Eigen::Vector3d& origin_m, const Cloud& cloud, const Config& config) {
+        Cloud c = cloud;
+        Config k = config;
+        to_local_frame(origin_m, c, k);
+        return std::make_pair(c, k);
+      }, py::arg("origin_m"), py::arg("cloud"), py::arg("config"),
+      "(cloud, config) moved into the local frame of origin_m (the cloud in its input units; the axis origin, crop "
+      "box and robot base); ValueError naming the key when the config lies more than 1 km from the cloud.");
   m.def("design_profile_from_config", &design_profile_from_config, py::arg("profile"),
         "The circle of profile.design_radius_m or the section of profile.section_path.");
   py::class_<AxisFit>(m, "AxisFit")
@@ -136,6 +150,8 @@ void bind_surface(py::module_& m) {
       .def_readonly("n_d", &Grid::n_d)
       .def_readonly("points_not_wall", &Grid::points_not_wall, "points near the design line left out: normal tilted (face, floor)")
       .def_readonly("points_outside_bay", &Grid::points_outside_bay, "points near the design line left out: outside the bay")
+      .def_readonly("points_obstacle", &Grid::points_obstacle,
+                    "wall-like points left out: grid.obstacle_gap_m inside their cell's outermost surface (a duct)")
       .def_property_readonly("count", [](const Grid& g) { return as_map(g.count, g); }, "(n_theta, n_d) points per cell")
       .def_property_readonly("valid", [](const Grid& g) {
         std::vector<std::uint8_t> v(g.valid.begin(), g.valid.end());

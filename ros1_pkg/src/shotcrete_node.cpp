@@ -37,6 +37,7 @@
 #include <thread>
 
 #include "ros_conversions.hpp"
+#include "shotcrete/io/survey.hpp"
 #include "shotcrete_ros/Rescan.h"
 #include "shotcrete/pipeline/rescan_job.hpp"
 #include "shotcrete/collision/clearance.hpp"
@@ -145,6 +146,7 @@ class ShotcreteNode {
     }
     const auto overridden = apply_param_overrides(pnh_, config_);
     pnh_.param<std::string>("frame_id", frame_id_, "tunnel");
+    pnh_.param<std::string>("survey_frame_id", survey_frame_id_, "survey");  // parent of frame_id in tf_static
     pnh_.param<std::string>("urdf", urdf_path_,
                             config_.robot.urdf_path.empty() ? shotcrete::bundled_urdf_path() : config_.robot.urdf_path);
     pnh_.param("execute_time_scale", time_scale_, 1.0);
@@ -172,6 +174,9 @@ class ShotcreteNode {
     robot_ = std::make_unique<shotcrete::Robot>(
         shotcrete::Robot::load_file(urdf_path_, config_.robot.base_position_m));
     q_current_ = robot_->stow();  // where every trajectory starts
+    joint_names_ = robot_->joint_names();
+    job_config_ = config_;
+    pnh_.setParam("local_origin_m", std::vector<double>{0.0, 0.0, 0.0});
 
     cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("cloud", 1, true);
     levels_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("grid_levels", 1, true);
@@ -221,6 +226,7 @@ class ShotcreteNode {
       return false;
     }
     std::string error;
+    std::lock_guard<std::mutex> work(work_mutex_);  // the spinner already serves ~plan
     if (!set_cloud(cloud, source, error, before_scan)) throw std::invalid_argument("cloud from " + source + ": " + error);
     std::lock_guard<std::mutex> lock(state_mutex_);
     synthetic_bay_ = bay;
@@ -237,10 +243,12 @@ class ShotcreteNode {
     }
     std::shared_ptr<const Surface> surface;
     long points_in = 0;
+    shotcrete::Config config;  // config_ in the cloud's local frame
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface = surface_;
       points_in = points_in_;
+      config = job_config_;
     }
     if (!surface) {
       summary = "no cloud yet: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
@@ -254,14 +262,14 @@ class ShotcreteNode {
     try {
       // Planned for the arm (speeds its joints can follow), timed, re-planned where needed.
       double last_report = -1.0;
-      shotcrete::ArmPlan arm = shotcrete::plan_for_arm(*surface, config_, *robot_, [&](const std::string& stage, double fraction) {
+      shotcrete::ArmPlan arm = shotcrete::plan_for_arm(*surface, config, *robot_, [&](const std::string& stage, double fraction) {
         const double t = seconds_since(t0);
         if (t - last_report >= 2.0) {
           ROS_INFO("planning: %s %.0f %%", stage.c_str(), 100.0 * fraction);
           last_report = t;
         }
       });
-      job = shotcrete::summarise_job(*surface, arm, *robot_, config_, {points_in});
+      job = shotcrete::summarise_job(*surface, arm, *robot_, config, {points_in});
       *plan = std::move(arm.plan);
       // The plan stays usable (markers, summary) without a trajectory; only ~execute needs it.
       if (arm.trajectory) trajectory = std::make_shared<shotcrete::TimedTrajectory>(std::move(*arm.trajectory));
@@ -407,9 +415,12 @@ class ShotcreteNode {
     std::shared_ptr<const Cloud> before;
     std::shared_ptr<const Eigen::VectorXd> sprayed;
     std::shared_ptr<const shotcrete::SyntheticBay> bay;
+    shotcrete::Config config;  // config_ in the before-scan's local frame
+    Eigen::Vector3d origin;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface = surface_, before = before_scan_, sprayed = sprayed_m_, bay = synthetic_bay_;
+      config = job_config_, origin = local_origin_m_;
     }
     if (!surface || !before) {
       status = "no before-scan: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
@@ -423,7 +434,8 @@ class ShotcreteNode {
     const auto t0 = Clock::now();
     Cloud after;
     if (after_in != nullptr) {
-      after = *after_in;
+      after = *after_in;  // in the before-scan's frame: into its local frame too
+      if (!origin.isZero(0.0)) after.xyz.rowwise() -= (origin / config.io.unit_scale).transpose();
     } else if (bay) {
       after = shotcrete::make_after_scan(*bay, surface->grid, sprayed->unaryExpr([](double v) {
                                            return std::isfinite(v) ? v : 0.0;
@@ -436,7 +448,7 @@ class ShotcreteNode {
     std::optional<shotcrete::JobSummary> correction;
     try {
       double last_report = -1.0;
-      out = shotcrete::rescan_job(surface->grid, *sprayed, *before, after, config_, nullptr, initial_pose_, robot_.get(),
+      out = shotcrete::rescan_job(surface->grid, *sprayed, *before, after, config, nullptr, initial_pose_, robot_.get(),
                                   [&](const std::string& stage, double fraction) {
                                     const double t = seconds_since(t0);
                                     if (t - last_report >= 2.0) {
@@ -590,26 +602,52 @@ class ShotcreteNode {
   }
 
   /// `before_scan`: what a re-scan registers to (the scan with its surroundings); default `cloud`
-  /// itself (kept, not copied).
+  /// itself (kept, not copied, unless survey coordinates move it into a local frame). The caller
+  /// holds work_mutex_.
   bool set_cloud(std::shared_ptr<const Cloud> cloud, const std::string& source, std::string& error,
                  std::shared_ptr<const Cloud> before_scan = nullptr) {
     const auto t0 = Clock::now();
     auto surface = std::make_shared<Surface>();
+    shotcrete::Config config;
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    std::unique_ptr<shotcrete::Robot> moved_robot;
     try {
-      // profile.alignment_path: the axis from the alignment where this scan lies.
+      // profile.alignment_path: the axis from the alignment where this scan lies (in metres, in
+      // double precision, before the shift).
       shotcrete::AxisOnAlignment at;
-      const shotcrete::Config config = shotcrete::with_alignment_axis(config_, cloud->xyz, &at);
+      const double scale = config_.io.unit_scale;
+      config = config_.profile.alignment_path.empty() || scale == 1.0
+                   ? shotcrete::with_alignment_axis(config_, cloud->xyz, &at)
+                   : shotcrete::with_alignment_axis(config_, shotcrete::Points(cloud->xyz * scale), &at);
       if (!config_.profile.alignment_path.empty())
         ROS_INFO("axis from the alignment at chainage %.3f m (straight over %.3f..%.3f m, deviation %.4f m)",
                  at.chainage_m, at.start_m, at.end_m, at.deviation_m);
+      // Survey coordinates: the cloud and the config's coordinates move into a local frame before
+      // any float32 stage, as the CLI does (the same core functions).
+      origin = shotcrete::local_frame_origin(cloud->xyz, config.io);
+      if (!origin.isZero(0.0)) {
+        auto local = std::make_shared<Cloud>(*cloud);
+        shotcrete::to_local_frame(origin, *local, config);
+        cloud = local;
+        if (before_scan) {  // in the input's frame too
+          auto b = std::make_shared<Cloud>(*before_scan);
+          b->xyz.rowwise() -= (origin / config.io.unit_scale).transpose();
+          before_scan = b;
+        }
+      }
+      if (config.robot.base_position_m != robot_->base_pose().translation())
+        moved_robot = std::make_unique<shotcrete::Robot>(shotcrete::Robot::load_file(urdf_path_, config.robot.base_position_m));
       *surface = shotcrete::build_surface(*cloud, config);
     } catch (const std::exception& e) {
       error = e.what();
       return false;
     }
+    if (moved_robot) robot_ = std::move(moved_robot);  // no plan, execution or rescan runs (work_mutex_)
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface_ = surface;
+      local_origin_m_ = origin;
+      job_config_ = config;
       before_scan_ = before_scan ? before_scan : cloud;
       synthetic_bay_.reset();
       sprayed_m_.reset();
@@ -618,6 +656,11 @@ class ShotcreteNode {
       plan_problems_.clear();
       trajectory_.reset();
     }
+    pnh_.setParam("local_origin_m", std::vector<double>{origin.x(), origin.y(), origin.z()});
+    publish_base_transform();
+    if (!origin.isZero(0.0))
+      ROS_INFO("cloud in survey coordinates: planned in a local frame, %s = %s + (%.3f, %.3f, %.3f) m (~local_origin_m, tf_static)",
+               survey_frame_id_.c_str(), frame_id_.c_str(), origin.x(), origin.y(), origin.z());
     const Eigen::VectorXd td = shotcrete::point_td(surface->cloud, surface->axis, surface->profile);
     color_max_m_ = td_color_max_m_ > 0 ? td_color_max_m_ : std::max(1e-3, td.maxCoeff());
     publish_cloud(surface->cloud.xyz, td);
@@ -701,23 +744,33 @@ class ShotcreteNode {
   void publish_joints(const Eigen::VectorXd& q, const ros::Time& stamp) {
     sensor_msgs::JointState js;
     js.header.stamp = stamp;
-    js.name = robot_->joint_names();
+    js.name = joint_names_;
     js.position.assign(q.data(), q.data() + q.size());
     joint_pub_.publish(js);
   }
 
+  /// tf_static: frame_id -> base_link (the arm's base in the local frame) and survey_frame_id ->
+  /// frame_id (the local origin; identity for a cloud near its own origin), in one latched message.
   void publish_base_transform() {
-    geometry_msgs::TransformStamped tf;
-    tf.header.stamp = ros::Time::now();
-    tf.header.frame_id = frame_id_;
-    tf.child_frame_id = "base_link";
-    const Eigen::Vector3d p = robot_->base_pose().translation();
-    tf.transform.translation.x = p.x();
-    tf.transform.translation.y = p.y();
-    tf.transform.translation.z = p.z();
-    tf.transform.rotation.w = 1.0;
+    auto transform = [&](const std::string& parent, const std::string& child, const Eigen::Vector3d& p) {
+      geometry_msgs::TransformStamped tf;
+      tf.header.stamp = ros::Time::now();
+      tf.header.frame_id = parent;
+      tf.child_frame_id = child;
+      tf.transform.translation.x = p.x();
+      tf.transform.translation.y = p.y();
+      tf.transform.translation.z = p.z();
+      tf.transform.rotation.w = 1.0;
+      return tf;
+    };
+    Eigen::Vector3d origin;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      origin = local_origin_m_;
+    }
     tf2_msgs::TFMessage msg;
-    msg.transforms.push_back(tf);
+    msg.transforms.push_back(transform(frame_id_, "base_link", robot_->base_pose().translation()));
+    msg.transforms.push_back(transform(survey_frame_id_, frame_id_, origin));
     tf_static_pub_.publish(msg);
   }
 
@@ -901,13 +954,19 @@ class ShotcreteNode {
   double time_scale_ = 1.0, max_wall_s_ = 0.0, joint_rate_hz_ = 50.0, cloud_rate_hz_ = 2.0, td_color_max_m_ = 0.0;
   double color_max_m_ = 0.3;
   int max_points_ = 20000000;
-  std::unique_ptr<shotcrete::Robot> robot_;
+  std::string survey_frame_id_;
+  std::unique_ptr<shotcrete::Robot> robot_;  // replaced (under work_mutex_) when a cloud's local frame moves its base
+  std::vector<std::string> joint_names_;     // robot_'s, for the idle timer (which takes no lock)
   Eigen::VectorXd q_current_;
   std::atomic<bool> executing_{false};
 
   std::mutex work_mutex_;   // one plan / execution / cloud update at a time
   std::mutex state_mutex_;  // guards the snapshots below
   std::shared_ptr<const Surface> surface_;
+  // The cloud's local frame (shotcrete/io/survey.hpp): survey coordinates = local + origin. Every
+  // cloud, marker and pose the node publishes is local; job_config_ is config_ moved into it.
+  Eigen::Vector3d local_origin_m_ = Eigen::Vector3d::Zero();
+  Config job_config_;
   long points_in_ = 0;  // points of the cloud surface_ was built from
   std::shared_ptr<const Plan> plan_;
   std::string plan_problems_;  // of plan_ (JobSummary problems); ~execute refuses while not empty

@@ -80,6 +80,60 @@ class Params(unittest.TestCase):
         self.assertIn("strip.xyz.missing.xyz", out)
 
 
+    def test_cloud_file_in_survey_coordinates(self):
+        """A georeferenced file (x = 500,000, y = 4,000,000) with the config's robot base and axis
+        in the same frame plans like the strip at the origin: the node runs and publishes in the
+        local frame, the shift in ~local_origin_m and as the tf survey -> tunnel."""
+        import json
+
+        from std_srvs.srv import Trigger
+        from tf2_msgs.msg import TFMessage
+
+        offset = (500000.0, 4000000.0, 300.0)
+        points = u.bay_points(length_m=0.4)
+        paths = {}
+        for name, o in (("local_node", (0.0, 0.0, 0.0)), ("survey_node", offset)):
+            paths[name] = os.path.join(os.environ.get("ROS_HOME", "/tmp"), name + ".xyz")
+            with open(paths[name], "w") as f:
+                for p in points:
+                    f.write("%.6f %.6f %.6f\n" % (p[0] + o[0], p[1] + o[1], p[2] + o[2]))
+            rospy.set_param("/%s/robot/base_position_m" % name, [0.6 + o[0], o[1], -1.2 + o[2]])
+            rospy.set_param("/%s/profile/axis_origin_m" % name, list(o))
+        clouds = {n: u.Collector("/%s/cloud" % n, PointCloud2) for n in paths}
+        tf = u.Collector("/tf_static", TFMessage)
+        exe = roslib.packages.find_node("shotcrete_ros", "shotcrete_node")[0]
+        nodes = [subprocess.Popen([exe, "__name:=" + n, "_cloud_file:=" + paths[n]],
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for n in paths]
+        try:
+            got = {n: clouds[n].wait(timeout=60) for n in paths}
+            for n, msg in got.items():
+                self.assertIsNotNone(msg, "no cloud from " + n)
+            (xyz0, td0), (xyz1, td1) = (u.cloud_arrays(got[n]) for n in ("local_node", "survey_node"))
+            self.assertEqual(len(xyz1), len(xyz0))
+            self.assertLess(max(abs(a - b) for p, q in zip(xyz0, xyz1) for a, b in zip(p, q)), 1e-4)  # local frame
+            self.assertLess(max(abs(a - b) for a, b in zip(td0, td1)), 1e-4)
+            self.assertEqual(rospy.get_param("/survey_node/local_origin_m"), list(offset))
+            self.assertEqual(rospy.get_param("/local_node/local_origin_m"), [0.0, 0.0, 0.0])
+            shift = tf.wait(lambda m: any(t.header.frame_id == "survey" and t.child_frame_id == "tunnel" and
+                                          t.transform.translation.x == offset[0] for t in m.transforms), 20)
+            self.assertIsNotNone(shift, "no survey -> tunnel transform on /tf_static")
+            t = next(t.transform.translation for t in shift.transforms if t.header.frame_id == "survey")
+            self.assertEqual((t.x, t.y, t.z), offset)
+            summaries = {}
+            for n in paths:
+                rospy.wait_for_service("/%s/plan" % n, timeout=60)
+                res = rospy.ServiceProxy("/%s/plan" % n, Trigger)()
+                summaries[n] = json.loads(res.message)
+            a, b = summaries["local_node"], summaries["survey_node"]
+            self.assertEqual(b["status"], a["status"])
+            self.assertEqual(b["cells"], a["cells"])
+            self.assertAlmostEqual(b["required_volume_m3"], a["required_volume_m3"], delta=1e-6 * a["required_volume_m3"])
+            self.assertAlmostEqual(b["residual_mm"]["rms"], a["residual_mm"]["rms"], delta=0.01 * a["residual_mm"]["rms"])
+        finally:
+            for node in nodes:
+                node.terminate()
+                node.wait(timeout=20)
+
     def test_plan_that_is_not_right_is_refused(self):
         """The arm's base 6 m below its place: the bay is out of reach. ~plan answers success false
         with the summary's status and problems, and ~execute refuses that plan."""

@@ -571,6 +571,26 @@ TEST(Wall, LayerMovesPointsAlongTheirRaysAndLowersEveryCell) {
   EXPECT_THROW(unsprayed_wall(bare, 1.0), std::invalid_argument);
 }
 
+TEST(Wall, PointsOfNoCellStayWhereTheScanHasThem) {
+  // A duct's point 1.2 m inside the wall (out of the grid's band) that a nozzle passed closely
+  // gets a huge "layer"; it stays put (it moved 33 m across the axis in a scene's plan), the wall's
+  // points move.
+  Surface s = cylinder_wall(5.6, 5.7, 0.3, 1.2);
+  const Eigen::Index n = s.cloud.size();
+  s.cloud.xyz.conservativeResize(n + 1, 3);
+  s.cloud.normals.conservativeResize(n + 1, 3);
+  s.cloud.xyz.row(n) << 0.1, 0.0, 4.5;
+  s.cloud.normals.row(n) << 0.0, 0.0, -1.0;
+  SprayedWall wall = unsprayed_wall(s, 1.0);
+  ASSERT_EQ(wall.cell_of_point[static_cast<std::size_t>(n)], -1);
+  const Eigen::VectorXd before = wall.surface.grid.td_m;
+  deposit_layer(wall, Eigen::VectorXd::Constant(n + 1, 5.0));
+  EXPECT_EQ(wall.surface.cloud.xyz.row(n), s.cloud.xyz.row(n));
+  EXPECT_NEAR(Eigen::Vector3d(0, wall.surface.cloud.xyz(0, 1), wall.surface.cloud.xyz(0, 2)).norm(), 0.7, 1e-9);
+  for (int c = 0; c < wall.surface.grid.size(); ++c)
+    if (wall.surface.grid.valid[c]) EXPECT_NEAR(wall.surface.grid.td_m[c], before[c] - 5.0, 1e-9);
+}
+
 TEST(Wall, TiltedNormalFillsRadiallyAndKeepsTheCell) {
   // A layer measured along a normal tilted 45 degrees from the ray fills t / cos(45) along the
   // ray; beyond 60 degrees the fill is capped at 2 t. The point stays on its ray (d, theta).

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <random>
 
@@ -11,6 +12,7 @@
 #include "shotcrete/surface/preprocess.hpp"
 #include "shotcrete/surface/surface.hpp"
 #include "shotcrete/io/synth.hpp"
+#include "shotcrete/collision/clearance.hpp"
 
 using namespace shotcrete;
 
@@ -703,4 +705,146 @@ TEST(Config, EnumFieldsReadAndWriteTheirNames) {
   EXPECT_THROW(validate(bad), std::invalid_argument);
   EXPECT_STREQ(enum_name(OrderingMethod::exact), "exact");
   EXPECT_EQ(enum_choices<PassDirection>(), "axial, circumferential");
+}
+
+namespace {
+
+struct SceneCompare {
+  int alone_valid = 0, scene_valid = 0, same_valid = 0, both = 0, off_3mm = 0;
+  double max_dtd_m = 0.0, v_alone_m3 = 0.0, v_scene_m3 = 0.0;
+};
+
+SceneCompare compare_grids(const Grid& alone, const Grid& scene) {
+  SceneCompare r;
+  r.alone_valid = alone.valid_count();
+  r.scene_valid = scene.valid_count();
+  r.v_alone_m3 = missing_volume_m3(alone);
+  r.v_scene_m3 = missing_volume_m3(scene);
+  if (scene.n_d != alone.n_d || scene.n_theta != alone.n_theta || std::abs(scene.theta0_rad - alone.theta0_rad) > 1e-12 ||
+      std::abs(scene.d0_m - alone.d0_m) > 1e-12)
+    return r;  // other lattices: the caller's ASSERTs on the shape say so
+  for (int c = 0; c < alone.size(); ++c) {
+    r.same_valid += alone.valid[c] == scene.valid[c];
+    if (!(alone.valid[c] && scene.valid[c])) continue;
+    ++r.both;
+    const double d = std::abs(scene.td_m[c] - alone.td_m[c]);
+    r.max_dtd_m = std::max(r.max_dtd_m, d);
+    r.off_3mm += d > 0.003;
+  }
+  return r;
+}
+
+}  // namespace
+
+TEST(Scene, DuctAndRigStayOutOfTheGridAndInTheCloudAsObstacles) {
+  // The generator's whole scene: lined previous bay, invert, face, a 1.2 m duct hung 0.3 m under
+  // the crown over both bays (its top faces the crown, in the design band and wall-like), and the
+  // rig's carrier on the invert. It must grid like the bay alone.
+  Config cfg;
+  cfg.preprocess.outlier_neighbors = 0;  // the reference grid must see the same bay points
+  SynthConfig sc = cfg.synth;
+  sc.context_enabled = true;
+  sc.context_duct_diameter_m = 1.2;
+  sc.context_duct_gap_m = 0.3;
+  sc.context_rig_length_m = 4.0;
+  const SyntheticBay bay = make_synthetic_bay(sc);
+  const double R = sc.design_radius_m, a = 0.6, zc = R - 0.3 - a;  // the duct's radius and centre height
+  const Cloud scan = bay.sample_scan(cfg.grid.cell_size_m);
+  const Surface alone = build_surface(bay.sample(cfg.grid.cell_size_m), cfg);
+  const Surface scene = build_surface(scan, cfg);
+
+  // The duct and the rig are in the scan, and stay in the surface's cloud (the clearance's wall) but
+  // out of the grid.
+  auto on_duct = [&](const Eigen::Vector3d& p) { return std::abs(std::hypot(p.y(), p.z() - zc) - a) < 0.03; };
+  auto on_rig = [&](const Eigen::Vector3d& p) {
+    return p.x() < -0.4 + 0.03 && p.x() > -4.4 - 0.03 && std::abs(p.y()) < 1.2 + 0.03 && p.z() > -1.5 + 0.03 && p.z() < -0.3 + 0.03;
+  };
+  long duct_scan = 0, rig_scan = 0, duct_kept = 0, rig_kept = 0, duct_gridded = 0, rig_gridded = 0;
+  for (Eigen::Index i = 0; i < scan.size(); ++i) {
+    const Eigen::Vector3d p = scan.xyz.row(i).transpose();
+    duct_scan += on_duct(p);
+    rig_scan += on_rig(p);
+  }
+  ASSERT_EQ(static_cast<Eigen::Index>(scene.in_grid.size()), scene.cloud.size());
+  for (Eigen::Index i = 0; i < scene.cloud.size(); ++i) {
+    const Eigen::Vector3d p = scene.cloud.xyz.row(i).transpose();
+    duct_kept += on_duct(p);
+    rig_kept += on_rig(p);
+    duct_gridded += on_duct(p) && scene.in_grid[static_cast<std::size_t>(i)];
+    rig_gridded += on_rig(p) && scene.in_grid[static_cast<std::size_t>(i)];
+  }
+  EXPECT_GT(duct_scan, 20000);
+  EXPECT_GT(rig_scan, 20000);
+  EXPECT_GT(duct_kept, duct_scan / 4) << "the duct's points must stay in the cloud (voxel-thinned)";
+  EXPECT_GT(rig_kept, rig_scan / 4);
+  EXPECT_EQ(duct_gridded, 0);
+  EXPECT_EQ(rig_gridded, 0);
+  EXPECT_GT(scene.grid.points_obstacle, 2000);  // the duct's top, within the band and facing the crown
+
+  // The bay's grid as alone: detected bay, same lattice, cells, TD and volume.
+  EXPECT_NEAR(scene.bay.range.start_m, 0.0, 1e-9);
+  EXPECT_NEAR(scene.bay.range.end_m, 1.2, 1e-9);
+  ASSERT_EQ(scene.grid.n_d, alone.grid.n_d);
+  ASSERT_EQ(scene.grid.n_theta, alone.grid.n_theta);
+  const SceneCompare r = compare_grids(alone.grid, scene.grid);
+  std::printf("[scene] cells valid alone %d, with duct+rig %d, same validity %d of %d; TD max diff %.2f mm, "
+              "%d cells > 3 mm; volume %.4f vs %.4f m^3 (%+.3f %%); obstacle points %ld\n",
+              r.alone_valid, r.scene_valid, r.same_valid, alone.grid.size(), r.max_dtd_m * 1000, r.off_3mm,
+              r.v_alone_m3, r.v_scene_m3, 100.0 * (r.v_scene_m3 / r.v_alone_m3 - 1.0), scene.grid.points_obstacle);
+  EXPECT_GE(r.same_valid, alone.grid.size() - 5);
+  EXPECT_NEAR(r.scene_valid, r.alone_valid, 5);
+  EXPECT_NEAR(r.v_scene_m3, r.v_alone_m3, 0.005 * r.v_alone_m3);
+  EXPECT_LT(r.max_dtd_m, 0.005);
+  EXPECT_EQ(level_counts(scene.levels).count(-1), level_counts(alone.levels).count(-1));
+
+  // Without the obstacle rule the duct's top would read as under-break at the crown: the test can fail.
+  Config off = cfg;
+  off.grid.obstacle_gap_m = 0.0;
+  const SceneCompare bad = compare_grids(alone.grid, build_surface(scan, off).grid);
+  EXPECT_GT(bad.off_3mm, 300);
+  EXPECT_GT(bad.max_dtd_m, 0.1);
+  std::printf("[scene] without grid.obstacle_gap_m: %d cells > 3 mm, TD max diff %.0f mm, volume %+.2f %%\n", bad.off_3mm,
+              bad.max_dtd_m * 1000, 100.0 * (bad.v_scene_m3 / r.v_alone_m3 - 1.0));
+
+  // The clearance's wall (the surface's cloud, as arm_wall) holds the duct: a sphere 1 m under it
+  // (over the previous bay, 2.2 m from the face) is 1 m from it; the same scene without the duct's
+  // points puts the nearest surface (the face) 2.1 m away and the crown 3.1 m.
+  CollisionShape ball;
+  ball.kind = CollisionShape::Kind::sphere;
+  ball.radius_m = 0.1;
+  Eigen::Isometry3d at = Eigen::Isometry3d::Identity();
+  at.translation() = Eigen::Vector3d(-1.0, 0.0, zc - a - 1.0 - 0.1);
+  Points no_duct(scene.cloud.size() - duct_kept, 3);
+  for (Eigen::Index i = 0, k = 0; i < scene.cloud.size(); ++i)
+    if (!on_duct(scene.cloud.xyz.row(i).transpose())) no_duct.row(k++) = scene.cloud.xyz.row(i);
+  const WallOctree with_duct(scene.cloud.xyz, cfg.clearance.octree_resolution_m);
+  const WallOctree without(no_duct, cfg.clearance.octree_resolution_m);
+  const double to_duct = with_duct.exact_distance(ball, at), to_rest = without.exact_distance(ball, at);
+  EXPECT_NEAR(to_duct, 1.0, 0.02);
+  EXPECT_NEAR(to_rest, 2.1, 0.02);  // the face at d = 1.2
+  const WallOctree bay_only(alone.cloud.xyz, cfg.clearance.octree_resolution_m);
+  at.translation().x() = 0.6;  // mid-bay: the crown (R + TD, TD >= 0.15 m less the noise)
+  const double to_crown = bay_only.exact_distance(ball, at);
+  EXPECT_GT(to_crown, R + 0.13 - at.translation().z() - 0.1);
+  EXPECT_NEAR(with_duct.exact_distance(ball, at), 0.5, 0.02);  // the face, 0.6 m along, is nearer than the duct
+  // The rig too: a sphere 0.5 m over its top.
+  at.translation() = Eigen::Vector3d(-2.0, 0.0, -1.5 + 1.2 + 0.5 + 0.1);
+  const double to_rig = with_duct.exact_distance(ball, at);
+  EXPECT_NEAR(to_rig, 0.5, 0.02);
+  EXPECT_GT(bay_only.exact_distance(ball, at), 2.0);
+  std::printf("[scene] sphere 1 m under the duct: %.3f m to it, %.3f m to the rest of the scene; mid-bay crown "
+              "%.3f m away; 0.5 m over the rig: %.3f m\n", to_duct, to_rest, to_crown, to_rig);
+}
+
+TEST(Scene, ADuctOrARigNeedsItsSurroundings) {
+  SynthConfig sc;
+  sc.context_enabled = true;
+  sc.context_rig_length_m = 4.0;
+  sc.context_invert_depth_m = 0.0;
+  EXPECT_THROW(make_synthetic_bay(sc).sample_context(0.05, 20, 0.005, 1), std::invalid_argument);
+  sc = SynthConfig{};
+  sc.context_enabled = true;
+  sc.context_duct_diameter_m = 1.2;
+  sc.context_duct_y_m = 6.0;  // outside the 5.6 m circle
+  EXPECT_THROW(make_synthetic_bay(sc).sample_context(0.05, 20, 0.005, 1), std::invalid_argument);
 }

@@ -20,6 +20,38 @@ def test_local_origin_is_the_rounded_box_centre():
     np.testing.assert_array_equal(local_origin(np.full((3, 3), np.nan)), [0.0, 0.0, 0.0])
 
 
+def _numpy_local_frame(xyz_input, config):
+    """The former Python implementation of the local frame (before the core computed it), kept as
+    the independent reference: the origin, and the cloud and config moved into it."""
+    xyz_m = np.asarray(xyz_input) * config.io.unit_scale
+    finite = xyz_m[np.isfinite(xyz_m).all(axis=1)]
+    if len(finite) == 0 or np.ptp(finite, axis=0).max() > config.io.max_extent_m:
+        return np.zeros(3), np.asarray(xyz_input), np.asarray(config.robot.base_position_m)
+    origin = np.round((finite.min(axis=0) + finite.max(axis=0)) / 2.0 / 100.0) * 100.0 + 0.0
+    return origin, np.asarray(xyz_input) - origin / config.io.unit_scale, np.asarray(config.robot.base_position_m) - origin
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), tuple(OFFSET), (149.0, -251.0, 45.0), (-50.0, 50.0, 149.99)])
+@pytest.mark.parametrize("unit_scale", [1.0, 0.001])
+def test_the_core_shift_gives_what_the_former_python_one_gave(offset, unit_scale):
+    """The core's local_frame_origin / to_local_frame (which the ROS node calls too) give the
+    former Python computation's origin and points bit for bit (NaN rows, half-way centres, mm)."""
+    rng = np.random.default_rng(5)
+    xyz_m = rng.uniform(-6.0, 6.0, (400, 3)) + offset
+    xyz_m[7] = np.nan
+    cfg = shotcrete.load_config()
+    cfg.io.unit_scale = unit_scale
+    cfg.profile.estimate_axis = True  # the far checks are the other test's
+    cfg.robot.base_position_m = np.asarray(offset) + [0.6, 0.0, -1.2]
+    cloud = shotcrete.Cloud(xyz_m / unit_scale)
+    ref_origin, ref_xyz, ref_base = _numpy_local_frame(cloud.xyz, cfg)
+    frame = LocalFrame.of(cloud, cfg)
+    np.testing.assert_array_equal(frame.origin_m, ref_origin)
+    local, local_cfg = frame.to_local(cloud, cfg)
+    np.testing.assert_array_equal(local.xyz, ref_xyz)
+    np.testing.assert_array_equal(local_cfg.robot.base_position_m, ref_base)
+
+
 def test_to_local_moves_cloud_and_config_coordinates_by_the_same_origin():
     cfg = shotcrete.load_config()
     cfg.profile.axis_origin_m = OFFSET + [0.0, 0.0, 1.0]

@@ -86,6 +86,10 @@ struct GridConfig {
   // A point whose normal is farther than this from the radial direction is not wall (the face,
   // a floor, a duct's flank) and stays out of the grid, rad. Dig-pit flanks tilt < 40 deg.
   double max_normal_tilt_rad = 1.0472;
+  // A wall-like point this far inside the outermost surface of its lattice cell (the same rays
+  // from the axis) lies on something in front of the wall (a ventilation duct's top) and stays out
+  // of the grid, but in the cloud as an obstacle, m; 0 = off. Dig-pit flanks span < 0.1 m a cell.
+  double obstacle_gap_m = 0.15;
 };
 
 struct RegionConfig {
@@ -120,6 +124,17 @@ struct SynthConfig {
   double context_previous_bay_m = 2.0;  // lined previous bay behind the new one (d < 0), on the design line
   double context_invert_depth_m = 1.5;  // floor plane this far below the springlines (axis height); 0 = none
   bool context_face = true;             // the face: a plane across the axis at the bay's far end (d = length_m)
+  // A ventilation duct along the axis under the crown, over both bays (0 = none): its top
+  // context_duct_gap_m under the design line at y = context_duct_y_m (across, left positive).
+  double context_duct_diameter_m = 0.0;
+  double context_duct_gap_m = 0.3;
+  double context_duct_y_m = 0.0;
+  // The rig's carrier: a box on the invert ending context_rig_front_d_m along the axis (the arm's
+  // base stands ahead of it), centred across; 0 length = none. Needs the invert.
+  double context_rig_length_m = 0.0;
+  double context_rig_width_m = 2.4;
+  double context_rig_height_m = 1.2;
+  double context_rig_front_d_m = -0.4;
   // After-spraying scan (synth --after JOBDIR): the job's executed deposit per cell, scaled and roughened.
   double after_flow_scale = 1.0;         // real / modelled concrete flow (the factor rescan calibrates)
   double after_rebound_fraction = 0.08;  // real rebound share; scales the layer by (1 - it) / (1 - deposition.rebound_fraction)

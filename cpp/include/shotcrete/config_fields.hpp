@@ -48,6 +48,7 @@ template <class F> void visit(GridConfig*, F&& f) {
   f("lined_td_m", &GridConfig::lined_td_m, 0.001, 1.0, "bay: detect; a cell within this TD of the design line looks lined [m]");
   f("lined_fraction", &GridConfig::lined_fraction, 0.5, 1.0, "bay: detect; share of lined cells that makes a cross-section lining");
   f("max_normal_tilt_rad", &GridConfig::max_normal_tilt_rad, 0.1, 1.5708, "points with normals farther than this from radial are not wall [rad]");
+  f("obstacle_gap_m", &GridConfig::obstacle_gap_m, 0.0, 10.0, "wall-like points this far inside their cell's outermost surface are an obstacle (duct), not wall [m]; 0 = off");
 }
 template <class F> void visit(RegionConfig*, F&& f) {
   f("min_region_cells", &RegionConfig::min_region_cells, 1, 100000, "smaller regions merge");
@@ -76,6 +77,13 @@ template <class F> void visit(SynthConfig*, F&& f) {
   f("context_previous_bay_m", &SynthConfig::context_previous_bay_m, 0.0, 20.0, "length of the lined previous bay (d < 0) [m]");
   f("context_invert_depth_m", &SynthConfig::context_invert_depth_m, 0.0, 10.0, "floor plane below the springlines [m]; 0 = none");
   f("context_face", &SynthConfig::context_face, 0, 0, "a face plane across the axis at d = length_m");
+  f("context_duct_diameter_m", &SynthConfig::context_duct_diameter_m, 0.0, 5.0, "ventilation duct under the crown, over both bays [m]; 0 = none");
+  f("context_duct_gap_m", &SynthConfig::context_duct_gap_m, 0.0, 5.0, "gap between the design line and the duct's top [m]");
+  f("context_duct_y_m", &SynthConfig::context_duct_y_m, -20.0, 20.0, "duct's centre across the axis (left positive) [m]");
+  f("context_rig_length_m", &SynthConfig::context_rig_length_m, 0.0, 30.0, "rig carrier: a box on the invert behind the arm's base [m]; 0 = none");
+  f("context_rig_width_m", &SynthConfig::context_rig_width_m, 0.1, 20.0, "rig carrier's width, centred across the axis [m]");
+  f("context_rig_height_m", &SynthConfig::context_rig_height_m, 0.1, 10.0, "rig carrier's height above the invert [m]");
+  f("context_rig_front_d_m", &SynthConfig::context_rig_front_d_m, -100.0, 100.0, "chainage of the rig carrier's front end [m]");
   f("after_flow_scale", &SynthConfig::after_flow_scale, 0.1, 3.0, "after-scan: real / modelled flow");
   f("after_rebound_fraction", &SynthConfig::after_rebound_fraction, 0.0, 0.9, "after-scan: real rebound share");
   f("after_thickness_noise", &SynthConfig::after_thickness_noise, 0.0, 1.0, "after-scan: correlated layer noise, share of the layer (std dev)");

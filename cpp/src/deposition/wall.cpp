@@ -92,7 +92,10 @@ void deposit_layer(SprayedWall& wall, const Eigen::VectorXd& thickness_m) {
     throw std::invalid_argument("deposit_layer: the wall does not come from unsprayed_wall (cells or normals missing)");
   std::vector<char> touched(grid.size(), 0);
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-    if (thickness_m[i] <= 0) continue;
+    // Points of no cell (face, floor, lining, a duct) stay as scanned: obstacles and references.
+    // A nozzle passing a duct within centimetres would give it metres of "layer" and move it
+    // across the axis into the arm's way.
+    if (thickness_m[i] <= 0 || wall.cell_of_point[static_cast<std::size_t>(i)] < 0) continue;
     const Eigen::Vector3d p = cloud.xyz.row(i).transpose();
     const Eigen::Vector3d q = p - grid.axis.origin_m;
     const Eigen::Vector3d inward = -(q - q.dot(grid.axis.ex) * grid.axis.ex).normalized();

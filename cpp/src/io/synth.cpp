@@ -1,6 +1,7 @@
 #include "shotcrete/io/synth.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -166,6 +167,38 @@ Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, d
                      n = -axis.ex;
                      return true;
                    });
+  }
+  if (c.context_duct_diameter_m > 0) {  // the duct: its whole round, over both bays
+    const double a = c.context_duct_diameter_m / 2, y = c.context_duct_y_m;
+    if (!(std::abs(y) < R)) throw std::invalid_argument("synth: context_duct_y_m puts the duct outside the design circle");
+    const double zc = std::sqrt(R * R - y * y) - c.context_duct_gap_m - a;
+    const double d0 = -c.context_previous_bay_m, len = c.context_previous_bay_m + c.length_m;
+    sample_surface(pts, std::lround(2 * kPi * a * len * density), noise_m, rng,
+                   [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
+                     const double phi = 2 * kPi * u1;
+                     n = axis.ey * std::cos(phi) + axis.ez * std::sin(phi);
+                     p = axis.origin_m + axis.ex * (d0 + u2 * len) + axis.ey * y + axis.ez * zc + a * n;
+                     return true;
+                   });
+  }
+  if (c.context_rig_length_m > 0) {  // the carrier: a box on the invert, its five faces above it
+    if (!(h > 0)) throw std::invalid_argument("synth: the rig (context_rig_length_m) stands on the invert; set context_invert_depth_m > 0");
+    const double L = c.context_rig_length_m, W = c.context_rig_width_m, H = c.context_rig_height_m;
+    const Eigen::Vector3d lo = axis.origin_m + axis.ex * (c.context_rig_front_d_m - L) - axis.ey * (W / 2) - axis.ez * h;
+    // Face k: corner + u1 * e1 + u2 * e2, outward normal.
+    const std::array<std::array<Eigen::Vector3d, 4>, 5> faces{{
+        {lo + axis.ez * H, axis.ex * L, axis.ey * W, axis.ez},         // top
+        {lo, axis.ex * L, axis.ez * H, -axis.ey},                      // right side
+        {lo + axis.ey * W, axis.ex * L, axis.ez * H, axis.ey},         // left side
+        {lo, axis.ey * W, axis.ez * H, -axis.ex},                      // back
+        {lo + axis.ex * L, axis.ey * W, axis.ez * H, axis.ex}}};       // front, toward the face
+    for (const auto& f : faces)
+      sample_surface(pts, std::lround(f[1].norm() * f[2].norm() * density), noise_m, rng,
+                     [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
+                       p = f[0] + u1 * f[1] + u2 * f[2];
+                       n = f[3];
+                       return true;
+                     });
   }
   return to_cloud(pts);
 }

@@ -357,6 +357,7 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   s.bay = surface.bay;
   s.points_not_wall = grid.points_not_wall;
   s.points_outside_bay = grid.points_outside_bay;
+  s.points_obstacle = grid.points_obstacle;
   s.axis_direction = surface.axis.ex;
   if (surface.axis_fit) {
     s.axis_fit_arc_deg = surface.axis_fit->arc_rad * 180.0 / M_PI;
@@ -509,7 +510,8 @@ std::string JobSummary::to_json() const {
   w.key("bay").begin_object().field("selection", bay.mode).field("start_m", bay.range.start_m).field("end_m", bay.range.end_m);
   w.field("scan_start_m", bay.scan_start_m).field("scan_end_m", bay.scan_end_m);
   w.field("lined_columns", bay.lined_columns).field("scan_columns", bay.scan_columns);
-  w.field("points_not_wall", points_not_wall).field("points_outside_bay", points_outside_bay).end_object();
+  w.field("points_not_wall", points_not_wall).field("points_outside_bay", points_outside_bay);
+  w.field("points_obstacle", points_obstacle).end_object();
   w.key("levels_before");
   write(w, levels_before);
   w.key("td_before_mm");

@@ -76,8 +76,19 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   // fixed lattice whose wall-like points are both a minority of its points near the line and under
   // half a typical cell's drops them. (Where the face meets the wall, the face's points
   // outnumber the wall's in the last column, but the wall's are as many as anywhere.)
+  // 3: wall-like but obstacle_gap_m or more inside the outermost surface of its lattice cell (the
+  // same rays from the axis): something hangs in front of the wall there (a duct's top). The
+  // outermost surface is the third-largest TD of the cell's wall-like points, so two outliers
+  // beyond the wall do not move it.
   std::vector<char> kind(cloud.size(), 0);
-  std::unordered_map<std::int64_t, std::pair<int, int>> votes;  // lattice cell -> (wall-like, not wall)
+  std::vector<float> td(cloud.size(), 0.0f);
+  struct Votes {
+    int wall = 0, not_wall = 0;
+    float top[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                    -std::numeric_limits<float>::infinity()};  // largest wall-like TDs, descending
+    float low = std::numeric_limits<float>::infinity();  // smallest wall-like TD
+  };
+  std::unordered_map<std::int64_t, Votes> votes;  // lattice cell -> votes
   auto lattice_key = [&](const Eigen::Vector3d& c) {
     return static_cast<std::int64_t>(std::floor(c[1] / g.dtheta_rad)) * 4000037 +
            static_cast<std::int64_t>(std::floor(c[2] / g.cell_size_m));
@@ -85,18 +96,68 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   std::size_t near_line = 0;
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
     cyl[i] = axis.to_cylindrical(cloud.xyz.row(i).transpose());
-    if (!(std::abs(profile.td_m(cyl[i][0], cyl[i][1])) <= max_deviation_m)) continue;  // NaN: off a section's span
+    const double t = profile.td_m(cyl[i][0], cyl[i][1]);
+    if (!(std::abs(t) <= max_deviation_m)) continue;  // NaN: off a section's span
     ++near_line;
+    td[i] = static_cast<float>(t);
     // A zero normal (none estimated) counts as wall: only a known tilt leaves a point out.
     const Eigen::Vector3d n = cloud.normals.row(i).transpose();
     const bool facing_away = n.squaredNorm() > 0.25 && std::abs(n.dot(design_normal(axis, profile, cyl[i][1]))) < cos_tilt * n.norm();
     kind[i] = facing_away ? 1 : 2;
     auto& v = votes[lattice_key(cyl[i])];
-    (facing_away ? v.second : v.first) += 1;
+    if (facing_away) {
+      v.not_wall += 1;
+      continue;
+    }
+    v.wall += 1;
+    v.low = std::min(v.low, td[i]);
+    float x = td[i];
+    for (float& slot : v.top)
+      if (x > slot) std::swap(x, slot);
+  }
+  if (config.obstacle_gap_m > 0) {
+    // A cell whose outer surface (third-largest TD; the smallest of its TDs when it has under
+    // three) lies obstacle_gap_m or more beyond some of its points holds either something in
+    // front of the wall or a step across the cell (the lining's end, a ledge): only the first has
+    // wall behind the point on the same rays. So the candidates are checked on rays: a point is an
+    // obstacle when one of the 3 x 3 fine bins (a quarter of a cell) around it holds a point that
+    // far beyond it; a step then moves at most a fine bin and a half of its cell. (A stray point
+    // beyond the wall makes no candidate: the cell's third-largest TD ignores two.)
+    const float gap = static_cast<float>(config.obstacle_gap_m);
+    auto outer_of = [](const Votes& v) { return std::isfinite(v.top[2]) ? v.top[2] : std::isfinite(v.top[1]) ? v.top[1] : v.top[0]; };
+    const double fine_th = g.dtheta_rad / 4.0, fine_d = g.cell_size_m / 4.0;
+    auto fine_key = [&](std::int64_t row, std::int64_t col) { return row * 40000003 + col; };
+    std::unordered_map<std::int64_t, float> fine;  // fine bin of a candidate cell -> largest wall-like TD
+    std::vector<Eigen::Index> candidates;
+    for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+      if (kind[i] != 2) continue;
+      const Votes& v = votes[lattice_key(cyl[i])];
+      const float outer = outer_of(v);
+      if (!(v.low <= outer - gap)) continue;
+      const std::int64_t key = fine_key(static_cast<std::int64_t>(std::floor(cyl[i][1] / fine_th)),
+                                        static_cast<std::int64_t>(std::floor(cyl[i][2] / fine_d)));
+      auto it = fine.emplace(key, td[i]).first;
+      it->second = std::max(it->second, td[i]);
+      if (td[i] <= outer - gap) candidates.push_back(i);
+    }
+    for (const Eigen::Index i : candidates) {
+      const auto row = static_cast<std::int64_t>(std::floor(cyl[i][1] / fine_th));
+      const auto col = static_cast<std::int64_t>(std::floor(cyl[i][2] / fine_d));
+      int behind = 0;
+      for (int dr = -1; dr <= 1; ++dr)
+        for (int dc = -1; dc <= 1; ++dc) {
+          const auto it = fine.find(fine_key(row + dr, col + dc));
+          behind += it != fine.end() && it->second >= td[i] + gap;
+        }
+      if (behind >= 1) {
+        kind[i] = 3;
+        votes[lattice_key(cyl[i])].wall -= 1;  // not a wall vote: the cell's wall is what lies behind it
+      }
+    }
   }
   std::vector<int> wall_counts;
   for (const auto& kv : votes)
-    if (kv.second.first > 0) wall_counts.push_back(kv.second.first);
+    if (kv.second.wall > 0) wall_counts.push_back(kv.second.wall);
   int typical = 0;
   if (!wall_counts.empty()) {
     std::nth_element(wall_counts.begin(), wall_counts.begin() + wall_counts.size() / 2, wall_counts.end());
@@ -107,8 +168,12 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
   std::size_t kept = 0;
   for (Eigen::Index i = 0; i < cloud.size(); ++i) {
     if (kind[i] == 0) continue;
+    if (kind[i] == 3) {
+      ++g.points_obstacle;
+      continue;
+    }
     const auto& v = votes[lattice_key(cyl[i])];
-    if (kind[i] == 1 || (v.first < v.second && 2 * v.first < typical)) {
+    if (kind[i] == 1 || (v.wall < v.not_wall && 2 * v.wall < typical)) {
       ++g.points_not_wall;
       continue;
     }
@@ -168,7 +233,7 @@ Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile&
     g.count[c] += 1;
     g.mean_xyz.row(c) += cloud.xyz.row(i);
     g.mean_normal.row(c) += cloud.normals.row(i);
-    r_sum[c] += profile.td_m(cyl[i][0], cyl[i][1]);
+    r_sum[c] += profile.td_m(cyl[i][0], cyl[i][1]);  // double, not the float copy
   }
   g.td_m = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::quiet_NaN());
   for (int c = 0; c < n; ++c) {

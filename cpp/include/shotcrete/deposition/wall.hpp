@@ -22,8 +22,9 @@ struct SprayedWall {
 /// means and TD are those of the points assigned here. Throws std::invalid_argument without normals.
 SprayedWall unsprayed_wall(const Surface& surface, double max_deviation_m);
 
-/// Puts a layer on the wall: every point moves toward the axis along its ray (d and theta stay, so
-/// the point keeps its cell) by thickness_m[i] / cos(tilt) -- a layer measured along the normal
+/// Puts a layer on the wall: every point of a cell moves toward the axis along its ray (d and theta
+/// stay, so the point keeps its cell) by thickness_m[i] / cos(tilt); points of no cell (the face,
+/// a floor, the lining, a ventilation duct) stay where the scan has them -- a layer measured along the normal
 /// fills that much radially (tilt: between the normal and the ray, counted at most 60 degrees).
 /// Moving along the scan normals instead makes points in deep pits cross each other and corrupt
 /// the cell means. Then the cells are re-averaged, their levels re-graded, and every cell that

@@ -34,8 +34,11 @@ struct SyntheticBay {
   /// The unsprayed surroundings (context_*), `points_per_cell` per cell area, noise along each
   /// surface's normal: the lined previous bay (d in [-context_previous_bay_m, 0), on the design
   /// line), the invert (plane z = -context_invert_depth_m, |y| <= r_design, under both bays) and the
-  /// face (plane d = length_m inside the design circle, above the invert). Empty when disabled.
-  /// Circle only (std::invalid_argument on a section).
+  /// face (plane d = length_m inside the design circle, above the invert), and when set the
+  /// ventilation duct (a cylinder along the axis under the crown, its whole round, over both bays)
+  /// and the rig's carrier (a box on the invert, its top and four sides). Every surface is sampled
+  /// whole: the generator models no occlusion (the wall behind the duct is there too). Empty when
+  /// disabled. Circle only (std::invalid_argument on a section).
   Cloud sample_context(double cell_size_m, double points_per_cell, double noise_m, std::uint64_t seed) const;
   /// What a scanner sees before spraying: sample() plus sample_context() when context_enabled.
   Cloud sample_scan(double cell_size_m = 0.05) const;

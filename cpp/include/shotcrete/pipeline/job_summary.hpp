@@ -121,6 +121,7 @@ struct JobSummary {
   std::optional<long> axis_fit_points;     // points the fit used
   BaySelectionResult bay;                  // report.json `bay`: the stretch of the scan gridded
   long points_not_wall = 0, points_outside_bay = 0;  // near the design line but left out of the grid
+  long points_obstacle = 0;  // wall-like but in front of the wall (grid.obstacle_gap_m): left out of the grid
   std::map<int, int> levels_before;
   TdStatsMm td_before_mm;
   // Of the executed deposit (the trajectory with the pump's flow) when there is a trajectory,

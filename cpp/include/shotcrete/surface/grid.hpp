@@ -33,6 +33,7 @@ struct Grid {
   Eigen::VectorXd td_m;        // per cell mean TD (distance from the design line along its normal), m (NaN where invalid)
   long points_not_wall = 0;     // points near the design line left out: normal tilted beyond grid.max_normal_tilt_rad
   long points_outside_bay = 0;  // points near the design line left out: outside the bay's chainage range
+  long points_obstacle = 0;     // wall-like points left out: grid.obstacle_gap_m inside their cell's outermost surface
 
   int size() const { return n_theta * n_d; }
   int index(int row, int col) const { return row * n_d + col; }
@@ -58,7 +59,10 @@ struct BayRange {
 /// std::invalid_argument if none is left (wrong radius, axis or units). With `bay`, the grid's
 /// columns span exactly the range, its ends snapped to the nearest cell edges. A lattice cell whose
 /// wall-like points are both a minority of its points near the design line and under half
-/// a typical cell's drops them (a floor's noisy normals tip a few of its points under the limit). kept_points, when given, gets
+/// a typical cell's drops them (a floor's noisy normals tip a few of its points under the limit).
+/// A wall-like point config.obstacle_gap_m or more inside the outermost surface of its lattice
+/// cell (the cell's third-largest wall-like TD) lies on an obstacle in front of the wall (a
+/// ventilation duct's top) and is left out too (points_obstacle). kept_points, when given, gets
 /// 1 for every point gridded.
 Grid build_grid(const Cloud& cloud, const TunnelAxis& axis, const DesignProfile& profile,
                 const GridConfig& config, double max_deviation_m, const std::optional<BayRange>& bay = std::nullopt,
