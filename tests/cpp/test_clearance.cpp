@@ -139,18 +139,14 @@ TEST(Clearance, RobotShapesFramesAndSelfPairs) {
   }
 }
 
-// check_clearance's skipping gives the minima (within 10 mm above) and the counts of a check of
-// every sample, also for a link pair (checked against FCL's shape distance at every sample); in
-// stretches over two threads, the same result on every run.
-TEST(Clearance, BoundedSkippingEqualsEverySample) {
-  const Robot robot = Robot::load(RobotConfig{});
-  // The arm swept by the slew and the boom: 400 samples at 50 Hz, repeated 11 times (4400
-  // samples: two stretches, split inside a repeat).
-  constexpr int kPeriod = 400, kRepeats = 11;
+namespace {
+
+// The arm swept by the slew and the boom: 400 samples at 50 Hz, repeated `repeats` times.
+TimedTrajectory sweep(const Robot& robot, int period, int repeats) {
   TimedTrajectory traj;
   const Eigen::VectorXd q0 = robot.neutral();
-  for (int k = 0; k < kPeriod * kRepeats; ++k) {
-    const int i = k % kPeriod;
+  for (int k = 0; k < period * repeats; ++k) {
+    const int i = k % period;
     Eigen::VectorXd q = q0;
     q[0] += 1.2 * std::sin(i * 0.02);
     q[1] = std::clamp(q0[1] + 0.6 * std::sin(i * 0.013), robot.lower_limits()[1], robot.upper_limits()[1]);
@@ -158,6 +154,49 @@ TEST(Clearance, BoundedSkippingEqualsEverySample) {
     traj.t_s.push_back(k * 0.02);
     traj.q.push_back(q);
   }
+  return traj;
+}
+
+// Every sample, every shape, by exact distances (exact_distance: equal to the brute force over
+// every point, OctreeDistanceAgainstBruteForce): per link the least distance and the samples below
+// its margin.
+struct EverySample {
+  std::map<std::string, double> min_m;
+  std::map<std::string, int> below;
+  std::vector<std::map<std::string, double>> at;  // per sample, per link
+};
+EverySample every_sample(const Robot& robot, const TimedTrajectory& traj, std::size_t samples, const WallOctree& wall,
+                         const ClearanceConfig& cfg) {
+  EverySample out;
+  for (std::size_t k = 0; k < samples; ++k) {
+    const auto frames = robot.link_frames(traj.q[k]);
+    std::map<std::string, double> d;
+    for (const auto& s : robot.collision_shapes()) {
+      const double e = wall.exact_distance(s, frames[s.frame]);
+      d[s.link] = d.count(s.link) ? std::min(d[s.link], e) : e;
+    }
+    std::map<std::string, bool> b;
+    for (const auto& s : robot.collision_shapes()) {
+      out.min_m[s.link] = out.min_m.count(s.link) ? std::min(out.min_m[s.link], d[s.link]) : d[s.link];
+      b[s.link] = b[s.link] || d[s.link] < shape_margin_m(s, cfg);
+    }
+    for (const auto& [link, v] : b) out.below[link] += v ? 1 : 0;
+    out.at.push_back(d);
+  }
+  return out;
+}
+
+}  // namespace
+
+// check_clearance against a check of every sample by exact distances (brute force over every wall
+// point): the same samples below the margins, each link's least distance the exact distance at its
+// reported time, and the every-sample least distance within [min_lower_m, min_m]; link pairs against
+// FCL's shape distance at every sample (least within 10 mm above). In stretches over two threads,
+// the same result on every run.
+TEST(Clearance, CheckEqualsExactDistancesAtEverySample) {
+  const Robot robot = Robot::load(RobotConfig{});
+  constexpr int kPeriod = 400, kRepeats = 11;  // 4400 samples: two stretches, split inside a repeat
+  const TimedTrajectory traj = sweep(robot, kPeriod, kRepeats);
   // A wall close enough that some samples fall below the margins: half cylinder of 4.5 m about
   // an axis at the base's height.
   Points wall = half_cylinder(4.5, 6.0, 300, 60);
@@ -166,23 +205,38 @@ TEST(Clearance, BoundedSkippingEqualsEverySample) {
   ClearanceConfig cfg;
   cfg.link_margin_m = 1.0;
   const ClearanceReport rep = check_clearance(robot, traj, tree, cfg);
-  // Every sample of one repeat, every shape and link pair, no skipping.
+  const EverySample ref = every_sample(robot, traj, kPeriod, tree, cfg);
+  int total_below = 0;
+  for (const auto& lc : rep.links) {
+    EXPECT_EQ(lc.samples_below_margin, kRepeats * ref.below.at(lc.link)) << lc.link;
+    total_below += lc.samples_below_margin;
+    // The value is the exact distance at the reported sample, and the closest point is at it.
+    const auto k = static_cast<std::size_t>(std::llround(lc.at_time_s / 0.02)) % kPeriod;
+    EXPECT_NEAR(lc.min_m, ref.at[k].at(lc.link), 1e-12) << lc.link;
+    const auto frames = robot.link_frames(traj.q[k]);
+    double brute = std::numeric_limits<double>::infinity();
+    for (const auto& s : robot.collision_shapes())
+      if (s.link == lc.link) brute = std::min(brute, brute_force(wall, s, frames[s.frame]));
+    EXPECT_NEAR(lc.min_m, brute, 1e-12) << lc.link;
+    double at_closest = std::numeric_limits<double>::infinity();
+    for (const auto& s : robot.collision_shapes())
+      if (s.link == lc.link) at_closest = std::min(at_closest, point_shape_distance(lc.closest_m, s, frames[s.frame]));
+    EXPECT_NEAR(at_closest, lc.min_m, 1e-12) << lc.link;
+    // The every-sample least distance lies in the band the report gives.
+    EXPECT_GE(ref.min_m.at(lc.link), lc.min_lower_m - 1e-12) << lc.link;
+    EXPECT_LE(ref.min_m.at(lc.link), lc.min_m + 1e-12) << lc.link;
+    EXPECT_LE(lc.min_m - lc.min_lower_m, std::sqrt(3.0) * 0.05 + 0.01 + 1e-12) << lc.link;
+  }
+  EXPECT_GT(total_below, 0);                                                   // the test exercises the count
+  EXPECT_LT(rep.wall_queries, static_cast<long long>(traj.size() * robot.collision_shapes().size()));  // and the skipping
+  EXPECT_GT(rep.exact_queries, static_cast<long long>(rep.links.size()));     // and the exact decisions
+  // Link pairs: FCL at every sample.
   const auto& shapes = robot.collision_shapes();
   const auto pairs = self_check_pairs(robot);
-  std::map<std::string, double> min_m;
-  std::map<std::string, int> below;
   double self_min = std::numeric_limits<double>::infinity();
   int self_below = 0;
   for (int k = 0; k < kPeriod; ++k) {
     const auto frames = robot.link_frames(traj.q[static_cast<std::size_t>(k)]);
-    std::map<std::string, bool> b;
-    for (const auto& s : shapes) {
-      const double d = tree.distance(s, frames[s.frame]);
-      min_m[s.link] = min_m.count(s.link) ? std::min(min_m[s.link], d) : d;
-      const double margin = s.link.rfind("nozzle", 0) == 0 ? cfg.nozzle_margin_m : cfg.link_margin_m;
-      b[s.link] = b[s.link] || d < margin;
-    }
-    for (const auto& [l, v] : b) below[l] += v ? 1 : 0;
     bool sb = false;
     for (const auto& [a, c] : pairs) {
       const double d = shape_distance(shapes[a], frames[shapes[a].frame], shapes[c], frames[shapes[c].frame]);
@@ -191,19 +245,10 @@ TEST(Clearance, BoundedSkippingEqualsEverySample) {
     }
     self_below += sb ? 1 : 0;
   }
-  int total_below = 0;
-  for (const auto& lc : rep.links) {
-    EXPECT_GE(lc.min_m, min_m.at(lc.link) - 1e-12) << lc.link;  // a sample it skipped may be closer,
-    EXPECT_LE(lc.min_m, min_m.at(lc.link) + 0.01) << lc.link;   // by less than the tolerance
-    EXPECT_EQ(lc.samples_below_margin, kRepeats * below.at(lc.link)) << lc.link;
-    total_below += lc.samples_below_margin;
-  }
   EXPECT_GE(rep.self.min_m, self_min - 1e-12);
   EXPECT_LE(rep.self.min_m, self_min + 0.01);
   EXPECT_EQ(rep.self.samples_below_margin, kRepeats * self_below);
   EXPECT_LT(rep.self_queries, static_cast<long long>(traj.size() * pairs.size()) / 4);  // b's motion relative to a
-  EXPECT_GT(total_below, 0);                                       // the test exercises the count
-  EXPECT_LT(rep.wall_queries, static_cast<long long>(traj.size() * shapes.size()));  // and the skipping
   EXPECT_EQ(rep.samples, kPeriod * kRepeats);
   // Deterministic: the stretches do not depend on the threads' timing.
   const ClearanceReport again = check_clearance(robot, traj, tree, cfg);
@@ -215,7 +260,81 @@ TEST(Clearance, BoundedSkippingEqualsEverySample) {
   }
   EXPECT_EQ(again.self.min_m, rep.self.min_m);
   EXPECT_EQ(again.wall_queries, rep.wall_queries);
+  EXPECT_EQ(again.exact_queries, rep.exact_queries);
   EXPECT_EQ(again.self_queries, rep.self_queries);
+}
+
+// The transit router's screen: the octree's reading at every sample gives its counts, and its
+// minima within 10 mm above.
+TEST(Clearance, OctreeScreenEqualsEverySampleReading) {
+  const Robot robot = Robot::load(RobotConfig{});
+  constexpr int kPeriod = 400, kRepeats = 11;
+  const TimedTrajectory traj = sweep(robot, kPeriod, kRepeats);
+  Points wall = half_cylinder(4.5, 6.0, 300, 60);
+  wall.col(0).array() -= 3.0;
+  const WallOctree tree(wall, 0.05);
+  ClearanceConfig cfg;
+  cfg.link_margin_m = 1.0;
+  const ClearanceReport rep = check_clearance_octree(robot, traj, tree, cfg);
+  std::map<std::string, double> min_m;
+  std::map<std::string, int> below;
+  for (int k = 0; k < kPeriod; ++k) {
+    const auto frames = robot.link_frames(traj.q[static_cast<std::size_t>(k)]);
+    std::map<std::string, bool> b;
+    for (const auto& s : robot.collision_shapes()) {
+      const double d = tree.distance(s, frames[s.frame]);
+      min_m[s.link] = min_m.count(s.link) ? std::min(min_m[s.link], d) : d;
+      b[s.link] = b[s.link] || d < shape_margin_m(s, cfg);
+    }
+    for (const auto& [l, v] : b) below[l] += v ? 1 : 0;
+  }
+  int total_below = 0;
+  for (const auto& lc : rep.links) {
+    EXPECT_GE(lc.min_m, min_m.at(lc.link) - 1e-12) << lc.link;
+    EXPECT_LE(lc.min_m, min_m.at(lc.link) + 0.01) << lc.link;
+    EXPECT_EQ(lc.samples_below_margin, kRepeats * below.at(lc.link)) << lc.link;
+    total_below += lc.samples_below_margin;
+  }
+  EXPECT_GT(total_below, 0);
+  EXPECT_EQ(rep.exact_queries, 0);
+}
+
+// One sample dipping below the margin between two samples far from the wall (the arm jumps to a
+// posture near the wall and back): the motion bound does not skip it; it is the only one counted
+// and the nozzle's least distance is read there.
+TEST(Clearance, OneSampleDipBetweenFarSamplesIsFound) {
+  const Robot robot = Robot::load(RobotConfig{});
+  TimedTrajectory traj;
+  const Eigen::VectorXd far = robot.stow();
+  Eigen::VectorXd near = far;
+  near[2] = robot.upper_limits()[2];  // the boom's telescope out
+  const auto frames_near = robot.link_frames(near);
+  const auto& shapes = robot.collision_shapes();
+  const auto nozzle = std::find_if(shapes.begin(), shapes.end(), [](const CollisionShape& s) { return s.link == "nozzle"; });
+  ASSERT_NE(nozzle, shapes.end());
+  // A small plane of points 0.2 m from the nozzle's centre at the dip, across its axis.
+  const Eigen::Isometry3d T = frames_near[nozzle->frame] * nozzle->origin;
+  Points plane(21 * 21, 3);
+  for (int i = 0; i < 21; ++i)
+    for (int j = 0; j < 21; ++j)
+      plane.row(i * 21 + j) = (T * Eigen::Vector3d(nozzle->radius_m + 0.2, 0.05 * (i - 10), 0.05 * (j - 10))).transpose();
+  for (int k = 0; k < 2001; ++k) {
+    traj.t_s.push_back(k * 0.02);
+    traj.q.push_back(k == 1000 ? near : far);
+  }
+  const WallOctree tree(plane, 0.05);
+  ClearanceConfig cfg;
+  const ClearanceReport rep = check_clearance(robot, traj, tree, cfg);
+  const auto it = std::find_if(rep.links.begin(), rep.links.end(), [](const LinkClearance& l) { return l.link == "nozzle"; });
+  ASSERT_NE(it, rep.links.end());
+  const double exact = brute_force(plane, *nozzle, frames_near[nozzle->frame]);
+  ASSERT_LT(exact, cfg.nozzle_margin_m);  // the dip is below the margin
+  const double far_d = brute_force(plane, *nozzle, robot.link_frames(far)[nozzle->frame]);
+  ASSERT_GT(far_d, cfg.nozzle_margin_m + 0.5);  // and the samples around it far above
+  EXPECT_EQ(it->samples_below_margin, 1);
+  EXPECT_NEAR(it->min_m, exact, 1e-12);
+  EXPECT_DOUBLE_EQ(it->at_time_s, 1000 * 0.02);
+  EXPECT_GE(rep.samples_below_margin(), 1);
 }
 
 // A pose that puts the boom through the wall reads 0 for the boom and counts below the margin.

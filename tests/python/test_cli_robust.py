@@ -489,9 +489,10 @@ def _exact_link_distance(report_link: dict, robot, q, wall: np.ndarray) -> float
 
 
 def test_clearance_in_the_report_against_an_exact_distance(tmp_path):
-    """clearance.enabled: report.json's least distance per link is the octree's, which reads short of
-    the exact distance to the wall's points by at most a leaf diagonal, never long (checked here with
-    numpy at the reported time); a link below its margin is a `clearance` problem and exit 3."""
+    """clearance.enabled: report.json's least distance per link is the exact distance to the wall's
+    points at the reported time (checked here with numpy), and no sample's closer than min_lower_m,
+    at most a leaf diagonal and 10 mm below it; a link below its margin is a `clearance` problem and
+    exit 3."""
     cfg = tmp_path / "c.yaml"
     cfg.write_text(TINY_BAY + "clearance: {enabled: true, octree_resolution_m: 0.05}\n")
     out = tmp_path / "c"
@@ -512,8 +513,8 @@ def test_clearance_in_the_report_against_an_exact_distance(tmp_path):
     for link in c["links"]:
         k = int(np.argmin(np.abs(traj["t_s"] - link["at_time_s"])))
         exact = _exact_link_distance(link, robot, traj["q"][k], wall)
-        assert link["min_m"] <= exact + 1e-6, link
-        assert link["min_m"] >= exact - leaf_diagonal - 1e-6, (link, exact)
+        assert abs(link["min_m"] - exact) <= 1e-6, (link, exact)
+        assert link["min_m"] - leaf_diagonal - 0.01 - 1e-9 <= link["min_lower_m"] <= link["min_m"], link
 
 
 @pytest.mark.parametrize("shape, reason", [

@@ -20,6 +20,7 @@ inline int omp_get_thread_num() { return 0; }
 #include <limits>
 #include <mutex>
 #include <stdexcept>
+#include <tuple>
 
 #include "shotcrete/timing/trajectory.hpp"
 
@@ -65,6 +66,51 @@ double max_displacement(const std::array<Eigen::Vector3d, 8>& corners, const Eig
   return m;
 }
 
+// A sphere cover of a shape, in its link frame: every point of the shape lies within radius[j] of
+// centre[j] for some j. A cylinder: centres along its axis, each ball covering a slice (radius
+// hypot(r, slice/2) <= r + slack); a sphere: itself; a box: a grid of cubes of its least edge (at
+// least 0.1 m), coarser than `slack` (the URDF's shapes are cylinders). Any cover keeps bounds()
+// and exact_distance() right; the slack only sets how tight the lower bound is.
+struct BallCover {
+  std::vector<Eigen::Vector3d> centre;
+  std::vector<double> radius;
+};
+BallCover ball_cover(const CollisionShape& s, double slack) {
+  BallCover out;
+  if (s.kind == CollisionShape::Kind::cylinder) {
+    const double slice = 2.0 * std::sqrt(2.0 * s.radius_m * slack + slack * slack);
+    const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / slice)));
+    const double h = s.length_m / m;
+    for (int k = 0; k < m; ++k) {
+      out.centre.push_back(s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m + (k + 0.5) * h));
+      out.radius.push_back(std::hypot(s.radius_m, 0.5 * h));
+    }
+  } else if (s.kind == CollisionShape::Kind::box) {
+    const double cell = std::max(s.size_m.minCoeff(), 0.1);
+    Eigen::Vector3i n;
+    for (int i = 0; i < 3; ++i) n[i] = std::max(1, static_cast<int>(std::ceil(s.size_m[i] / cell)));
+    const Eigen::Vector3d step = s.size_m.cwiseQuotient(n.cast<double>());
+    for (int i = 0; i < n.x(); ++i)
+      for (int j = 0; j < n.y(); ++j)
+        for (int k = 0; k < n.z(); ++k) {
+          out.centre.push_back(s.origin * (-0.5 * s.size_m + step.cwiseProduct(Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5))));
+          out.radius.push_back(0.5 * step.norm());
+        }
+  } else {
+    out.centre.push_back(s.origin.translation());
+    out.radius.push_back(s.radius_m);
+  }
+  return out;
+}
+
+// The fine cover of exact_distance.
+constexpr double kExactCoverSlack_m = 0.002;
+
+// The KD-tree holds float coordinates: its answers are widened by this much (a search radius) or
+// re-measured in double (a nearest point, whose float rank may differ from the double one by as
+// much: lower bounds are lowered by it).
+constexpr double kFloatSlack_m = 1e-4;
+
 // FCL reports -1 (or a depth) for shapes in contact: 0 here. `nearest`: both nearest points.
 // `at_most`: an upper bound that prunes the octree traversal (FCL visits every node nearer than
 // the best distance so far, in a fixed order, so a good first bound saves most of the work); when
@@ -78,11 +124,11 @@ double fcl_distance(const fcl::CollisionObjectd& a, const fcl::CollisionObjectd&
   return std::max(0.0, result.min_distance);
 }
 
-// The reported minima may be this much above the exact ones (a sample is not checked when it
-// could only lower a minimum by less); the counts below the margins are exact.
+// The least readings (octree, link pairs) may be this much above the every-sample ones (a sample
+// is not checked when it could only lower a minimum by less); the counts below the margins are exact.
 constexpr double kMinTolerance_m = 0.01;
 
-// How far past the threshold a wall query looks: larger answers more samples per query, smaller
+// How far past the threshold an octree query looks: larger answers more samples per query, smaller
 // makes each query cheaper (bench_clearance.py).
 constexpr double kQuerySlack_m = 0.25;
 
@@ -153,38 +199,51 @@ double WallOctree::distance(const CollisionShape& shape, const Eigen::Isometry3d
   return d;
 }
 
+WallOctree::Bounds WallOctree::bounds(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
+                                      double cover_slack_m) const {
+  const BallCover cover = ball_cover(shape, cover_slack_m);
+  const auto& kd = impl_->kdtree();
+  Bounds b;
+  b.lower_m = b.upper_m = std::numeric_limits<double>::infinity();
+  b.ball_lower_m.resize(cover.centre.size());
+  std::vector<int> idx(1);
+  std::vector<float> d2(1);
+  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
+    const Eigen::Vector3d c = link_pose * cover.centre[j];
+    kd.nearestKSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())), 1, idx, d2);
+    const Eigen::Vector3d p = impl_->points.row(idx[0]).transpose();
+    // Every wall point is at least (nearest - slack) from c, so at least that less the ball's
+    // radius from every point of the shape inside the ball.
+    b.ball_lower_m[j] = (p - c).norm() - kFloatSlack_m - cover.radius[j];
+    b.lower_m = std::min(b.lower_m, b.ball_lower_m[j]);
+    const double d = point_shape_distance(p, shape, link_pose);
+    if (d < b.upper_m || (d == b.upper_m && idx[0] < b.upper_point)) b.upper_m = d, b.upper_point = idx[0];
+  }
+  b.lower_m = std::max(0.0, b.lower_m);
+  return b;
+}
+
 double WallOctree::exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
                                   Eigen::Vector3d* closest_m) const {
-  // Every point of the nearest leaf lies within a leaf diagonal of the shape's distance to it.
-  const double upper = distance(shape, link_pose) + std::sqrt(3.0) * impl_->resolution_m;
-  // Spheres that cover every point within `upper` of the shape: along a cylinder's axis, spaced at
-  // most the tube's radius apart; one about a box's or a sphere's centre.
-  const Eigen::Isometry3d T = link_pose * shape.origin;
-  std::vector<std::pair<Eigen::Vector3d, double>> balls;
-  if (shape.kind == CollisionShape::Kind::cylinder) {
-    const double tube = shape.radius_m + upper;
-    const int m = std::max(1, static_cast<int>(std::ceil(shape.length_m / tube)));
-    const double h = shape.length_m / m;
-    for (int k = 0; k <= m; ++k)
-      balls.emplace_back(T * Eigen::Vector3d(0, 0, -0.5 * shape.length_m + k * h), std::hypot(0.5 * h, tube));
-  } else {
-    const double r = shape.kind == CollisionShape::Kind::box ? 0.5 * shape.size_m.norm() : shape.radius_m;
-    balls.emplace_back(T.translation(), r + upper);
-  }
+  const BallCover cover = ball_cover(shape, kExactCoverSlack_m);
+  const Bounds b = bounds(shape, link_pose, kExactCoverSlack_m);
   const auto& kd = impl_->kdtree();
-  double best = std::numeric_limits<double>::infinity();
-  Eigen::Index best_i = -1;
+  double best = b.upper_m;
+  Eigen::Index best_i = b.upper_point;
   std::vector<int> idx;
   std::vector<float> d2;
-  for (const auto& [c, r] : balls) {
+  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
+    // A point nearer than `best` to a point s of the shape in ball j lies within best + radius of
+    // its centre, and then the ball's lower bound is below best: other balls cannot hold it.
+    if (b.ball_lower_m[j] > best) continue;
+    const Eigen::Vector3d c = link_pose * cover.centre[j];
     kd.radiusSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())),
-                    r + 1e-4, idx, d2);  // (float coordinates: a hair wider)
+                    best + cover.radius[j] + kFloatSlack_m, idx, d2);
     for (int i : idx) {
       const double d = point_shape_distance(impl_->points.row(i).transpose(), shape, link_pose);
-      if (d < best) best = d, best_i = i;
+      if (d < best || (d == best && i < best_i)) best = d, best_i = i;
     }
   }
-  if (best_i < 0) throw std::logic_error("WallOctree::exact_distance: no point within the octree's bound");
   if (closest_m) *closest_m = impl_->points.row(best_i).transpose();
   return best;
 }
@@ -236,7 +295,7 @@ int ClearanceReport::samples_below_margin() const {
 }
 
 // ------------------------------------------------------------------------------------------------
-// check_clearance
+// check_clearance, check_clearance_octree
 // ------------------------------------------------------------------------------------------------
 namespace {
 
@@ -244,13 +303,14 @@ namespace {
 struct ChunkResult {
   std::vector<LinkClearance> links;
   SelfClearance self;
-  long long wall_queries = 0, self_queries = 0;
+  long long wall_queries = 0, exact_queries = 0, self_queries = 0;
+  std::vector<std::pair<std::size_t, std::size_t>> min_at;  // per link: the sample and shape of min_m
 };
 
-}  // namespace
+enum class Measure { exact, octree };
 
-ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
-                                const ClearanceConfig& config, const ProgressFn& progress) {
+ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
+                          const ClearanceConfig& config, const ProgressFn& progress, Measure measure) {
   const auto t0 = std::chrono::steady_clock::now();
   const auto& shapes = robot.collision_shapes();
   const std::size_t n = trajectory.size();
@@ -293,51 +353,59 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
     ChunkResult& out = results[c];
     out.links = rep.links;
     out.self = rep.self;
-    // Per shape and per pair: the distance at the last query and the poses then. The distance now
-    // is at least that less how far the shape has moved since (the farthest corner of its
-    // bounding box from where it was: every point of a rigid shape moves at most that far).
+    // Per shape and per pair: a lower bound on the distance at the last query (exact, or from
+    // WallOctree::bounds) and the pose then. The distance now is at least that less how far the
+    // shape has moved since (the farthest corner of its bounding box from where it was: every
+    // point of a rigid shape moves at most that far).
     const double inf = std::numeric_limits<double>::infinity();
     std::vector<double> wall_at(shapes.size(), -inf), pair_at(pairs.size(), -inf);
     std::vector<Eigen::Isometry3d> wall_pose(shapes.size());
     std::vector<Eigen::Isometry3d> pair_pose(pairs.size());  // b relative to a
     std::vector<char> below(out.links.size());
+    out.min_at.assign(out.links.size(), {0, 0});
     for (std::size_t k = begin; k < end; ++k) {
       const std::size_t count = done.fetch_add(1, std::memory_order_relaxed);
       if (reports && progress && count % report_every == 0) progress("clearance", static_cast<double>(count) / static_cast<double>(n));
       const auto frames = robot.link_frames(trajectory.q[k]);
-      auto moved = [&](std::size_t s, const Eigen::Isometry3d& then) {
-        return max_displacement(corners[s], frames[shapes[s].frame], then);
-      };
       std::fill(below.begin(), below.end(), 0);
       for (std::size_t s = 0; s < shapes.size(); ++s) {
-        LinkClearance& lc = out.links[static_cast<std::size_t>(link_of[s])];
-        // Skipped when it can be neither below the margin nor more than the tolerance below the
-        // least distance so far: counts exact, minima within kMinTolerance_m.
-        const double threshold = std::max(lc.margin_m, lc.min_m - kMinTolerance_m);
-        if (wall_at[s] - threshold > 0 && wall_at[s] - moved(s, wall_pose[s]) >= threshold) continue;
+        const std::size_t l = static_cast<std::size_t>(link_of[s]);
+        LinkClearance& lc = out.links[l];
         const Eigen::Isometry3d& pose = frames[shapes[s].frame];
+        // Skipped where the last octree reading less the motion since is past the margin and past
+        // the least reading so far less the tolerance: the octree never reads long, so such a
+        // sample is provably not below the margin (nor, by the exact distance, which is at least
+        // the reading) and cannot lower the least reading by more than the tolerance.
+        const double threshold = std::max(lc.margin_m, lc.min_m - kMinTolerance_m);
+        if (wall_at[s] > threshold && wall_at[s] - max_displacement(corners[s], pose, wall_pose[s]) >= threshold) continue;
         // Asked only up to the threshold plus a slack: "at least that far" is all the skipping
         // needs, and the bound makes FCL's traversal several times faster.
         Eigen::Vector3d closest;
-        double d = wall.distance(shapes[s], pose, &closest, std::isfinite(threshold) ? threshold + kQuerySlack_m : std::numeric_limits<double>::max());
+        const double d = wall.distance(shapes[s], pose, &closest, std::isfinite(threshold) ? threshold + kQuerySlack_m : std::numeric_limits<double>::max());
         ++out.wall_queries;
         wall_pose[s] = pose;
         wall_at[s] = d;
-        if (d < lc.min_m) lc.min_m = d, lc.at_time_s = trajectory.t_s[k], lc.closest_m = closest;
-        if (d < lc.margin_m) below[static_cast<std::size_t>(link_of[s])] = 1;
+        if (d < lc.min_m) lc.min_m = d, lc.at_time_s = trajectory.t_s[k], lc.closest_m = closest, out.min_at[l] = {k, s};
+        if (d < lc.margin_m) {
+          // Below by the octree (at most a leaf diagonal short): the exact distance decides.
+          if (measure == Measure::octree) {
+            below[l] = 1;
+          } else {
+            ++out.exact_queries;
+            below[l] = below[l] || wall.exact_distance(shapes[s], pose) < lc.margin_m;
+          }
+        }
       }
       for (std::size_t l = 0; l < out.links.size(); ++l) out.links[l].samples_below_margin += below[l];
       bool self_below = false;
-      const double self_threshold = std::max(config.self_margin_m, out.self.min_m - kMinTolerance_m);
       for (std::size_t p = 0; p < pairs.size(); ++p) {
         const auto [a, b] = pairs[p];
         const auto ua = static_cast<std::size_t>(a), ub = static_cast<std::size_t>(b);
-        // Their distance depends on b's pose relative to a only: b's motion in a's frame bounds it.
+        // Their distance depends on b's pose relative to a only: b's motion in a's frame bounds it
+        // (skipped as the wall queries above).
         const Eigen::Isometry3d relative = frames[shapes[ua].frame].inverse() * frames[shapes[ub].frame];
-        if (pair_at[p] - self_threshold > 0 &&
-            pair_at[p] - max_displacement(corners[ub], relative, pair_pose[p]) >=
-                std::max(config.self_margin_m, out.self.min_m - kMinTolerance_m))
-          continue;
+        const double threshold = std::max(config.self_margin_m, out.self.min_m - kMinTolerance_m);
+        if (pair_at[p] > threshold && pair_at[p] - max_displacement(corners[ub], relative, pair_pose[p]) >= threshold) continue;
         const double d = shape_distance(shapes[ua], frames[shapes[ua].frame], shapes[ub], frames[shapes[ub].frame]);
         ++out.self_queries;
         pair_at[p] = d;
@@ -361,22 +429,59 @@ ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& traje
   }
   if (failure) std::rethrow_exception(failure);
   // Merged in sample order: the earliest of equal minima wins, as in one pass.
+  std::vector<std::pair<std::size_t, std::size_t>> min_at(rep.links.size(), {0, 0});
+  auto from_min_at = [](const ChunkResult& c, std::size_t l) { return c.min_at[l]; };
   for (const ChunkResult& c : results) {
     for (std::size_t l = 0; l < rep.links.size(); ++l) {
       LinkClearance& to = rep.links[l];
       const LinkClearance& from = c.links[l];
-      if (from.min_m < to.min_m) to.min_m = from.min_m, to.at_time_s = from.at_time_s, to.closest_m = from.closest_m;
+      if (from.min_m < to.min_m)
+        to.min_m = from.min_m, to.at_time_s = from.at_time_s, to.closest_m = from.closest_m, min_at[l] = from_min_at(c, l);
       to.samples_below_margin += from.samples_below_margin;
     }
     if (c.self.min_m < rep.self.min_m)
       rep.self.min_m = c.self.min_m, rep.self.at_time_s = c.self.at_time_s, rep.self.link_a = c.self.link_a, rep.self.link_b = c.self.link_b;
     rep.self.samples_below_margin += c.self.samples_below_margin;
     rep.wall_queries += c.wall_queries;
+    rep.exact_queries += c.exact_queries;
     rep.self_queries += c.self_queries;
+  }
+  if (measure == Measure::exact) {
+    // Each link's least distance read exactly at the sample of its least octree reading: the
+    // reported value, point and time are those of a real sample; the least exact distance over
+    // every sample lies between the least reading less the tolerance and it.
+#pragma omp parallel for schedule(dynamic, 1) num_threads(static_cast<int>(kThreads))
+    for (long li = 0; li < static_cast<long>(rep.links.size()); ++li) {
+      const auto l = static_cast<std::size_t>(li);
+      LinkClearance& lc = rep.links[l];
+      const std::size_t k = min_at[l].first;
+      lc.min_lower_m = std::max(0.0, lc.min_m - kMinTolerance_m);
+      const auto frames = robot.link_frames(trajectory.q[k]);
+      lc.min_m = std::numeric_limits<double>::infinity();
+      for (std::size_t s = 0; s < shapes.size(); ++s)
+        if (static_cast<std::size_t>(link_of[s]) == l) {
+          Eigen::Vector3d closest;
+          const double d = wall.exact_distance(shapes[s], frames[shapes[s].frame], &closest);
+          if (d < lc.min_m) lc.min_m = d, lc.closest_m = closest;
+        }
+    }
+    rep.exact_queries += static_cast<long long>(shapes.size());
   }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (progress) progress("clearance", 1.0);
   return rep;
+}
+
+}  // namespace
+
+ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
+                                const ClearanceConfig& config, const ProgressFn& progress) {
+  return run_check(robot, trajectory, wall, config, progress, Measure::exact);
+}
+
+ClearanceReport check_clearance_octree(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
+                                       const ClearanceConfig& config, const ProgressFn& progress) {
+  return run_check(robot, trajectory, wall, config, progress, Measure::octree);
 }
 
 }  // namespace shotcrete

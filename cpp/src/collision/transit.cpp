@@ -71,7 +71,7 @@ struct Router {
 
   // The samples of a move (its start excluded) keep every margin.
   bool clear(const TimedTrajectory& piece) const {
-    return piece.size() == 0 || check_clearance(robot, piece, wall, config).samples_below_margin() == 0;
+    return piece.size() == 0 || check_clearance_octree(robot, piece, wall, config).samples_below_margin() == 0;
   }
   // Posture of the move's sample where a link comes closest to breaking its margin.
   static Eigen::VectorXd worst_posture(const TimedTrajectory& piece, const ClearanceReport& rep, const ClearanceConfig& cfg) {
@@ -148,7 +148,7 @@ struct Router {
   std::optional<std::vector<Eigen::VectorXd>> route(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb, int depth) {
     const TimedTrajectory straight = joint_move_through(robot, {qa, qb}, timing, region_index);
     if (straight.size() == 0) return std::vector<Eigen::VectorXd>{qb};
-    const ClearanceReport rep = check_clearance(robot, straight, wall, config);
+    const ClearanceReport rep = check_clearance_octree(robot, straight, wall, config);
     if (rep.samples_below_margin() == 0) return std::vector<Eigen::VectorXd>{qb};
     if (depth == 0) return std::nullopt;
     const Eigen::VectorXd worst = worst_posture(straight, rep, config);
@@ -201,7 +201,7 @@ struct Router {
   }
 };
 
-// A move as a trajectory of its own (start sample included) for check_clearance.
+// A move as a trajectory of its own (start sample included) for check_clearance_octree.
 TimedTrajectory move_samples(const TimedTrajectory& tr, const JointMove& m) {
   TimedTrajectory out;
   for (std::size_t k = m.start; k <= m.end; ++k) out.t_s.push_back(tr.t_s[k]), out.q.push_back(tr.q[k]);
@@ -219,7 +219,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
   rep.moves_checked = static_cast<int>(moves.size());
   for (std::size_t i = 0; i < moves.size(); ++i) {
     const JointMove move = moves[i];
-    const ClearanceReport straight = check_clearance(robot, move_samples(trajectory, move), wall, config);
+    const ClearanceReport straight = check_clearance_octree(robot, move_samples(trajectory, move), wall, config);
     if (straight.samples_below_margin() == 0) continue;
     TransitDetour d;
     d.move = static_cast<int>(i);
@@ -245,7 +245,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       TimedTrajectory checked = piece;
       checked.t_s.insert(checked.t_s.begin(), 0.0);
       checked.q.insert(checked.q.begin(), qa);
-      d.min_allowance_m = report_allowance(check_clearance(robot, checked, wall, config), config);
+      d.min_allowance_m = report_allowance(check_clearance_octree(robot, checked, wall, config), config);
       d.duration_s = piece.duration_s;
       replace_joint_move(robot, trajectory, move, piece);
       moves = joint_moves(trajectory);  // the later samples moved

@@ -196,13 +196,16 @@ void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m, const 
   w.begin_object().field("samples_below_margin", c.samples_below_margin()).field("samples", c.samples);
   w.field("octree_resolution_m", c.octree_resolution_m).field("wall_points", static_cast<long>(c.wall_points));
   w.field("octree_leaves", static_cast<long>(c.octree_leaves)).field("wall_queries", static_cast<long>(c.wall_queries));
+  w.field("exact_queries", static_cast<long>(c.exact_queries));
   w.field("self_queries", static_cast<long>(c.self_queries)).key("links").begin_array();
   for (const auto& l : c.links) {
     w.begin_object().field("link", l.link).field("margin_m", l.margin_m).key("min_m");
     write_distance(w, l.min_m);
     w.field("at_time_s", l.at_time_s).key("closest_m").begin_array();
     for (int i = 0; i < 3; ++i) w.value(l.closest_m[i]);
-    w.end_array().field("samples_below_margin", l.samples_below_margin).end_object();
+    w.end_array().key("min_lower_m");
+    write_distance(w, l.min_lower_m);
+    w.field("samples_below_margin", l.samples_below_margin).end_object();
   }
   w.end_array().key("self").begin_object().field("link_a", c.self.link_a).field("link_b", c.self.link_b);
   w.field("margin_m", self_margin_m).key("min_m");

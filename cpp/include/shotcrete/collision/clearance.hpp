@@ -32,10 +32,21 @@ class WallOctree {
   /// the bound prunes the search.
   double distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m = nullptr,
                   double at_most_m = std::numeric_limits<double>::max()) const;
+  /// Bounds on the distance [m] of `shape` to the wall's points, from one nearest-neighbour query
+  /// (KD-tree of the points, built on first use) per ball of a sphere cover of the shape whose
+  /// balls reach at most `cover_slack_m` past it: lower_m <= exact <= upper_m, lower_m at most
+  /// cover_slack_m short (upper_m: the exact distance to one of the points found).
+  struct Bounds {
+    double lower_m = 0.0, upper_m = 0.0;
+    Eigen::Index upper_point = -1;     // the wall point at upper_m
+    std::vector<double> ball_lower_m;  // per ball of the cover: its nearest point's distance less its radius
+  };
+  Bounds bounds(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, double cover_slack_m = 0.005) const;
   /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
-  /// the octree's answer L is at most a leaf diagonal short, so every point that can be nearest
-  /// lies within L + sqrt(3) x resolution of the shape; those are gathered from a KD-tree of the
-  /// points (built on first use) and measured exactly (point_shape_distance). `closest_m`: the point.
+  /// bounds() on a fine cover (2 mm), then only the balls whose lower bound is below the least
+  /// distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
+  /// within d + r of the centre of a ball of radius r that holds the shape's nearest point), each
+  /// measured exactly (point_shape_distance). `closest_m`: the point (the first of equal ones).
   double exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
                         Eigen::Vector3d* closest_m = nullptr) const;
   double resolution_m() const;
@@ -65,9 +76,10 @@ std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot);
 struct LinkClearance {
   std::string link;
   double margin_m = 0.0;             // clearance.link_margin_m or nozzle_margin_m
-  double min_m = 0.0;                // least distance to the wall over every sample
+  double min_m = 0.0;                // least distance to the wall (see check_clearance)
   double at_time_s = 0.0;            // when
   Eigen::Vector3d closest_m = Eigen::Vector3d::Zero();  // the wall's closest point then
+  double min_lower_m = 0.0;          // check_clearance: no sample is closer than this (<= min_m)
   int samples_below_margin = 0;
 };
 struct SelfClearance {
@@ -82,19 +94,33 @@ struct ClearanceReport {
   double octree_resolution_m = 0.0;
   std::size_t octree_leaves = 0, wall_points = 0;
   int samples = 0;
-  long long wall_queries = 0, self_queries = 0;  // exact distance queries run (the rest were bounded)
+  // Queries run (the other samples were bounded by the shape's motion): wall_queries octree
+  // readings (FCL), exact_queries exact distances to the wall's points (check_clearance only),
+  // self_queries FCL shape-shape distances.
+  long long wall_queries = 0, exact_queries = 0, self_queries = 0;
   double seconds = 0.0;
   int samples_below_margin() const;  // over the links and the self check
 };
 
-/// The space allowance along `trajectory`. A sample is checked unless a lower bound proves it
-/// cannot set a new minimum or fall below the margin: the distance at the last query less how far
-/// the shape has moved since (every point of a rigid shape moves at most as far as the farthest
-/// corner of its bounding box; a link pair's distance changes by at most b's motion relative to
-/// a). The counts below the margins are therefore those of a check of every sample, and the
-/// minima lie within 10 mm above its minima. Two fixed stretches of the trajectory run on two
-/// threads: the result does not depend on their timing.
+/// The space allowance along `trajectory`. A sample is read on the octree (FCL; never long, at
+/// most a leaf diagonal short) unless a lower bound proves it cannot be below the margin nor lower
+/// the least reading by more than 10 mm: the reading at the last query less how far the shape has
+/// moved since (every point of a rigid shape moves at most as far as the farthest corner of its
+/// bounding box; a link pair's distance changes by at most b's motion relative to a). A sample
+/// the octree reads below a margin is measured exactly (WallOctree::exact_distance), so the
+/// counts below the margins are those of a check of every sample by exact distances. Each link's
+/// least distance (min_m, closest_m, at_time_s) is the exact distance at the sample of its least
+/// reading; the least exact distance over every sample lies in [min_lower_m, min_m] (min_lower_m:
+/// the least reading less 10 mm). Two fixed stretches of the trajectory run on two threads: the
+/// result does not depend on their timing.
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress = {});
+
+/// The transit router's screen (transit.cpp): the same check on the octree's reading alone (no
+/// exact distances): a sample is below the margin when its reading is, and the minima are the
+/// least readings (within 10 mm above those of every sample), so it keeps every sample at least
+/// its reading's shortfall (up to a leaf diagonal) farther than the margins.
+ClearanceReport check_clearance_octree(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
+                                       const ClearanceConfig& config, const ProgressFn& progress = {});
 
 }  // namespace shotcrete

@@ -35,7 +35,7 @@ struct TransitDetour {
   std::string reason;              // why not, when not rerouted
   std::vector<Eigen::VectorXd> vias;      // the postures passed through, in order
   std::vector<double> via_allowance_m;    // posture_allowance of each (>= 0)
-  double min_allowance_m = 0.0;    // least distance less margin along the new move (check_clearance, >= 0)
+  double min_allowance_m = 0.0;    // least distance less margin along the new move (check_clearance_octree, >= 0)
   double straight_duration_s = 0.0, duration_s = 0.0;  // of the move before and after
   int optimisations = 0;           // via postures searched (BOBYQA runs)
 };
@@ -48,7 +48,7 @@ struct TransitReport {
   double seconds = 0.0;
 };
 
-/// Checks every joint move of `trajectory` (joint_moves) with check_clearance; each that comes
+/// Checks every joint move of `trajectory` (joint_moves) with check_clearance_octree; each that comes
 /// closer than a margin is re-routed: postures of maximum space allowance (BOBYQA within the joint
 /// limits on posture_allowance, saturated at config.via_allowance_m so that, once every shape has
 /// that much, the posture nearest the straight move's midpoint wins) are sought from several starts
