@@ -47,29 +47,24 @@ void bobyqa_speeds(Objective& objective, std::vector<double>& v, const std::vect
   }
 }
 
-// One pass: the 1-D problem is solved exactly by a golden-section search on 1/v.
-double golden_speed(const Objective& objective, double v_max, double min_speed_mps) {
-  double lo = 1.0 / v_max, hi = 1.0 / min_speed_mps;
+// Minimum of a unimodal f on [lo, hi] by golden-section search: the middle of the last bracket.
+double golden_section_min(const std::function<double(double)>& f, double lo, double hi, int iterations) {
   const double g = (std::sqrt(5.0) - 1) / 2;
-  auto f = [&](double w) { return objective({1.0 / w}); };
   double x1 = hi - g * (hi - lo), x2 = lo + g * (hi - lo);
   double f1 = f(x1), f2 = f(x2);
-  for (int it = 0; it < 80; ++it) {
+  for (int it = 0; it < iterations; ++it) {
     if (f1 < f2) {
-      hi = x2;
-      x2 = x1;
-      f2 = f1;
-      x1 = hi - g * (hi - lo);
-      f1 = f(x1);
+      hi = x2, x2 = x1, f2 = f1, x1 = hi - g * (hi - lo), f1 = f(x1);
     } else {
-      lo = x1;
-      x1 = x2;
-      f1 = f2;
-      x2 = lo + g * (hi - lo);
-      f2 = f(x2);
+      lo = x1, x1 = x2, f1 = f2, x2 = lo + g * (hi - lo), f2 = f(x2);
     }
   }
-  return 1.0 / (0.5 * (lo + hi));
+  return 0.5 * (lo + hi);
+}
+
+// One pass: the 1-D problem is solved exactly by a golden-section search on 1/v (convex in it).
+double golden_speed(const Objective& objective, double v_max, double min_speed_mps) {
+  return 1.0 / golden_section_min([&](double w) { return objective({1.0 / w}); }, 1.0 / v_max, 1.0 / min_speed_mps, 80);
 }
 
 // The optimiser's inputs: no empty sets, no non-finite value, bounds the optimiser can use.
@@ -184,7 +179,6 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
   std::vector<Entry> ea, eg;
   std::vector<Eigen::Index> ra, rg;
   std::unordered_map<Eigen::Index, double> delta;
-  const double gold = (std::sqrt(5.0) - 1) / 2;
   for (int sweep = 0; sweep < 30; ++sweep) {
     double gain = 0;
     for (const Direction& d : dirs) {
@@ -214,16 +208,7 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
         for (Eigen::Index r : rg) f += obj.guard_weight * std::max(0.0, Tg[r] + delta[r] - obj.hi[r]);
         return f;
       };
-      double lo = s_lo, up = s_hi;
-      double x1 = up - gold * (up - lo), x2 = lo + gold * (up - lo), f1 = cost(x1), f2 = cost(x2);
-      for (int it = 0; it < 50; ++it) {
-        if (f1 < f2) {
-          up = x2, x2 = x1, f2 = f1, x1 = up - gold * (up - lo), f1 = cost(x1);
-        } else {
-          lo = x1, x1 = x2, f1 = f2, x2 = lo + gold * (up - lo), f2 = cost(x2);
-        }
-      }
-      const double best = 0.5 * (lo + up), before = cost(0.0), after = cost(best);
+      const double best = golden_section_min(cost, s_lo, s_hi, 50), before = cost(0.0), after = cost(best);
       if (!(after < before)) continue;
       gain += before - after;
       for (const auto& [j, dj] : d) w[j] = std::clamp(w[j] + dj * best, w_lo[j], w_hi[j]);
