@@ -123,7 +123,8 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   rp.region = region;
   // Thesis rule: the largest drop that takes every cell one level down (5 mm margin). For the
   // last step (level 1 -> 0) aim at the band's centre instead: the mean TD, so cells end near
-  // flush rather than just inside +50 mm.
+  // flush rather than just inside +50 mm. This is the region's target in the report; the speeds
+  // aim at per-cell targets in the last round (region_targets) unless graded_thesis_objective.
   rp.target_thickness_m = top == 1 ? std::max(rp.region.td_mean_m, rp.region.td_max_m - 0.045)
                                    : rp.region.td_max_m - level_floor_mm(top) / 1000.0 + 0.005;
   rp.spacing_m = ctx.spacing_m;
