@@ -69,8 +69,8 @@ double max_displacement(const std::array<Eigen::Vector3d, 8>& corners, const Eig
 // A sphere cover of a shape, in its link frame: every point of the shape lies within radius[j] of
 // centre[j] for some j. A cylinder: centres along its axis, each ball covering a slice (radius
 // hypot(r, slice/2) <= r + slack); a sphere: itself; a box: a grid of cubes of its least edge (at
-// least 0.1 m), coarser than `slack` (the URDF's shapes are cylinders). Any cover keeps bounds()
-// and exact_distance() right; the slack only sets how tight the lower bound is.
+// least 0.1 m), coarser than `slack` (the URDF's shapes are cylinders). Any cover keeps
+// exact_distance() right; the slack only sets how tight its per-ball lower bounds are.
 struct BallCover {
   std::vector<Eigen::Vector3d> centre;
   std::vector<double> radius;
@@ -199,46 +199,34 @@ double WallOctree::distance(const CollisionShape& shape, const Eigen::Isometry3d
   return d;
 }
 
-WallOctree::Bounds WallOctree::bounds(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
-                                      double cover_slack_m) const {
-  const BallCover cover = ball_cover(shape, cover_slack_m);
-  const auto& kd = impl_->kdtree();
-  Bounds b;
-  b.lower_m = b.upper_m = std::numeric_limits<double>::infinity();
-  b.ball_lower_m.resize(cover.centre.size());
-  std::vector<int> idx(1);
-  std::vector<float> d2(1);
-  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
-    const Eigen::Vector3d c = link_pose * cover.centre[j];
-    kd.nearestKSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())), 1, idx, d2);
-    const Eigen::Vector3d p = impl_->points.row(idx[0]).transpose();
-    // Every wall point is at least (nearest - slack) from c, so at least that less the ball's
-    // radius from every point of the shape inside the ball.
-    b.ball_lower_m[j] = (p - c).norm() - kFloatSlack_m - cover.radius[j];
-    b.lower_m = std::min(b.lower_m, b.ball_lower_m[j]);
-    const double d = point_shape_distance(p, shape, link_pose);
-    if (d < b.upper_m || (d == b.upper_m && idx[0] < b.upper_point)) b.upper_m = d, b.upper_point = idx[0];
-  }
-  b.lower_m = std::max(0.0, b.lower_m);
-  return b;
-}
-
 double WallOctree::exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
                                   Eigen::Vector3d* closest_m) const {
   const BallCover cover = ball_cover(shape, kExactCoverSlack_m);
-  const Bounds b = bounds(shape, link_pose, kExactCoverSlack_m);
   const auto& kd = impl_->kdtree();
-  double best = b.upper_m;
-  Eigen::Index best_i = b.upper_point;
-  std::vector<int> idx;
-  std::vector<float> d2;
+  auto query_point = [&](std::size_t j) {
+    const Eigen::Vector3d c = link_pose * cover.centre[j];
+    return pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z()));
+  };
+  // Bounds from each ball's nearest wall point: every wall point is at least (nearest - slack)
+  // from the ball's centre, so at least that less the ball's radius from every point of the shape
+  // inside the ball (ball_lower); the nearest points, measured exactly, give the first `best`.
+  double best = std::numeric_limits<double>::infinity();
+  Eigen::Index best_i = -1;
+  std::vector<double> ball_lower(cover.centre.size());
+  std::vector<int> idx(1);
+  std::vector<float> d2(1);
+  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
+    kd.nearestKSearch(query_point(j), 1, idx, d2);
+    const Eigen::Vector3d p = impl_->points.row(idx[0]).transpose();
+    ball_lower[j] = (p - link_pose * cover.centre[j]).norm() - kFloatSlack_m - cover.radius[j];
+    const double d = point_shape_distance(p, shape, link_pose);
+    if (d < best || (d == best && idx[0] < best_i)) best = d, best_i = idx[0];
+  }
   for (std::size_t j = 0; j < cover.centre.size(); ++j) {
     // A point nearer than `best` to a point s of the shape in ball j lies within best + radius of
     // its centre, and then the ball's lower bound is below best: other balls cannot hold it.
-    if (b.ball_lower_m[j] > best) continue;
-    const Eigen::Vector3d c = link_pose * cover.centre[j];
-    kd.radiusSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())),
-                    best + cover.radius[j] + kFloatSlack_m, idx, d2);
+    if (ball_lower[j] > best) continue;
+    kd.radiusSearch(query_point(j), best + cover.radius[j] + kFloatSlack_m, idx, d2);
     for (int i : idx) {
       const double d = point_shape_distance(impl_->points.row(i).transpose(), shape, link_pose);
       if (d < best || (d == best && i < best_i)) best = d, best_i = i;
@@ -353,8 +341,8 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
     ChunkResult& out = results[c];
     out.links = rep.links;
     out.self = rep.self;
-    // Per shape and per pair: a lower bound on the distance at the last query (exact, or from
-    // WallOctree::bounds) and the pose then. The distance now is at least that less how far the
+    // Per shape and per pair: a lower bound on the distance at the last query (the octree's
+    // reading, which is never long; a pair's exact distance) and the pose then. The distance now is at least that less how far the
     // shape has moved since (the farthest corner of its bounding box from where it was: every
     // point of a rigid shape moves at most that far).
     const double inf = std::numeric_limits<double>::infinity();
@@ -430,13 +418,12 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
   if (failure) std::rethrow_exception(failure);
   // Merged in sample order: the earliest of equal minima wins, as in one pass.
   std::vector<std::pair<std::size_t, std::size_t>> min_at(rep.links.size(), {0, 0});
-  auto from_min_at = [](const ChunkResult& c, std::size_t l) { return c.min_at[l]; };
   for (const ChunkResult& c : results) {
     for (std::size_t l = 0; l < rep.links.size(); ++l) {
       LinkClearance& to = rep.links[l];
       const LinkClearance& from = c.links[l];
       if (from.min_m < to.min_m)
-        to.min_m = from.min_m, to.at_time_s = from.at_time_s, to.closest_m = from.closest_m, min_at[l] = from_min_at(c, l);
+        to.min_m = from.min_m, to.at_time_s = from.at_time_s, to.closest_m = from.closest_m, min_at[l] = c.min_at[l];
       to.samples_below_margin += from.samples_below_margin;
     }
     if (c.self.min_m < rep.self.min_m)

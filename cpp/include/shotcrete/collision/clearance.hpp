@@ -32,19 +32,10 @@ class WallOctree {
   /// the bound prunes the search.
   double distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m = nullptr,
                   double at_most_m = std::numeric_limits<double>::max()) const;
-  /// Bounds on the distance [m] of `shape` to the wall's points, from one nearest-neighbour query
-  /// (KD-tree of the points, built on first use) per ball of a sphere cover of the shape whose
-  /// balls reach at most `cover_slack_m` past it: lower_m <= exact <= upper_m, lower_m at most
-  /// cover_slack_m short (upper_m: the exact distance to one of the points found).
-  struct Bounds {
-    double lower_m = 0.0, upper_m = 0.0;
-    Eigen::Index upper_point = -1;     // the wall point at upper_m
-    std::vector<double> ball_lower_m;  // per ball of the cover: its nearest point's distance less its radius
-  };
-  Bounds bounds(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, double cover_slack_m = 0.005) const;
   /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
-  /// bounds() on a fine cover (2 mm), then only the balls whose lower bound is below the least
-  /// distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
+  /// a sphere cover of the shape (balls at most 2 mm past it, KD-tree of the points built on first
+  /// use) bounds it from each ball's nearest point; then only the balls whose lower bound is below
+  /// the least distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
   /// within d + r of the centre of a ball of radius r that holds the shape's nearest point), each
   /// measured exactly (point_shape_distance). `closest_m`: the point (the first of equal ones).
   double exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
