@@ -16,13 +16,10 @@ import numpy as np
 
 from . import _core
 
-ORIGIN_STEP_M = 100.0  # the core's kLocalOriginStepM
-FAR_M = 1000.0  # the core's kFarFromCloudM: a config point farther than this from a shifted cloud was not given in its frame
-
 
 def local_origin(xyz_m: np.ndarray) -> np.ndarray:
-    """The bounding box centre of ``xyz_m`` (N, 3) in metres, rounded to whole ORIGIN_STEP_M
-    (non-finite points ignored; (0, 0, 0) for a cloud without finite points). The core computes it."""
+    """The bounding box centre of ``xyz_m`` (N, 3) in metres, rounded to whole 100 m (the core's
+    kLocalOriginStepM; non-finite points ignored; (0, 0, 0) for a cloud without finite points)."""
     xyz = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
     return np.asarray(_core.local_origin(xyz))
 

@@ -23,9 +23,13 @@ std::string grouped(double v, int decimals) {
 
 }  // namespace
 
-Eigen::Vector3d local_origin(const Points& xyz, double unit_scale) {
+namespace {
+
+// The bounding box of the finite points of `xyz` x unit_scale [m]; false when there is none.
+bool finite_box(const Points& xyz, double unit_scale, Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
   const double inf = std::numeric_limits<double>::infinity();
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(inf), hi = Eigen::Vector3d::Constant(-inf);
+  lo = Eigen::Vector3d::Constant(inf);
+  hi = Eigen::Vector3d::Constant(-inf);
   bool any = false;
   for (Eigen::Index i = 0; i < xyz.rows(); ++i) {
     const Eigen::Vector3d p = xyz.row(i).transpose() * unit_scale;
@@ -34,25 +38,28 @@ Eigen::Vector3d local_origin(const Points& xyz, double unit_scale) {
     hi = hi.cwiseMax(p);
     any = true;
   }
-  if (!any) return Eigen::Vector3d::Zero();
+  return any;
+}
+
+// The box's centre rounded to whole kLocalOriginStepM.
+Eigen::Vector3d rounded_centre(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
   Eigen::Vector3d o;
   // std::nearbyint: halves to even, as numpy's round; + 0.0: no -0.0 in reports.
   for (int k = 0; k < 3; ++k) o[k] = std::nearbyint((lo[k] + hi[k]) / 2.0 / kLocalOriginStepM) * kLocalOriginStepM + 0.0;
   return o;
 }
 
+}  // namespace
+
+Eigen::Vector3d local_origin(const Points& xyz, double unit_scale) {
+  Eigen::Vector3d lo, hi;
+  return finite_box(xyz, unit_scale, lo, hi) ? rounded_centre(lo, hi) : Eigen::Vector3d::Zero();
+}
+
 Eigen::Vector3d local_frame_origin(const Points& xyz, const IoConfig& io) {
-  double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
-                  std::numeric_limits<double>::infinity()};
-  double hi[3] = {-lo[0], -lo[0], -lo[0]};
-  for (Eigen::Index i = 0; i < xyz.rows(); ++i) {
-    const Eigen::Vector3d p = xyz.row(i).transpose() * io.unit_scale;
-    if (!p.allFinite()) continue;
-    for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], p[k]), hi[k] = std::max(hi[k], p[k]);
-  }
-  for (int k = 0; k < 3; ++k)
-    if (hi[k] - lo[k] > io.max_extent_m) return Eigen::Vector3d::Zero();
-  return local_origin(xyz, io.unit_scale);
+  Eigen::Vector3d lo, hi;
+  if (!finite_box(xyz, io.unit_scale, lo, hi) || (hi - lo).maxCoeff() > io.max_extent_m) return Eigen::Vector3d::Zero();
+  return rounded_centre(lo, hi);
 }
 
 void to_local_frame(const Eigen::Vector3d& origin_m, Cloud& cloud, Config& config) {
