@@ -204,13 +204,64 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   // to the last pass sample (5), sqrt(0.9 / 5) of its speed.
   EXPECT_EQ(map.points_m[1], tr.nozzle[5].position_m);
   EXPECT_NEAR(map.speed_mps[1], 0.5 * std::sqrt(0.9 / 5.0), 1e-12);
-  // A link sample over a velocity limit counts at its own position: it cruises at the speed of a
-  // pass next to it.
+  // A link sample over a velocity limit counts at its own position (it cruises at the speed of a
+  // pass next to it) and at the pass end its run leaves, which may lie beyond the bounds' radius
+  // (here 0.1 m: the default bay's graded lead-in reached 1 m/s 0.3 m before its pass).
   tr.qdd[7].setZero();
   tr.qd[7] = Eigen::Vector2d(0.0, 1.5);
-  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);  // sample 3 again, and sample 7
-  EXPECT_EQ(map.points_m.back(), tr.nozzle[7].position_m);
-  EXPECT_NEAR(map.speed_mps.back(), 0.5 * 0.9 / 1.5, 1e-12);
+  EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 3);  // sample 3 again, sample 7, and pass end 5
+  const std::size_t n = map.points_m.size();
+  EXPECT_EQ(map.points_m[n - 2], tr.nozzle[7].position_m);
+  EXPECT_NEAR(map.speed_mps[n - 2], 0.5 * 0.9 / 1.5, 1e-12);
+  EXPECT_EQ(map.points_m[n - 1], tr.nozzle[5].position_m);
+  EXPECT_NEAR(map.speed_mps[n - 1], 0.5 * 0.9 / 1.5, 1e-12);
+  EXPECT_LE(map.at(tr.nozzle[5].position_m), 0.5 * 0.9 / 1.5 + 1e-12);
+  // A run well below the pass speed (a turn at its own speed) keeps its velocity bound to itself.
+  TimedTrajectory slow = tr;
+  for (int i = 6; i < 9; ++i) slow.nozzle[i].position_m = Eigen::Vector3d(0.25 + 0.02 * (i - 5), 0, 0);
+  SpeedCapMap own;
+  EXPECT_EQ(own.learn(slow, vel, acc, 0.9), 2);  // sample 3 and sample 7 only
+  EXPECT_EQ(own.points_m.back(), slow.nozzle[7].position_m);
+  EXPECT_NEAR(own.speed_mps.back(), 0.2 * 0.9 / 1.5, 1e-12);
+  // A turn-around between two passes (samples 3-5: run, arc, run) over a velocity limit at the
+  // passes' speed bounds both pass ends it joins; a turn at its own lower speed bounds neither.
+  TimedTrajectory turn = tr;
+  for (int i = 0; i < 9; ++i) {
+    turn.kind[i] = static_cast<char>(i == 4 ? SegmentKind::Turn : i == 3 || i == 5 ? SegmentKind::Link : SegmentKind::Pass);
+    turn.spraying[i] = turn.kind[i] == static_cast<char>(SegmentKind::Pass);
+    turn.qd[i] = Eigen::Vector2d(0.0, 0.5);
+    turn.qdd[i].setZero();
+  }
+  turn.qd[4] = Eigen::Vector2d(2.0, 0.0);
+  SpeedCapMap around;
+  EXPECT_EQ(around.learn(turn, vel, acc, 0.9), 2);
+  EXPECT_EQ(around.points_m[0], turn.nozzle[2].position_m);
+  EXPECT_EQ(around.points_m[1], turn.nozzle[6].position_m);
+  EXPECT_NEAR(around.speed_mps[0], 0.5 * 0.45, 1e-12);
+  EXPECT_NEAR(around.speed_mps[1], 0.5 * 0.45, 1e-12);
+  for (int i = 4; i < 9; ++i)  // 0.1 m/s over the turn, the passes at 0.5 m/s
+    turn.nozzle[i].position_m = Eigen::Vector3d(i == 4 ? 0.16 : 0.17 + 0.05 * (i - 5), 0, 0);
+  SpeedCapMap slow_turn;
+  EXPECT_EQ(slow_turn.learn(turn, vel, acc, 0.9), 0);
+  // A pass sample over an acceleration limit only by its speed change (qdd = q' dv/dt; joint 0
+  // follows the path, s = 0.5 t + t^2): a lower speed there would not help (it only steepens the
+  // change into it), so no bound; with a path curvature on top (q'' v^2) the bound follows that.
+  TimedTrajectory ramp = tr;
+  for (int i = 0; i < 9; ++i) {
+    const double t = 0.1 * i, v = 0.5 + 2.0 * t;
+    ramp.nozzle[i].position_m = Eigen::Vector3d(0.5 * t + t * t, 0, 0);
+    ramp.qd[i] = Eigen::Vector2d(v, 0.0);
+    ramp.qdd[i] = Eigen::Vector2d(2.0, 0.0);
+    const bool on = i >= 2 && i <= 6;  // the ends are joint moves (no central difference of the speed change)
+    ramp.kind[i] = static_cast<char>(on ? SegmentKind::Pass : SegmentKind::Transit);
+    ramp.spraying[i] = on;
+  }
+  const Eigen::VectorXd fast = Eigen::VectorXd::Constant(2, 10.0);  // velocities within their limits
+  SpeedCapMap change;
+  EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 0);
+  ramp.qdd[4] = Eigen::Vector2d(2.0, 3.0);  // joint 1: q'' v^2 = 3 at sample 4 (v = 1.3 m/s)
+  EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 1);
+  EXPECT_NEAR(change.speed_mps[0], 1.3 * std::sqrt(0.9 / 3.0), 1e-9);
   // A run-in (the link comes after a joint move and before a pass): the next pass's first sample.
   TimedTrajectory in = tr;
   for (int i = 0; i < 9; ++i) {

@@ -4,6 +4,7 @@ joint trajectory of real passes on the bundled robot."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -202,3 +203,60 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
             assert p.to_dict() != pytest.approx(default)
     with pytest.raises(ValueError, match="timing parameter sets"):
         _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot, [tun.params[0]] * (len(regions) + 1))
+
+
+def test_a_long_region_at_the_edge_of_the_reach_is_tracked_within_the_joint_limits():
+    """60 passes of a graded region of the default bay (seed 1, from the right springline up
+    towards the crown; tests/python/data/graded_springline_region.npz, float32 waypoints and the
+    posture the arm arrives in). The default gentle limit avoidance let the arm telescope run
+    0.4 mm past its limit about 70 % of the way through, and the whole region fell back to the
+    IK's waypoint solutions, whose finite differences broke a joint acceleration limit 4.3x.
+    With stronger avoidance where the gentle one fails, the region is tracked exactly."""
+    cfg = shotcrete.load_config()
+    from shotcrete.robot import load_robot
+
+    robot = load_robot(cfg)
+    d = np.load(Path(__file__).parent / "data" / "graded_springline_region.npz")
+    passes, start = [], 0
+    for n, speed, line in zip(d["waypoints_per_pass"], d["speed_mps"], d["line"]):
+        p = _core.Pass()
+        p.waypoints = [_core.NozzlePose(a.astype(float), b.astype(float))
+                       for a, b in zip(d["positions_m"][start:start + n], d["axes"][start:start + n])]
+        profile = d["speed_profile_mps"][start:start + n]
+        p.speed_profile_mps = [] if np.isnan(profile).all() else profile.astype(float).tolist()
+        p.speed_mps, p.line = float(speed), int(line)
+        p.length_m = float(np.linalg.norm(np.diff(d["positions_m"][start:start + n].astype(float), axis=0), axis=1).sum())
+        passes.append(p)
+        start += n
+    tr = _core.time_plan(robot, [passes], d["q_start"], cfg.timing, cfg.robot)
+    assert tr.untracked_regions == 0
+    assert tr.max_velocity_ratio <= 1.0 + 1e-3 and tr.max_acceleration_ratio <= 1.0 + 1e-3
+    assert tr.max_position_violation_m <= 0.0 and tr.max_position_violation_rad <= 0.0
+    lo, hi = np.array(robot.lower_limits), np.array(robot.upper_limits)
+    assert np.all(tr.q >= lo - 1e-12) and np.all(tr.q <= hi + 1e-12)
+    # Exact tracking: FK of the joints is the sampled nozzle pose on the passes.
+    on = np.where(tr.kind == int(_core.SegmentKind.PASS))[0][::97]
+    for i in on:
+        np.testing.assert_allclose(robot.fk(tr.q[i])[:3, 3], tr.positions[i], atol=1e-6)
+
+
+def test_a_short_slow_region_eases_its_leads_within_the_joint_limits():
+    """A one-pass straggler region of the graded default bay (seed 1): 0.2 m at 0.36 m/s high on
+    the left wall, where a nozzle acceleration is a large slew acceleration. The paper's leads
+    (half cruising) break the slew's acceleration limit 1.9x. time_plan first drops a lead's
+    cruise, which leaves the config's 0.1 m lead: 1.27x, and easing must then lengthen a lead
+    that the config's length sizes, not only one the nozzle limit sizes (it did not: the
+    trajectory stayed at 1.27x)."""
+    cfg = shotcrete.load_config()
+    from shotcrete.robot import load_robot
+
+    robot = load_robot(cfg)
+    f = np.linspace(0.0, 1.0, 22)[:, None]
+    positions = (1 - f) * np.array([1.0758, 2.9003, 3.6348]) + f * np.array([1.2752, 2.9197, 3.6592])
+    region = [{"positions": positions, "axes": np.array([0.0, 0.62371, 0.78166]), "speed_mps": 0.35774}]
+    q_start = np.array([-0.892660, 3.056179, 0.871192, 1.769984, -1.394761, 0.683393, 0.107200, 0.719558])
+    tr = _core.time_plan(robot, [region], q_start, cfg.timing, cfg.robot)
+    assert tr.untracked_regions == 0
+    assert tr.max_velocity_ratio <= 1.0 + 1e-3 and tr.max_acceleration_ratio <= 1.0 + 1e-3
+    # The pass keeps its speed: the easing is all in the leads.
+    assert tr.spray_time_s == pytest.approx(np.linalg.norm(positions[-1] - positions[0]) / 0.35774, rel=1e-3)

@@ -31,6 +31,20 @@ long adjacent_pass_sample(const TimedTrajectory& tr, std::size_t i) {
   while (j + 1 < tr.size() && tr.kind[j] == kind) ++j;
   return tr.kind[j] == pass ? static_cast<long>(j) : -1;
 }
+// Pass samples on either side of the turn-around sample i (across its arc and runs): the pass end
+// the turn leaves and the pass start it reaches; -1 where a joint move or the trajectory's end
+// comes first.
+std::pair<long, long> passes_around_turn(const TimedTrajectory& tr, std::size_t i) {
+  const auto off_pass = [&](std::size_t j) {
+    const auto k = static_cast<SegmentKind>(tr.kind[j]);
+    return k == SegmentKind::Turn || k == SegmentKind::Link;
+  };
+  const auto pass = static_cast<char>(SegmentKind::Pass);
+  std::size_t a = i, b = i;
+  while (a > 0 && off_pass(a)) --a;
+  while (b + 1 < tr.size() && off_pass(b)) ++b;
+  return {tr.kind[a] == pass ? static_cast<long>(a) : -1L, tr.kind[b] == pass ? static_cast<long>(b) : -1L};
+}
 // Worst joint velocity or acceleration ratio of each region's samples (joint moves between
 // regions excluded: quintics within the limits by construction).
 std::vector<double> region_worst_ratio(const TimedTrajectory& tr, std::size_t regions, const Robot& robot) {
@@ -73,24 +87,54 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
   for (std::size_t i = 1; i + 1 < tr.size(); ++i) {
     const auto kind = static_cast<SegmentKind>(tr.kind[i]);
     const bool pass = kind == SegmentKind::Pass || tr.spraying[i];
-    if (!pass && kind != SegmentKind::Link && kind != SegmentKind::Lead) continue;
     const double rv = tr.qd[i].cwiseAbs().cwiseQuotient(vel_limit).maxCoeff();
+    if (!pass && kind == SegmentKind::Turn && rv > 1.0) {
+      // A turn at about the passes' speeds (its arc under the centripetal cap) over a velocity
+      // limit: the passes it joins must be slower (time_plan eases only accelerations).
+      const auto [before, after] = passes_around_turn(tr, i);
+      for (const long j : {before, after})
+        if (j > 0 && speed_at(i) >= 0.9 * speed_at(static_cast<std::size_t>(j))) {
+          auto [it, fresh] = pass_end_factor.emplace(static_cast<std::size_t>(j), limit_share / rv);
+          if (!fresh) it->second = std::min(it->second, limit_share / rv);
+        }
+      continue;
+    }
+    if (!pass && kind != SegmentKind::Link && kind != SegmentKind::Lead) continue;
     const double ra = tr.qdd[i].cwiseAbs().cwiseQuotient(acc_limit).maxCoeff();
     const double fv = rv > 1.0 ? limit_share / rv : 1.0;
     const double fa = ra > 1.0 ? std::sqrt(limit_share / ra) : 1.0;
     if (pass) {
-      add(i, std::min(fv, fa));
+      // On a pass qdd = q'' v^2 + q' dv/dt: a lower speed bound shrinks the first part only, and
+      // the speed change into a bounded stretch adds to the second. So the bound follows the
+      // part that scales with v^2; an excess the speed change makes is not the speed's (bounding
+      // it anyway fed back: each re-plan's slower stretch needed a steeper change into it, down
+      // to 0.03 m/s on a graded pass of the default bay and 130 mm over-filled).
+      double fc = fa;
+      const double v = speed_at(i);
+      if (ra > 1.0 && v > 1e-6 && i >= 2 && i + 2 < tr.size()) {
+        const double a = (speed_at(i + 1) - speed_at(i - 1)) / (tr.t_s[i + 1] - tr.t_s[i - 1]);
+        const double rc = (tr.qdd[i] - tr.qd[i] * (a / v)).cwiseAbs().cwiseQuotient(acc_limit).maxCoeff();
+        fc = rc > 1.0 ? std::sqrt(limit_share / rc) : 1.0;
+      }
+      add(i, std::min(fv, fc));
       continue;
     }
     add(i, fv);  // leads and links cruise at the speeds of the passes next to them
-    // A speed change off the pass (a stop, a start, the change to a turn speed) over a limit:
-    // where time_plan cannot lengthen it (the reach ends), the pass end it starts from must be
-    // slower; the change scales with v^2 at a given run length.
-    if (ra > 1.0) {
+    // A run off the pass over a limit: a speed change (a stop, a start, the change to a turn
+    // speed) where time_plan cannot lengthen it (the reach ends), or a run at about the pass speed
+    // where the arm is slower than on the pass (a lead-in at 0.99 m/s 0.3 m before its 1 m/s
+    // pass: farther than the bounds' radius). The pass end it leaves or reaches must be slower; the
+    // change scales with v^2 at a given run length, the velocity with v. A run slower than the
+    // pass end (a turn at its own speed) is left to its own bound.
+    if (ra > 1.0 || rv > 1.0) {
       const long j = adjacent_pass_sample(tr, i);
       if (j > 0) {
-        auto [it, fresh] = pass_end_factor.emplace(static_cast<std::size_t>(j), fa);
-        if (!fresh) it->second = std::min(it->second, fa);
+        const bool at_pass_speed = speed_at(i) >= 0.9 * speed_at(static_cast<std::size_t>(j));
+        const double f = std::min(fa, at_pass_speed ? fv : 1.0);
+        if (f < 1.0) {
+          auto [it, fresh] = pass_end_factor.emplace(static_cast<std::size_t>(j), f);
+          if (!fresh) it->second = std::min(it->second, f);
+        }
       }
     }
   }

@@ -280,9 +280,11 @@ RegionSetup set_up_region(const TimingContext& ctx, const RegionJob& job) {
   rs.gap_scale.assign(slot_scale.begin() + 1, slot_scale.end() - 1);
   TimingParams& rp = rs.params;
   rp = job.params;
-  const auto [lead_in_m, lead_out_m] = lead_lengths(passes, rp, slot_scale.front() * stop_accel, slot_scale.back() * stop_accel);
-  rp.start_length_m = lead_in_m;
-  rp.end_length_m = lead_out_m;
+  // An eased lead is 1 / scale as long, so its accelerations scale with it also where the config's
+  // lead length, not the nozzle limit, sizes it (slow passes).
+  const auto [lead_in_m, lead_out_m] = lead_lengths(passes, rp, stop_accel, stop_accel);
+  rp.start_length_m = lead_in_m / slot_scale.front();
+  rp.end_length_m = lead_out_m / slot_scale.back();
   rs.path = timing_region_path(passes, rp.start_length_m, rp.end_length_m, ctx.timing, job.pass_offset, rs.gap_scale);
   rs.profile = region_profile(rs.path, rp);
   return rs;
@@ -406,36 +408,47 @@ RegionTiming time_region(const TimingContext& ctx, const RegionJob& job, const E
   return out;
 }
 
-// Worst |qdd| / limit per slot on the non-spraying Cartesian samples (turns, links, leads) of a
-// region timed from rest at q_prev; passes keep their speeds and joint moves are within the limits
-// by design. A non-finite value counts as the worst possible.
-std::vector<double> off_pass_accel_ratios(const Robot& robot, const RegionTiming& rt, const Eigen::VectorXd& q_prev,
-                                          std::size_t slots) {
+// Worst |qd| / limit and |qdd| / limit per slot on the non-spraying Cartesian samples (turns,
+// links, leads) of a region timed from rest at q_prev; passes keep their speeds and joint moves
+// are within the limits by design. A non-finite value counts as the worst possible.
+struct SlotRatios {
+  std::vector<double> velocity, acceleration;
+};
+
+SlotRatios off_pass_ratios(const Robot& robot, const RegionTiming& rt, const Eigen::VectorXd& q_prev, std::size_t slots) {
   const TimedTrajectory& part = rt.part;
   std::vector<double> t{0.0};
   std::vector<Eigen::VectorXd> q{q_prev}, qd, qdd;
   t.insert(t.end(), part.t_s.begin(), part.t_s.end());
   q.insert(q.end(), part.q.begin(), part.q.end());
   finite_differences(t, q, qd, qdd);
-  std::vector<double> worst(slots, 0.0);
+  SlotRatios worst{std::vector<double>(slots, 0.0), std::vector<double>(slots, 0.0)};
+  const auto raise = [](double& w, double ratio) {
+    w = std::max(w, std::isfinite(ratio) ? ratio : std::numeric_limits<double>::max());
+  };
   for (std::size_t i = 0; i < part.size(); ++i) {
     const auto kind = static_cast<SegmentKind>(part.kind[i]);
     if (kind == SegmentKind::Pass || kind == SegmentKind::Transit || rt.slot[i] < 0) continue;
-    double ratio = qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff();
-    if (!std::isfinite(ratio)) ratio = std::numeric_limits<double>::max();
-    double& w = worst[static_cast<std::size_t>(rt.slot[i])];
-    w = std::max(w, ratio);
+    const auto k = static_cast<std::size_t>(rt.slot[i]);
+    raise(worst.velocity[k], qd[i + 1].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff());
+    raise(worst.acceleration[k], qdd[i + 1].cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
   }
   return worst;
 }
 
 // The region timed from rest at q_prev, re-timed where its turns, runs or leads break a joint
-// acceleration limit (e.g. near the slew axis, where a nozzle acceleration is a large slew
-// acceleration) with gentler accelerations there: the joint acceleration scales about linearly
-// with them. Each lead and gap has its own scale, so one awkward stop does not lengthen every run
-// (long leads can leave the reach or swing the arm out). A slot that got worse when eased, or a
-// timing that leaves the reach, goes halfway back to its best scale. At most kAttempts timings;
-// the one with the smallest excess is kept.
+// limit (e.g. near the slew axis, where a nozzle acceleration is a large slew acceleration).
+// - Accelerations: gentler accelerations there; the joint acceleration scales about linearly with
+//   them. Each lead and gap has its own scale, so one awkward stop does not lengthen every run
+//   (long leads can leave the reach or swing the arm out).
+// - Velocities: a lead runs at its pass's speed whatever its scale, and a longer lead only takes
+//   the arm further out, so a lead over a limit first drops its cruise (the paper's k1 -> 1 on the
+//   lead-in, k2 -> 0 on the lead-out: all of it speeding up or slowing down, a third as long as at
+//   the default 0.5). A join's velocities are the passes' speeds; easing its arc's speed with the
+//   scale made the speed changes on its short runs break acceleration limits 4.5x, so a join over
+//   a velocity limit is left to the re-plan's bounds on its passes (SpeedCapMap::learn).
+// A slot that got worse when eased, or a timing that leaves the reach, goes halfway back to its
+// best scale. At most kAttempts timings; the one with the smallest excess is kept.
 RegionTiming time_region_within_limits(const TimingContext& ctx, RegionJob job, const Eigen::VectorXd& q_prev) {
   constexpr int kAttempts = 6;
   const std::size_t slots = job.passes.size() + 1;
@@ -453,14 +466,27 @@ RegionTiming time_region_within_limits(const TimingContext& ctx, RegionJob job, 
       for (std::size_t k = 0; k < slots; ++k) scale[k] = std::sqrt(scale[k] * best_scale[k]);
       continue;
     }
-    const std::vector<double> ratios = off_pass_accel_ratios(ctx.robot, rt, q_prev, slots);
-    const double ratio = *std::max_element(ratios.begin(), ratios.end());
+    const SlotRatios r = off_pass_ratios(ctx.robot, rt, q_prev, slots);
+    std::vector<double> ratios(slots);  // what easing a slot's scale acts on: its accelerations
+    double ratio = 0.0;
+    for (std::size_t k = 0; k < slots; ++k) {
+      ratios[k] = r.acceleration[k];
+      ratio = std::max({ratio, r.acceleration[k], r.velocity[k]});
+    }
     if (attempt == 0 || ratio < best_ratio) best_ratio = ratio, best = std::move(rt);
     if (ratio <= 1.0) break;
+    bool cruise_dropped = false;
+    if (std::max(r.velocity.front(), r.acceleration.front()) > 1.0 && job.params.k1 < 1.0)
+      job.params.k1 = 1.0, cruise_dropped = true;
+    if (std::max(r.velocity.back(), r.acceleration.back()) > 1.0 && job.params.k2 > 0.0)
+      job.params.k2 = 0.0, cruise_dropped = true;
+    if (!cruise_dropped && *std::max_element(ratios.begin(), ratios.end()) <= 1.0) break;  // nothing to ease
     for (std::size_t k = 0; k < slots; ++k) {
       const bool improved = ratios[k] < best_slot_ratio[k];
       if (improved) best_slot_ratio[k] = ratios[k], best_scale[k] = scale[k];
       if (ratios[k] <= 1.0 && improved) continue;
+      const bool lead = k == 0 || k + 1 == slots;
+      if (lead && cruise_dropped) continue;  // see what the shorter leads do first
       scale[k] = improved ? scale[k] * std::max(0.25, 0.9 / ratios[k]) : std::sqrt(scale[k] * best_scale[k]);
     }
   }

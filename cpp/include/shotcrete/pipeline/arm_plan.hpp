@@ -26,8 +26,10 @@ struct SpeedCapMap {
   double at(const Eigen::Vector3d& p) const;
   /// Adds a bound for every spraying sample of `tr` over a joint velocity or acceleration limit,
   /// for every lead / link sample over a velocity limit (they cruise at the speeds of the passes
-  /// next to them), and, for a lead / link sample over an acceleration limit, one at the pass
-  /// sample its run leaves or reaches: the sample's speed scaled so the joints come out at
+  /// next to them), and, for a lead / link sample over a velocity or acceleration limit, one at
+  /// the pass sample its run leaves or reaches (for a velocity, when the run moves at 90 % of that
+  /// pass sample's speed or more), and for a turn-around sample over a velocity limit at about the
+  /// passes' speeds, one at each pass end it joins: the speed scaled so the joints come out at
   /// limit_share of their limits (velocity ~ v, acceleration ~ v^2). Returns the number of bounds
   /// added.
   int learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_limit, const Eigen::VectorXd& acc_limit,
