@@ -483,3 +483,111 @@ TEST(Planner, GradedRoundsLeaveNoCellOverfilled) {
   // The bays are ones where it matters (measured: 2, 30 and 11 cells below -50 mm).
   EXPECT_GT(overfilled_as_written, 0);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Levelling dwells: least squares with the guard band
+
+namespace {
+
+// Two segments over a row of 12 cells, each laying 10 mm per s/m of dwell on its six cells and
+// 15 mm on the one next to the other's (where neighbouring lines overlap): 100 mm wanted everywhere.
+// Least squares fills the many cells nearly and over-fills the two shoulders by 34.5 mm.
+DwellProblem shoulder_dwell_problem() {
+  DwellProblem p;
+  const int n = 12;
+  p.target_mm = Eigen::VectorXd::Constant(n, 100.0);
+  for (int j = 0; j < 2; ++j) {
+    Segment s;
+    s.pass = static_cast<std::size_t>(j);
+    s.length_m = 0.15;
+    s.cap_mps = 1.0;
+    p.segments.push_back(s);
+    Eigen::VectorXd u = Eigen::VectorXd::Zero(n);
+    for (int c = 6 * j; c < 6 * j + 6; ++c) u[c] = 10.0;
+    u[j == 0 ? 5 : 6] = 15.0;
+    p.unit_mm.push_back(sparsify(u));
+  }
+  p.w_max_s_per_m = 20.0;
+  return p;
+}
+
+// The objective written out independently of speeds.cpp: squared error, plus weight x the
+// squared error past the band either side of the cell's TD, plus the time term.
+double guarded_objective(const DwellProblem& p, const Eigen::VectorXd& td_mm, double band_mm, double weight,
+                         const std::vector<double>& w) {
+  double f = 0;
+  for (int c = 0; c < p.target_mm.size(); ++c) {
+    double dep = 0;
+    for (std::size_t j = 0; j < w.size(); ++j)
+      for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k)
+        if (p.unit_mm[j].idx[k] == c) dep += w[j] * p.unit_mm[j].val[k];
+    const double e = p.target_mm[c] - dep;  // + missing, - over-filled
+    const double past = std::max(0.0, std::abs(e) - band_mm);
+    f += 0.5 * e * e + 0.5 * weight * past * past;
+  }
+  for (std::size_t j = 0; j < w.size(); ++j) f += p.lambda_mm2_per_s * p.segments[j].length_m * w[j];
+  return f;
+}
+
+}  // namespace
+
+TEST(LevellingDwells, TheGuardHoldsOverlappedShouldersAndMatchesABruteForceSearch) {
+  DwellProblem p = shoulder_dwell_problem();
+  const Eigen::VectorXd td = p.target_mm;
+  const double band = 20.0, weight = 100.0;
+  auto residual = [&](const std::vector<double>& w) {
+    Eigen::VectorXd e = p.target_mm;
+    for (std::size_t j = 0; j < w.size(); ++j)
+      for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) e[p.unit_mm[j].idx[k]] -= w[j] * p.unit_mm[j].val[k];
+    return e;
+  };
+  // A grid over {0} u [1, 20] s/m each, then a finer one around its best point.
+  auto brute = [&](double wt) {
+    double best = 1e300, b0 = 0, b1 = 0;
+    std::vector<double> grid = {0.0};
+    for (double x = 1.0; x <= 20.0; x += 0.05) grid.push_back(x);
+    for (double w0 : grid)
+      for (double w1 : grid) {
+        const double f = guarded_objective(p, td, band, wt, {w0, w1});
+        if (f < best) best = f, b0 = w0, b1 = w1;
+      }
+    for (double w0 = std::max(1.0, b0 - 0.1); w0 <= b0 + 0.1; w0 += 0.0005)
+      for (double w1 = std::max(1.0, b1 - 0.1); w1 <= b1 + 0.1; w1 += 0.0005)
+        best = std::min(best, guarded_objective(p, td, band, wt, {w0, w1}));
+    return best;
+  };
+  const std::vector<double> zero(2, 0.0);
+  // Least squares alone fills the pit and over-fills its shoulders past the band.
+  const std::vector<double> ls = optimise_dwell(p, zero);
+  EXPECT_NEAR(guarded_objective(p, td, band, 0.0, ls), brute(0.0), 1e-3 * brute(0.0));
+  EXPECT_NEAR(residual(ls).minCoeff(), -34.5, 0.1);  // the shoulders: 15 x 6500/725 - 100
+  // With the guard: the optimum of the guarded objective; every cell within the band but for a
+  // hair (8.03 s/m: the shoulders at -20.5 mm, the others at +19.7 mm).
+  set_guard(p, td, band, weight);
+  const std::vector<double> g = optimise_dwell(p, zero);
+  const double g_best = brute(weight);
+  EXPECT_NEAR(guarded_objective(p, td, band, weight, g), g_best, 1e-3 * g_best);
+  EXPECT_GT(residual(g).minCoeff(), -band - 1.0);
+  EXPECT_LT(residual(g).maxCoeff(), band + 1.0);
+  EXPECT_LT(residual(g).cwiseAbs().maxCoeff(), residual(ls).cwiseAbs().maxCoeff());
+  EXPECT_NEAR(dwell_objective(p, g), guarded_objective(p, td, band, weight, g), 1e-9 * g_best);
+  // A cell already over-filled past the band may take nothing more: its guard starts at zero.
+  Eigen::VectorXd td2 = td;
+  td2[0] = -30.0;
+  td2[1] = 10.0;
+  set_guard(p, td2, band, weight);
+  EXPECT_DOUBLE_EQ(p.guard_hi_mm[0], 0.0);
+  EXPECT_DOUBLE_EQ(p.guard_hi_mm[1], 30.0);
+  EXPECT_DOUBLE_EQ(p.guard_hi_mm[2], 120.0);
+  EXPECT_DOUBLE_EQ(p.guard_lo_mm[1], 0.0);
+  EXPECT_DOUBLE_EQ(p.guard_lo_mm[2], 80.0);
+}
+
+TEST(LevellingDwells, TheLookAheadSolvesForMoreThanOneRound) {
+  DwellProblem p = shoulder_dwell_problem();
+  p.target_mm *= 3.0;  // 300 mm: least squares wants 26.9 s/m, one round sprays at most 20
+  const std::vector<double> zero(2, 0.0);
+  for (double w : optimise_dwell(p, zero)) EXPECT_DOUBLE_EQ(w, p.w_max_s_per_m);
+  p.lookahead_rounds = 3;
+  for (double w : optimise_dwell(p, zero)) EXPECT_NEAR(w, 3 * 6500.0 / 725.0, 0.01);
+}

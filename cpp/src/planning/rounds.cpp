@@ -314,6 +314,7 @@ std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<doub
   std::vector<double> w;
   for (int it = 0; it < 3; ++it) {
     w = optimise_dwell(problem, floor);
+    for (double& x : w) x = std::min(x, problem.w_max_s_per_m);  // the look-ahead's rest: later rounds
     const auto limited = limit_speed_changes(problem.segments, w, accel_mps2);
     for (std::size_t j = 0; j < w.size(); ++j)
       if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
@@ -405,6 +406,10 @@ class LevellingRounds : public RoundStages {
     ctx.report(in.number, 0.3);
     problem.lambda_mm2_per_s = pc.time_weight_mm2_per_s;
     problem.w_max_s_per_m = 1.0 / pc.min_speed_mps;
+    problem.lookahead_rounds = pc.levelling_lookahead_rounds;
+    Eigen::VectorXd td_mm(static_cast<Eigen::Index>(cells.cell_ids.size()));
+    for (std::size_t k = 0; k < cells.cell_ids.size(); ++k) td_mm[k] = grid.td_m[cells.cell_ids[k]] * 1000.0;
+    set_guard(problem, td_mm, pc.levelling_guard_band_m * 1000.0, pc.levelling_guard_weight);
     const std::vector<double> w = solve_dwells(problem, ctx.config.timing.speed_change_accel_mps2, ctx.config.flow);
     std::vector<RegionPlan> out;
     for (std::size_t s = 0; s < sides.size(); ++s) {

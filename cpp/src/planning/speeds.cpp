@@ -299,39 +299,100 @@ Sparse sparsify(const Eigen::VectorXd& v) {
   return s;
 }
 
+void set_guard(DwellProblem& problem, const Eigen::VectorXd& td_mm, double band_mm, double weight) {
+  problem.guard_weight = weight;
+  if (weight <= 0) {
+    problem.guard_hi_mm.resize(0);
+    problem.guard_lo_mm.resize(0);
+    return;
+  }
+  problem.guard_hi_mm = (td_mm.array() + band_mm).max(0.0).matrix();
+  problem.guard_lo_mm = (td_mm.array() - band_mm).max(0.0).matrix();
+}
+
 namespace {
 
-// Coordinate descent state: the dwells w and the residual U w - t, updated together.
+// Cost of one cell at deposit x (DwellProblem), and its first and second derivatives in x.
+struct CellCost {
+  double t = 0, hi = 0, lo = 0, weight = 0;
+  double value(double x) const {
+    const double over = std::max(0.0, x - hi), under = std::max(0.0, lo - x);
+    return 0.5 * ((x - t) * (x - t) + weight * (over * over + under * under));
+  }
+  double slope(double x) const { return (x - t) + weight * (std::max(0.0, x - hi) - std::max(0.0, lo - x)); }
+  double curvature(double x) const { return 1.0 + weight * ((x > hi) + (x < lo)); }
+};
+
+// Coordinate descent state: the dwells w and the deposit U w, updated together.
 struct DwellSolver {
   const DwellProblem& p;
-  std::vector<double> w, h, w_min;
-  Eigen::VectorXd res;
+  std::vector<double> w, w_min;
+  Eigen::VectorXd dep;
+  bool guarded;
 
   explicit DwellSolver(const DwellProblem& problem)
-      : p(problem), w(problem.unit_mm.size(), 0.0), h(problem.unit_mm.size(), 0.0), res(-problem.target_mm) {
-    for (std::size_t j = 0; j < w.size(); ++j) {
-      for (double v : p.unit_mm[j].val) h[j] += v * v;
-      w_min.push_back(1.0 / p.segments[j].cap_mps);
-    }
+      : p(problem), w(problem.unit_mm.size(), 0.0), dep(Eigen::VectorXd::Zero(problem.target_mm.size())),
+        guarded(problem.guard_weight > 0 && problem.guard_hi_mm.size() == problem.target_mm.size() &&
+                problem.guard_lo_mm.size() == problem.target_mm.size()) {
+    for (std::size_t j = 0; j < w.size(); ++j) w_min.push_back(1.0 / p.segments[j].cap_mps);
+  }
+  CellCost cell(int k) const {
+    if (!guarded) return {p.target_mm[k], std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(), 0.0};
+    return {p.target_mm[k], p.guard_hi_mm[k], p.guard_lo_mm[k], p.guard_weight};
   }
   void set(std::size_t j, double value) {
     const double d = value - w[j];
     if (d == 0) return;
-    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) res[p.unit_mm[j].idx[k]] += d * p.unit_mm[j].val[k];
+    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) dep[p.unit_mm[j].idx[k]] += d * p.unit_mm[j].val[k];
     w[j] = value;
   }
-  double grad(std::size_t j) const {
-    double g = p.lambda_mm2_per_s * p.segments[j].length_m;
-    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) g += p.unit_mm[j].val[k] * res[p.unit_mm[j].idx[k]];
-    return g;
+  // Slope and curvature of the objective along w[j] at w[j] + d.
+  std::pair<double, double> derivatives(std::size_t j, double d) const {
+    double g = p.lambda_mm2_per_s * p.segments[j].length_m, h = 0.0;
+    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) {
+      const int c = p.unit_mm[j].idx[k];
+      const double a = p.unit_mm[j].val[k], x = dep[c] + d * a;
+      const CellCost cc = cell(c);
+      g += a * cc.slope(x);
+      h += a * a * cc.curvature(x);
+    }
+    return {g, h};
+  }
+  // The minimiser of the objective along w[j] within [lo, hi]: Newton steps on the piecewise
+  // linear, increasing slope, kept inside a bracket (bisection when a step leaves it); one
+  // step is exact without the guard.
+  double line_min(std::size_t j, double lo, double hi) const {
+    double a = lo - w[j], b = hi - w[j];  // the bracket, as steps from w[j]
+    bool a_seen = false, b_seen = false;  // bracket ends where the slope is known (else bounds)
+    const double tol = 1e-9 * (hi - lo) + 1e-15;
+    double d = std::clamp(0.0, a, b);
+    for (int it = 0; it < 60; ++it) {
+      const auto [g, h] = derivatives(j, d);
+      if (g > 0) {
+        b = d, b_seen = true;
+      } else if (g < 0) {
+        a = d, a_seen = true;
+      } else {
+        break;
+      }
+      if (b - a <= tol) break;  // at a bound, or the bracket closed
+      double next = h > 0 ? d - g / h : (g > 0 ? a : b);
+      if (next <= a) next = a_seen ? 0.5 * (a + b) : a;
+      if (next >= b) next = b_seen ? 0.5 * (a + b) : b;
+      const bool done = std::abs(next - d) <= tol;
+      d = next;
+      if (done) break;
+    }
+    return w[j] + d;
   }
   // Change of the objective if w[j] became `value`.
   double objective_delta(std::size_t j, double value) const {
     const double d = value - w[j];
     double delta = p.lambda_mm2_per_s * p.segments[j].length_m * d;
     for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) {
-      const double r = res[p.unit_mm[j].idx[k]];
-      delta += 0.5 * ((r + d * p.unit_mm[j].val[k]) * (r + d * p.unit_mm[j].val[k]) - r * r);
+      const int c = p.unit_mm[j].idx[k];
+      const CellCost cc = cell(c);
+      delta += cc.value(dep[c] + d * p.unit_mm[j].val[k]) - cc.value(dep[c]);
     }
     return delta;
   }
@@ -339,15 +400,26 @@ struct DwellSolver {
 
 }  // namespace
 
+double dwell_objective(const DwellProblem& problem, const std::vector<double>& w) {
+  DwellSolver s(problem);
+  for (std::size_t j = 0; j < w.size(); ++j) s.set(j, w[j]);
+  double f = 0.0;
+  for (Eigen::Index c = 0; c < s.dep.size(); ++c) f += s.cell(static_cast<int>(c)).value(s.dep[c]);
+  for (std::size_t j = 0; j < w.size(); ++j) f += problem.lambda_mm2_per_s * problem.segments[j].length_m * w[j];
+  return f;
+}
+
 std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor) {
   DwellSolver s(problem);
   const std::size_t n = s.w.size();
-  const double w_max = problem.w_max_s_per_m;
+  const double w_max = problem.w_max_s_per_m * std::max(1, problem.lookahead_rounds);
+  std::vector<char> empty(n);
+  for (std::size_t j = 0; j < n; ++j) empty[j] = problem.unit_mm[j].idx.empty();
   for (int sweep = 0; sweep < 300; ++sweep) {
     double change = 0;
     for (std::size_t j = 0; j < n; ++j) {
-      if (s.h[j] <= 0) continue;
-      const double next = std::clamp(s.w[j] - s.grad(j) / s.h[j], w_floor[j], w_max);
+      if (empty[j]) continue;
+      const double next = s.line_min(j, w_floor[j], w_max);
       change = std::max(change, std::abs(next - s.w[j]));
       s.set(j, next);
     }
@@ -361,8 +433,8 @@ std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vecto
       s.set(j, s.objective_delta(j, 0.0) <= s.objective_delta(j, s.w_min[j]) ? 0.0 : s.w_min[j]);
     }
     for (std::size_t j = 0; j < n; ++j) {
-      if (s.w[j] <= 0 || s.h[j] <= 0) continue;  // skipped segments stay skipped
-      s.set(j, std::clamp(s.w[j] - s.grad(j) / s.h[j], std::max(s.w_min[j], w_floor[j]), w_max));
+      if (s.w[j] <= 0 || empty[j]) continue;  // skipped segments stay skipped
+      s.set(j, s.line_min(j, std::max(s.w_min[j], w_floor[j]), w_max));
     }
   }
   return s.w;

@@ -69,18 +69,37 @@ struct Segment {
 };
 
 /// The least-squares problem of the levelling round:
-/// min 1/2 |U w - t|^2 + lambda L.w,  w in {0} u [w_min, w_max] (w: dwell per unit length [s/m]).
+///   min 1/2 |U w - t|^2 + guard_weight/2 sum_c [(U w - hi)_c+^2 + (lo - U w)_c+^2] + lambda L.w,
+///   w in {0} u [w_min, w_max] (w: dwell per unit length [s/m]).
+/// The guard (planner.levelling_guard_*) holds every cell's final residual within a band: least
+/// squares alone trades a few big errors for many small ones (a pit filled at the cost of its
+/// shoulders over-filled 40 mm). Both terms are convex in w, so is the objective.
 struct DwellProblem {
   std::vector<Segment> segments;
   std::vector<Sparse> unit_mm;   // per segment: thickness [mm] on the cell slots per s/m of dwell
   Eigen::VectorXd target_mm;     // per cell slot
+  Eigen::VectorXd guard_hi_mm;   // per cell slot: deposit beyond which a cell counts as over-filled (empty: no guard)
+  Eigen::VectorXd guard_lo_mm;   // per cell slot: deposit below which it counts as under-filled (empty: no guard)
+  double guard_weight = 0;       // cost of a mm past a guard limit, relative to a mm off target (squared)
   double lambda_mm2_per_s = 0;   // planner.time_weight_mm2_per_s
-  double w_max_s_per_m = 0;      // dwell at the slowest speed
+  double w_max_s_per_m = 0;      // dwell at the slowest speed: the most a round sprays
+  int lookahead_rounds = 1;      // the solve may give a segment lookahead_rounds x w_max (the rounds
+                                 // after this one add the rest); the round sprays at most w_max
 };
 
-/// Coordinate descent for the dwells; w_min[j] = 1 / cap of segment j (the nozzle cannot spray
+/// Guard limits for cells with TD td_mm [mm] (negative: over-filled): over-filled past band_mm
+/// beyond flush (a cell already past it may take nothing more), under-filled past band_mm short of
+/// flush.
+void set_guard(DwellProblem& problem, const Eigen::VectorXd& td_mm, double band_mm, double weight);
+
+/// Coordinate descent for the dwells (each coordinate minimised exactly: the objective is
+/// piecewise quadratic along it); w_min[j] = 1 / cap of segment j (the nozzle cannot spray
 /// faster); w_floor[j] > 0 forces segment j to spray with at least that dwell (from the limiter).
+/// Dwells up to lookahead_rounds x w_max: the caller clips them to one round's.
 std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor);
+
+/// The objective of DwellProblem at dwells w (for tests and reports).
+double dwell_objective(const DwellProblem& problem, const std::vector<double>& w);
 
 /// The arm cannot change the nozzle speed at will: caps the dwells so that speed changes along
 /// every pass line stay within accel_mps2 (see speeds.cpp).
