@@ -1,7 +1,9 @@
 #pragma once
 // Space allowance of the arm (seed method: key points and optimal space allowance): the distance of
 // every link's collision shape to the wall and to the other links, at every trajectory sample.
-// The wall is an octomap octree queried through FCL; shapes are the URDF's <collision> geometry.
+// The wall is an octomap octree queried through FCL (the transit router's screen), a Euclidean
+// distance field (check_clearance's bounds) and a KD-tree of its points (exact distances); shapes
+// are the URDF's <collision> geometry.
 #include <limits>
 #include <memory>
 #include <string>
@@ -19,7 +21,8 @@ struct TimedTrajectory;
 
 /// The wall as an obstacle: an octree of points (leaf edge `resolution_m`). Each occupied leaf is a
 /// box, so a distance reads at most a leaf diagonal (sqrt(3) x resolution) short of the
-/// distance to the points themselves, never long.
+/// distance to the points themselves, never long. The distance field and the KD-tree are built
+/// on first use (thread-safe).
 class WallOctree {
  public:
   WallOctree(const Points& xyz_m, double resolution_m);
