@@ -1,12 +1,13 @@
 """Clearance benchmark (issue 18): the space allowance of the bundled arm along timed trajectories,
-against the wall's points (FCL + octomap octree as the broad phase, a KD-tree of the points as the
-narrow phase), and transits re-routed by the seed method.
+against the wall's points (a Euclidean distance field of the wall as the bound, a KD-tree of the
+points for exact distances; the transit router's screen: FCL + octomap octree), and transits
+re-routed by the seed method.
 
-- accuracy: the exact read-out (WallOctree.exact_distance: nearest points to a sphere cover of the
-  shape bound it, then the points that can be nearer, from a KD-tree, measured exactly; what the
+- accuracy: the exact read-out (WallOctree.exact_distance: distance-field bounds of a sphere cover
+  of the shape, then the points that can be nearer, from a KD-tree, measured exactly; what the
   check reports) for 10,000 random link poses (the URDF's collision cylinders, near the default wall)
   against the exact distance to every wall point (brute force, numpy), against half a leaf; and
-  how far the octree reading alone (the check's skipping bound) reads short, never long;
+  how far the octree reading alone (the transit screen's bound) reads short, never long;
   1,000 poses at 2 cm leaves;
 - the full-trajectory check of the default bay (both planner modes): its wall-clock time against
   2 s on 2 cores (the load average is recorded with it), samples below the margins, the least
@@ -91,7 +92,7 @@ def accuracy(cfg, n_poses: int, seed: int = 1) -> dict:
             "error_mm": {"mean": float(refined.mean() * 1e3), "max": float(refined.max() * 1e3)},
             "query_ms_mean": t_refined / n * 1e3,
             "within_half_leaf": bool(refined.max() <= res / 2),
-            # The octree reading alone (FCL's octree, each occupied leaf a box): the check's skipping bound.
+            # The octree reading alone (FCL's octree, each occupied leaf a box): the transit screen's bound.
             "octree_short_mm": {"mean": float(shorts.mean() * 1e3), "p95": float(np.percentile(shorts, 95) * 1e3),
                                 "max": float(shorts.max() * 1e3), "min": float(shorts.min() * 1e3)},
             "octree_never_long": bool(shorts.min() >= -1e-6),
@@ -125,8 +126,9 @@ def bay(cfg, label: str) -> dict:
                            "below": l.samples_below_margin} for l in rep.links},
         "self": {"pair": f"{rep.self_clearance.link_a}-{rep.self_clearance.link_b}",
                  "min_m": rep.self_clearance.min_m, "below": rep.self_clearance.samples_below_margin},
-        "wall_queries": rep.wall_queries, "exact_queries": rep.exact_queries, "self_queries": rep.self_queries,
-        "queries_per_sample_and_shape": rep.wall_queries / max(1, rep.samples * len(robot.collision_shapes)),
+        "wall_queries": rep.wall_queries, "field_queries": rep.field_queries, "exact_queries": rep.exact_queries,
+        "self_queries": rep.self_queries,
+        "field_bounds_per_sample_and_shape": rep.field_queries / max(1, rep.samples * len(robot.collision_shapes)),
         "check_s": rep.seconds, "load_average_1min": os.getloadavg()[0], "plan_s": t_plan,
         "wall_points": rep.wall_points,
         "transits": {"checked": moves.moves_checked, "rerouted": moves.rerouted, "failed": moves.failed,
@@ -211,8 +213,8 @@ def targets(result: dict) -> dict:
                      "sample the octree reads below a margin)",
             "octree_reading_max_short_mm": acc["octree_short_mm"]["max"],
             "octree_reading_within_half_cell": acc["octree_short_mm"]["max"] <= acc["half_leaf_mm"],
-            "note": "the octree reading is the check's skipping bound only; the every-sample least distance lies in "
-                    "[min_lower_m, min_m] per link"}
+            "note": "the octree reading is the transit screen's bound only (check_clearance bounds on the distance "
+                    "field); the every-sample least distance lies in [min_lower_m, min_m] per link"}
     full = next((b for b in result.get("bays", []) if b.get("label") == "default bay, optimal" and "check_s" in b), None)
     if full:
         out["full_trajectory_check"] = {

@@ -42,7 +42,15 @@ void bind_collision(py::module_& m) {
           },
           py::arg("shape"), py::arg("link_pose"),
           "(distance m, the nearest wall point): the octree's answer refined over the points within its bound "
-          "(KD-tree): the minimum over every point");
+          "(KD-tree): the minimum over every point")
+      .def_property_readonly("field_voxel_m", &WallOctree::field_voxel_m, "edge of the distance field's cells [m]")
+      .def(
+          "field_lower_bound",
+          [](const WallOctree& w, const CollisionShape& s, const Eigen::Matrix4d& link_pose) {
+            return w.field_lower_bound(s, Eigen::Isometry3d(link_pose));
+          },
+          py::arg("shape"), py::arg("link_pose"),
+          "lower bound [m] on exact_distance from the wall's Euclidean distance field (never above it)");
   m.def(
       "point_shape_distance",
       [](const Eigen::Vector3d& p, const CollisionShape& s, const Eigen::Matrix4d& link_pose) {
@@ -56,7 +64,7 @@ void bind_collision(py::module_& m) {
       .def_readonly("at_time_s", &LinkClearance::at_time_s)
       .def_readonly("closest_m", &LinkClearance::closest_m)
       .def_readonly("min_lower_m", &LinkClearance::min_lower_m,
-                    "no sample is closer than this (check_clearance: the least octree reading less 10 mm)")
+                    "no sample is closer than this (check_clearance: <= min_m; equal when min_m is exact over every sample)")
       .def_readonly("samples_below_margin", &LinkClearance::samples_below_margin);
   py::class_<SelfClearance>(m, "SelfClearance")
       .def_readonly("link_a", &SelfClearance::link_a)
@@ -71,7 +79,9 @@ void bind_collision(py::module_& m) {
       .def_readonly("octree_leaves", &ClearanceReport::octree_leaves)
       .def_readonly("wall_points", &ClearanceReport::wall_points)
       .def_readonly("samples", &ClearanceReport::samples)
-      .def_readonly("wall_queries", &ClearanceReport::wall_queries, "octree readings (FCL)")
+      .def_readonly("wall_queries", &ClearanceReport::wall_queries, "octree readings (FCL; check_clearance_octree)")
+      .def_readonly("field_queries", &ClearanceReport::field_queries,
+                    "distance-field bounds of a shape at a sample (check_clearance)")
       .def_readonly("exact_queries", &ClearanceReport::exact_queries, "exact distances to the wall's points")
       .def_readonly("self_queries", &ClearanceReport::self_queries)
       .def_readonly("seconds", &ClearanceReport::seconds)

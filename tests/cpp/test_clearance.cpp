@@ -112,6 +112,62 @@ TEST(Clearance, OctreeDistanceAgainstBruteForce) {
   EXPECT_THROW(WallOctree(bad, 0.05), std::invalid_argument);
 }
 
+// The distance field's bounds against the brute force: for random balls (in, around and far
+// outside the wall's bounding box) no point of the ball is nearer to a wall point than `lower`,
+// some wall point is within `upper` of the centre; for random cylinders the shape's lower bound
+// is never above the exact distance, and within the bound's worst gap of it (each wall point's
+// offset in its cell, the centre's from its cell's centre, the cover's slack). Two walls: a half
+// cylinder (regular) and a random cloud with a dense clump (irregular cells).
+TEST(Clearance, FieldBoundNeverAboveExactDistance) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  Points cloud(4000, 3);
+  for (Eigen::Index i = 0; i < cloud.rows(); ++i) {
+    const bool clump = i % 4 == 0;
+    cloud.row(i) << (clump ? 0.4 : 3.0) * U(rng) - (clump ? -0.5 : 1.0), (clump ? 0.4 : 6.0) * U(rng) - 3.0,
+        (clump ? 0.4 : 4.0) * U(rng);
+  }
+  for (const Points& wall : {half_cylinder(5.6, 1.2, 400, 24), cloud}) {
+    for (double res : {0.05, 0.02}) {
+      const WallOctree tree(wall, res);
+      const double h = tree.field_voxel_m();
+      EXPECT_GE(h, res / 2 - 1e-12);  // coarser only where the box would need more than 64 M cells
+      double least_gap = std::numeric_limits<double>::infinity(), worst_gap = 0.0;
+      for (int k = 0; k < 300; ++k) {
+        // A ball: the brute-force distance of its centre; the least over the ball is that less r.
+        const Eigen::Vector3d c(-3.0 + 7.0 * U(rng), -8.0 + 16.0 * U(rng), -2.0 + 9.0 * U(rng));
+        const double r = 0.3 * U(rng);
+        double nearest = std::numeric_limits<double>::infinity();
+        for (Eigen::Index i = 0; i < wall.rows(); ++i) nearest = std::min(nearest, (wall.row(i).transpose() - c).norm());
+        const auto b = tree.field_bounds(c, r);
+        EXPECT_LE(b.lower_m, nearest - r + 1e-9) << "ball " << k;
+        EXPECT_GE(b.upper_m, nearest - 1e-9) << "ball " << k;
+        const Eigen::Vector3d lo = wall.colwise().minCoeff().transpose(), hi = wall.colwise().maxCoeff().transpose();
+        if ((c.array() >= lo.array()).all() && (c.array() <= hi.array()).all()) {  // inside the field's grid
+          EXPECT_LE(b.upper_m - b.lower_m, r + 2 * std::sqrt(3.0) * h + 1e-4) << "ball " << k;
+        }
+        // A cylinder: lower bound against the brute force.
+        const CollisionShape s = cylinder(0.05 + 0.2 * U(rng), 0.2 + 2.0 * U(rng));
+        Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+        const Eigen::Vector3d axis = Eigen::Vector3d(U(rng) - 0.5, U(rng) - 0.5, U(rng) - 0.5).normalized();
+        pose.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+        pose.translation() = c;
+        const double exact = brute_force(wall, s, pose);
+        const double lower = tree.field_lower_bound(s, pose);
+        EXPECT_LE(lower, exact + 1e-9) << "cylinder " << k;
+        if (exact > 0) {
+          least_gap = std::min(least_gap, exact - lower);
+          worst_gap = std::max(worst_gap, exact - lower);
+        }
+      }
+      // Tight somewhere (a bound too high by half a cell would show): the gap's floor is set by
+      // the cells, its worst by the cover's balls past a cylinder's caps.
+      EXPECT_LT(least_gap, 0.5 * std::sqrt(3.0) * h);
+      RecordProperty("field_worst_gap_mm_at_" + std::to_string(res), std::to_string(worst_gap * 1e3));
+    }
+  }
+}
+
 TEST(Clearance, RobotShapesFramesAndSelfPairs) {
   const Robot robot = Robot::load(RobotConfig{});
   const auto& shapes = robot.collision_shapes();
@@ -157,22 +213,31 @@ TimedTrajectory sweep(const Robot& robot, int period, int repeats) {
   return traj;
 }
 
-// Every sample, every shape, by exact distances (exact_distance: equal to the brute force over
-// every point, OctreeDistanceAgainstBruteForce): per link the least distance and the samples below
-// its margin.
+// Brute force for a cylinder, all points at once (the closed form of point_shape_distance).
+double brute_force_cylinder(const Points& wall, const CollisionShape& s, const Eigen::Isometry3d& pose) {
+  if (s.kind != CollisionShape::Kind::cylinder) return brute_force(wall, s, pose);
+  const Eigen::Isometry3d T = pose * s.origin;
+  const Eigen::MatrixXd local = (wall.rowwise() - T.translation().transpose()) * T.linear();  // rows: R^T (p - t)
+  const Eigen::ArrayXd radial = (local.col(0).array().square() + local.col(1).array().square()).sqrt() - s.radius_m;
+  const Eigen::ArrayXd axial = local.col(2).array().abs() - 0.5 * s.length_m;
+  return (radial.max(0.0).square() + axial.max(0.0).square()).sqrt().minCoeff();
+}
+
+// Every sample, every shape, by brute force over every wall point: per link the least distance
+// and the samples below its margin.
 struct EverySample {
   std::map<std::string, double> min_m;
   std::map<std::string, int> below;
   std::vector<std::map<std::string, double>> at;  // per sample, per link
 };
-EverySample every_sample(const Robot& robot, const TimedTrajectory& traj, std::size_t samples, const WallOctree& wall,
+EverySample every_sample(const Robot& robot, const TimedTrajectory& traj, std::size_t samples, const Points& wall,
                          const ClearanceConfig& cfg) {
   EverySample out;
   for (std::size_t k = 0; k < samples; ++k) {
     const auto frames = robot.link_frames(traj.q[k]);
     std::map<std::string, double> d;
     for (const auto& s : robot.collision_shapes()) {
-      const double e = wall.exact_distance(s, frames[s.frame]);
+      const double e = brute_force_cylinder(wall, s, frames[s.frame]);
       d[s.link] = d.count(s.link) ? std::min(d[s.link], e) : e;
     }
     std::map<std::string, bool> b;
@@ -190,9 +255,9 @@ EverySample every_sample(const Robot& robot, const TimedTrajectory& traj, std::s
 
 // check_clearance against a check of every sample by exact distances (brute force over every wall
 // point): the same samples below the margins, each link's least distance the exact distance at its
-// reported time, and the every-sample least distance within [min_lower_m, min_m]; link pairs against
-// FCL's shape distance at every sample (least within 10 mm above). In stretches over two threads,
-// the same result on every run.
+// reported time, at a wall point at that distance, and the every-sample least within
+// [min_lower_m, min_m]; link pairs against FCL's shape distance at every sample (least within
+// 10 mm above). In stretches over two threads, the same result on every run.
 TEST(Clearance, CheckEqualsExactDistancesAtEverySample) {
   const Robot robot = Robot::load(RobotConfig{});
   constexpr int kPeriod = 400, kRepeats = 11;  // 4400 samples: two stretches, split inside a repeat
@@ -205,7 +270,7 @@ TEST(Clearance, CheckEqualsExactDistancesAtEverySample) {
   ClearanceConfig cfg;
   cfg.link_margin_m = 1.0;
   const ClearanceReport rep = check_clearance(robot, traj, tree, cfg);
-  const EverySample ref = every_sample(robot, traj, kPeriod, tree, cfg);
+  const EverySample ref = every_sample(robot, traj, kPeriod, wall, cfg);
   int total_below = 0;
   for (const auto& lc : rep.links) {
     EXPECT_EQ(lc.samples_below_margin, kRepeats * ref.below.at(lc.link)) << lc.link;
@@ -222,13 +287,14 @@ TEST(Clearance, CheckEqualsExactDistancesAtEverySample) {
     for (const auto& s : robot.collision_shapes())
       if (s.link == lc.link) at_closest = std::min(at_closest, point_shape_distance(lc.closest_m, s, frames[s.frame]));
     EXPECT_NEAR(at_closest, lc.min_m, 1e-12) << lc.link;
-    // The every-sample least distance lies in the band the report gives.
+    // The every-sample least lies in [min_lower_m, min_m] (both ends equal when exact).
     EXPECT_GE(ref.min_m.at(lc.link), lc.min_lower_m - 1e-12) << lc.link;
     EXPECT_LE(ref.min_m.at(lc.link), lc.min_m + 1e-12) << lc.link;
-    EXPECT_LE(lc.min_m - lc.min_lower_m, std::sqrt(3.0) * 0.05 + 0.01 + 1e-12) << lc.link;
   }
   EXPECT_GT(total_below, 0);                                                   // the test exercises the count
-  EXPECT_LT(rep.wall_queries, static_cast<long long>(traj.size() * robot.collision_shapes().size()));  // and the skipping
+  EXPECT_EQ(rep.wall_queries, 0);                                              // no octree readings:
+  EXPECT_GT(rep.field_queries, 0);                                             // field bounds, skipped by the motion
+  EXPECT_LT(rep.field_queries, static_cast<long long>(traj.size() * robot.collision_shapes().size()));
   EXPECT_GT(rep.exact_queries, static_cast<long long>(rep.links.size()));     // and the exact decisions
   // Link pairs: FCL at every sample.
   const auto& shapes = robot.collision_shapes();
@@ -261,7 +327,45 @@ TEST(Clearance, CheckEqualsExactDistancesAtEverySample) {
   EXPECT_EQ(again.self.min_m, rep.self.min_m);
   EXPECT_EQ(again.wall_queries, rep.wall_queries);
   EXPECT_EQ(again.exact_queries, rep.exact_queries);
+  EXPECT_EQ(again.field_queries, rep.field_queries);
   EXPECT_EQ(again.self_queries, rep.self_queries);
+}
+
+// Farther from the wall (every link but the nozzle clear of it, the default margins): the brute
+// force's least over every sample lies in each link's [min_lower_m, min_m], the band within the
+// field's gap, and equals min_m where the check says it is exact (the distances of many samples
+// lie within the field's gap of the least: the sweep repeats, the turret slews about its axis).
+TEST(Clearance, LeastDistancesWithinTheirBandOverEverySample) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimedTrajectory traj = sweep(robot, 400, 3);
+  Points wall = half_cylinder(8.0, 8.0, 420, 80);
+  wall.col(0).array() -= 4.0;
+  const WallOctree tree(wall, 0.05);
+  const ClearanceConfig cfg;
+  const ClearanceReport rep = check_clearance(robot, traj, tree, cfg);
+  const EverySample ref = every_sample(robot, traj, 400, wall, cfg);
+  int clear = 0, exact = 0;
+  for (const auto& lc : rep.links) {
+    clear += ref.min_m.at(lc.link) > 0.0 ? 1 : 0;
+    // In the band; exact (both ends equal) where the link's bounds ran out before 32 queries.
+    EXPECT_GE(ref.min_m.at(lc.link), lc.min_lower_m - 1e-12) << lc.link;
+    EXPECT_LE(ref.min_m.at(lc.link), lc.min_m + 1e-12) << lc.link;
+    if (lc.min_lower_m == lc.min_m) {
+      ++exact;
+      EXPECT_NEAR(lc.min_m, ref.min_m.at(lc.link), 1e-12) << lc.link;
+    }
+    // The band is the field's gap at most: 2 cell diagonals (2.5 cm cells), the cover's slack
+    // and its balls' reach past a cylinder's caps (its radius).
+    double radius = 0.0;
+    for (const auto& s : robot.collision_shapes())
+      if (s.link == lc.link) radius = std::max(radius, s.radius_m);
+    EXPECT_LE(lc.min_m - lc.min_lower_m, 2 * std::sqrt(3.0) * 0.025 + 0.01 + radius + 1e-6) << lc.link;
+    EXPECT_EQ(lc.samples_below_margin, 3 * ref.below.at(lc.link)) << lc.link;
+    const auto k = static_cast<std::size_t>(std::llround(lc.at_time_s / 0.02)) % 400;
+    EXPECT_NEAR(ref.at[k].at(lc.link), lc.min_m, 1e-12) << lc.link;
+  }
+  EXPECT_GE(clear, 8);  // the telescoped nozzle reaches the wall; every other link stays clear
+  EXPECT_GE(exact, 3);  // base_link, turret (one placement each, repeated) and the nozzle at 0
 }
 
 // The transit router's screen: the octree's reading at every sample gives its counts, and its

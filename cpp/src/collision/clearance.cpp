@@ -19,6 +19,7 @@ inline int omp_get_thread_num() { return 0; }
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <set>
 #include <stdexcept>
 #include <tuple>
 
@@ -66,6 +67,19 @@ double max_displacement(const std::array<Eigen::Vector3d, 8>& corners, const Eig
   return m;
 }
 
+// How far any point of a cylinder moves between two link poses, the cylinder as a set: a point
+// e(t) + w (e on the axis, w radial, |w| <= r) goes to e'(t) + R w (R the least rotation of the
+// axis onto its new direction): at most the farther axis end's motion + r |axis' - axis|. Zero
+// when the cylinder only turns about its own axis (the turret slewing). Other shapes: the
+// bounding box's corners.
+double shape_motion(const CollisionShape& s, const std::array<Eigen::Vector3d, 8>& corners, const Eigen::Isometry3d& a,
+                    const Eigen::Isometry3d& b) {
+  if (s.kind != CollisionShape::Kind::cylinder) return max_displacement(corners, a, b);
+  const Eigen::Vector3d e0 = s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m), e1 = s.origin * Eigen::Vector3d(0, 0, 0.5 * s.length_m);
+  const Eigen::Vector3d axis = s.origin.linear().col(2);
+  return std::max((a * e0 - b * e0).norm(), (a * e1 - b * e1).norm()) + s.radius_m * (a.linear() * axis - b.linear() * axis).norm();
+}
+
 // A sphere cover of a shape, in its link frame: every point of the shape lies within radius[j] of
 // centre[j] for some j. A cylinder: centres along its axis, each ball covering a slice (radius
 // hypot(r, slice/2) <= r + slack); a sphere: itself; a box: a grid of cubes of its least edge (at
@@ -74,6 +88,7 @@ double max_displacement(const std::array<Eigen::Vector3d, 8>& corners, const Eig
 struct BallCover {
   std::vector<Eigen::Vector3d> centre;
   std::vector<double> radius;
+  std::vector<double> inner;  // a ball of this radius about the centre lies inside the shape
 };
 BallCover ball_cover(const CollisionShape& s, double slack) {
   BallCover out;
@@ -82,8 +97,10 @@ BallCover ball_cover(const CollisionShape& s, double slack) {
     const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / slice)));
     const double h = s.length_m / m;
     for (int k = 0; k < m; ++k) {
-      out.centre.push_back(s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m + (k + 0.5) * h));
+      const double z = -0.5 * s.length_m + (k + 0.5) * h;
+      out.centre.push_back(s.origin * Eigen::Vector3d(0, 0, z));
       out.radius.push_back(std::hypot(s.radius_m, 0.5 * h));
+      out.inner.push_back(std::min(s.radius_m, 0.5 * s.length_m - std::abs(z)));
     }
   } else if (s.kind == CollisionShape::Kind::box) {
     const double cell = std::max(s.size_m.minCoeff(), 0.1);
@@ -95,16 +112,57 @@ BallCover ball_cover(const CollisionShape& s, double slack) {
         for (int k = 0; k < n.z(); ++k) {
           out.centre.push_back(s.origin * (-0.5 * s.size_m + step.cwiseProduct(Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5))));
           out.radius.push_back(0.5 * step.norm());
+          out.inner.push_back(0.5 * step.minCoeff());
         }
   } else {
     out.centre.push_back(s.origin.translation());
     out.radius.push_back(s.radius_m);
+    out.inner.push_back(s.radius_m);
   }
   return out;
 }
 
-// The fine cover of exact_distance.
+// The fine cover of exact_distance; the coarser one of the distance-field bounds (each ball a
+// lookup: its slack adds to the bound's gap below the exact distance).
 constexpr double kExactCoverSlack_m = 0.002;
+constexpr double kFieldCoverSlack_m = 0.01;
+
+// The distance field's cells: half an octree leaf, coarser while the wall's bounding box would
+// need more than this many (4 bytes each).
+constexpr double kFieldCellsMax = 64e6;
+
+// Felzenszwalb-Huttenlocher: d[q] = min over p of (q - p)^2 + f[p] along one line of n cells, exact
+// (f holds squared distances in cells; infinite where no occupied cell is known yet, left out of
+// the lower envelope). v, z: work arrays of n and n + 1.
+void edt_line(const float* f, std::size_t stride, int n, float* d_out, std::vector<double>& fin, std::vector<int>& v,
+              std::vector<double>& z) {
+  const double inf = std::numeric_limits<double>::infinity();
+  for (int q = 0; q < n; ++q) fin[static_cast<std::size_t>(q)] = f[static_cast<std::size_t>(q) * stride];
+  int k = -1;
+  for (int q = 0; q < n; ++q) {
+    const double fq = fin[static_cast<std::size_t>(q)];
+    if (!std::isfinite(fq)) continue;
+    double s = -inf;
+    while (k >= 0) {
+      const int p = v[static_cast<std::size_t>(k)];
+      s = ((fq + double(q) * q) - (fin[static_cast<std::size_t>(p)] + double(p) * p)) / (2.0 * (q - p));
+      if (s > z[static_cast<std::size_t>(k)]) break;
+      --k;
+    }
+    if (k < 0) s = -inf;
+    ++k;
+    v[static_cast<std::size_t>(k)] = q;
+    z[static_cast<std::size_t>(k)] = s;
+    z[static_cast<std::size_t>(k) + 1] = inf;
+  }
+  if (k < 0) return;  // no occupied cell on this line yet: stays infinite
+  int j = 0;
+  for (int q = 0; q < n; ++q) {
+    while (z[static_cast<std::size_t>(j) + 1] < q) ++j;
+    const int p = v[static_cast<std::size_t>(j)];
+    d_out[static_cast<std::size_t>(q) * stride] = static_cast<float>(double(q - p) * (q - p) + fin[static_cast<std::size_t>(p)]);
+  }
+}
 
 // The KD-tree holds float coordinates: its answers are widened by this much (a search radius) or
 // re-measured in double (a nearest point, whose float rank may differ from the double one by as
@@ -136,6 +194,13 @@ constexpr double kQuerySlack_m = 0.25;
 // spread over kThreads threads: the machine's two cores.
 constexpr std::size_t kChunkSamples = 2048, kMaxChunks = 2, kThreads = 2;
 
+// Exact queries per link for its least distance (check_clearance), in the order of the samples'
+// field bounds: past them min_lower_m is the next bound (< min_m). On the default bay 0.8-70 k
+// samples per link have a bound below the link's least distance (the field reads up to ~2 cell
+// diagonals short, and during slews the distances stay within centimetres of their minima):
+// measuring all of them would take tens of seconds.
+constexpr long long kMaxMinQueries = 32;
+
 }  // namespace
 
 // ------------------------------------------------------------------------------------------------
@@ -159,6 +224,58 @@ struct WallOctree::Impl {
       kd.setInputCloud(cloud);
     });
     return kd;
+  }
+  // The Euclidean distance field: per cell of edge h (cell (i,j,k) spans lo + [i, i+1) h on x, ...),
+  // the distance [m] between its centre and the nearest centre of a cell that holds a wall point,
+  // exact (separable EDT, one pass per axis).
+  std::once_flag field_built;
+  Eigen::Vector3d lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();
+  double h = 0.0;
+  Eigen::Vector3i n = Eigen::Vector3i::Zero();
+  std::vector<float> field_m;
+  void build_field() {
+    std::call_once(field_built, [&] {
+      lo = points.colwise().minCoeff().transpose();
+      hi = points.colwise().maxCoeff().transpose();
+      h = 0.5 * resolution_m;
+      for (;;) {
+        for (int a = 0; a < 3; ++a) n[a] = static_cast<int>(std::floor((hi[a] - lo[a]) / h)) + 1;
+        if (double(n.x()) * n.y() * n.z() <= kFieldCellsMax) break;
+        h *= 1.25;
+      }
+      const std::size_t nx = static_cast<std::size_t>(n.x()), ny = static_cast<std::size_t>(n.y()),
+                        nz = static_cast<std::size_t>(n.z());
+      field_m.assign(nx * ny * nz, std::numeric_limits<float>::infinity());
+      for (Eigen::Index i = 0; i < points.rows(); ++i) field_m[cell_index(points.row(i).transpose())] = 0.0f;
+      // One pass per axis over every line along it; lines are independent.
+      auto pass = [&](int axis) {
+        const std::size_t len = static_cast<std::size_t>(n[axis]);
+        const std::size_t stride = axis == 0 ? 1 : axis == 1 ? nx : nx * ny;
+        const std::size_t a_n = axis == 0 ? ny : nx, b_n = axis == 2 ? ny : nz;
+#pragma omp parallel num_threads(static_cast<int>(kThreads))
+        {
+          std::vector<double> fin(len), z(len + 1);
+          std::vector<int> v(len);
+#pragma omp for schedule(static)
+          for (long ab = 0; ab < static_cast<long>(a_n * b_n); ++ab) {
+            const std::size_t a = static_cast<std::size_t>(ab) % a_n, b = static_cast<std::size_t>(ab) / a_n;
+            const std::size_t start = axis == 0 ? nx * (a + ny * b) : axis == 1 ? a + nx * ny * b : a + nx * b;
+            edt_line(field_m.data() + start, stride, static_cast<int>(len), field_m.data() + start, fin, v, z);
+          }
+        }
+      };
+      for (int axis = 0; axis < 3; ++axis) pass(axis);
+      for (float& f : field_m) f = static_cast<float>(std::sqrt(double(f)) * h);
+    });
+  }
+  std::size_t cell_index(const Eigen::Vector3d& p) const {
+    std::size_t idx = 0, mult = 1;
+    for (int a = 0; a < 3; ++a) {
+      const int i = std::clamp(static_cast<int>(std::floor((p[a] - lo[a]) / h)), 0, n[a] - 1);
+      idx += mult * static_cast<std::size_t>(i);
+      mult *= static_cast<std::size_t>(n[a]);
+    }
+    return idx;
   }
 };
 
@@ -200,40 +317,80 @@ double WallOctree::distance(const CollisionShape& shape, const Eigen::Isometry3d
 }
 
 double WallOctree::exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
-                                  Eigen::Vector3d* closest_m) const {
+                                  Eigen::Vector3d* closest_m, double at_most_m) const {
   const BallCover cover = ball_cover(shape, kExactCoverSlack_m);
   const auto& kd = impl_->kdtree();
-  auto query_point = [&](std::size_t j) {
-    const Eigen::Vector3d c = link_pose * cover.centre[j];
-    return pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z()));
-  };
-  // Bounds from each ball's nearest wall point: every wall point is at least (nearest - slack)
-  // from the ball's centre, so at least that less the ball's radius from every point of the shape
-  // inside the ball (ball_lower); the nearest points, measured exactly, give the first `best`.
-  double best = std::numeric_limits<double>::infinity();
-  Eigen::Index best_i = -1;
-  std::vector<double> ball_lower(cover.centre.size());
-  std::vector<int> idx(1);
-  std::vector<float> d2(1);
-  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
-    kd.nearestKSearch(query_point(j), 1, idx, d2);
-    const Eigen::Vector3d p = impl_->points.row(idx[0]).transpose();
-    ball_lower[j] = (p - link_pose * cover.centre[j]).norm() - kFloatSlack_m - cover.radius[j];
-    const double d = point_shape_distance(p, shape, link_pose);
-    if (d < best || (d == best && idx[0] < best_i)) best = d, best_i = idx[0];
+  // Each ball's bounds from the distance field (a lookup, where a nearest-point search from near
+  // the tunnel's axis would visit most of the ring): no point of the shape inside ball j is nearer
+  // than lower[j] to the wall; some wall point is within `upper` of the shape.
+  const std::size_t m = cover.centre.size();
+  std::vector<Eigen::Vector3d> centre(m);
+  std::vector<std::pair<double, std::size_t>> order(m);
+  double upper = std::numeric_limits<double>::infinity();
+  for (std::size_t j = 0; j < m; ++j) {
+    centre[j] = link_pose * cover.centre[j];
+    const FieldBounds b = field_bounds(centre[j], cover.radius[j]);
+    order[j] = {b.lower_m, j};
+    upper = std::min(upper, std::max(0.0, b.upper_m - cover.inner[j]));
   }
-  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
-    // A point nearer than `best` to a point s of the shape in ball j lies within best + radius of
-    // its centre, and then the ball's lower bound is below best: other balls cannot hold it.
-    if (ball_lower[j] > best) continue;
-    kd.radiusSearch(query_point(j), best + cover.radius[j] + kFloatSlack_m, idx, d2);
+  std::sort(order.begin(), order.end());
+  // The least distance d* <= upper is reached at a point within d* + r of the centre of a ball
+  // that holds the shape's nearest point, whose lower bound is <= d*: balls in the order of their
+  // bounds, each gathering the points nearer than the best so far (radius search), until the next
+  // bound is past it. `best` starts just above upper (a point there is found) or at at_most_m.
+  double best = std::min(at_most_m, upper + 1e-9);
+  Eigen::Index best_i = -1;
+  std::vector<int> idx;
+  std::vector<float> d2;
+  for (const auto& [lower, j] : order) {
+    if (lower > best) break;
+    const Eigen::Vector3d& c = centre[j];
+    kd.radiusSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())),
+                    best + cover.radius[j] + kFloatSlack_m, idx, d2);
     for (int i : idx) {
       const double d = point_shape_distance(impl_->points.row(i).transpose(), shape, link_pose);
-      if (d < best || (d == best && i < best_i)) best = d, best_i = i;
+      if (d < best || (d == best && best_i >= 0 && i < best_i)) best = d, best_i = i;
     }
   }
+  if (best_i < 0) return at_most_m;  // nothing nearer than the bound
   if (closest_m) *closest_m = impl_->points.row(best_i).transpose();
   return best;
+}
+
+WallOctree::FieldBounds WallOctree::field_bounds(const Eigen::Vector3d& centre_m, double radius_m) const {
+  impl_->build_field();
+  const Impl& f = *impl_;
+  // Outside the points' bounding box, the field is read at the centre's projection c' onto it: for
+  // every point p in the box (a convex set), |c - p|^2 >= |c - c'|^2 + |c' - p|^2.
+  const Eigen::Vector3d inside = centre_m.cwiseMax(f.lo).cwiseMin(f.hi);
+  const double out = (centre_m - inside).norm();
+  Eigen::Vector3d cell_centre;
+  std::size_t idx = 0, mult = 1;
+  for (int a = 0; a < 3; ++a) {
+    const int i = std::min(static_cast<int>((inside[a] - f.lo[a]) / f.h), f.n[a] - 1);  // inside: >= 0
+    cell_centre[a] = f.lo[a] + f.h * (i + 0.5);
+    idx += mult * static_cast<std::size_t>(i);
+    mult *= static_cast<std::size_t>(f.n[a]);
+  }
+  // A wall point p in cell Q: |c' - p| >= |C - Q| - |c' - C| - |p - Q| with |p - Q| <= half a
+  // cell's diagonal; float rounding of the field (relative 6e-8) covered by 10 micrometres.
+  const double offset = (inside - cell_centre).norm() + 0.5 * std::sqrt(3.0) * f.h + 1e-5;
+  const double field = f.field_m[idx];
+  const double near = std::max(0.0, field - offset);
+  return {std::sqrt(out * out + near * near) - radius_m, out + field + offset};
+}
+
+double WallOctree::field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const {
+  const BallCover cover = ball_cover(shape, kFieldCoverSlack_m);
+  double lower = std::numeric_limits<double>::infinity();
+  for (std::size_t j = 0; j < cover.centre.size(); ++j)
+    lower = std::min(lower, field_bounds(link_pose * cover.centre[j], cover.radius[j]).lower_m);
+  return lower;
+}
+
+double WallOctree::field_voxel_m() const {
+  impl_->build_field();
+  return impl_->h;
 }
 
 double shape_distance(const CollisionShape& a, const Eigen::Isometry3d& pose_a, const CollisionShape& b,
@@ -287,12 +444,23 @@ int ClearanceReport::samples_below_margin() const {
 // ------------------------------------------------------------------------------------------------
 namespace {
 
+// A sample and shape whose field bound leaves it a candidate for its link's least distance.
+struct Candidate {
+  double lower_m;
+  std::size_t sample, shape;
+  bool operator<(const Candidate& o) const { return std::tie(lower_m, sample, shape) < std::tie(o.lower_m, o.sample, o.shape); }
+};
+
 // One stretch of samples checked on its own (its first sample queries every shape and pair).
 struct ChunkResult {
   std::vector<LinkClearance> links;
   SelfClearance self;
-  long long wall_queries = 0, exact_queries = 0, self_queries = 0;
+  long long wall_queries = 0, field_queries = 0, exact_queries = 0, self_queries = 0;
   std::vector<std::pair<std::size_t, std::size_t>> min_at;  // per link: the sample and shape of min_m
+  // Exact check, per link: the least field upper bound and the candidates whose lower bound was
+  // below the least upper bound at the time (only those can hold the link's least distance).
+  std::vector<double> upper_m;
+  std::vector<std::vector<Candidate>> candidates;
 };
 
 enum class Measure { exact, octree };
@@ -326,7 +494,9 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
   if (n == 0) return rep;
 
   std::vector<std::array<Eigen::Vector3d, 8>> corners;
-  for (const auto& s : shapes) corners.push_back(box_corners(s));
+  std::vector<BallCover> covers;  // the field bounds' cover of each shape
+  for (const auto& s : shapes) corners.push_back(box_corners(s)), covers.push_back(ball_cover(s, kFieldCoverSlack_m));
+  if (measure == Measure::exact) wall.field_voxel_m();  // the field built here, once, inside the timing
   // Fixed stretches of samples, whatever the number of threads: the result (minima, counts,
   // queries) depends on the trajectory only.
   const std::size_t n_chunks = std::clamp<std::size_t>(n / kChunkSamples, 1, kMaxChunks);
@@ -346,11 +516,14 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
     // shape has moved since (the farthest corner of its bounding box from where it was: every
     // point of a rigid shape moves at most that far).
     const double inf = std::numeric_limits<double>::infinity();
-    std::vector<double> wall_at(shapes.size(), -inf), pair_at(pairs.size(), -inf);
+    std::vector<double> wall_at(shapes.size(), -inf), pair_at(pairs.size(), -inf);  // field_at: wall_at
     std::vector<Eigen::Isometry3d> wall_pose(shapes.size());
     std::vector<Eigen::Isometry3d> pair_pose(pairs.size());  // b relative to a
     std::vector<char> below(out.links.size());
+    std::vector<signed char> last_below(shapes.size(), -1);  // the exact decision at wall_pose (-1: none)
     out.min_at.assign(out.links.size(), {0, 0});
+    out.upper_m.assign(out.links.size(), inf);
+    out.candidates.resize(out.links.size());
     for (std::size_t k = begin; k < end; ++k) {
       const std::size_t count = done.fetch_add(1, std::memory_order_relaxed);
       if (reports && progress && count % report_every == 0) progress("clearance", static_cast<double>(count) / static_cast<double>(n));
@@ -360,6 +533,48 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
         const std::size_t l = static_cast<std::size_t>(link_of[s]);
         LinkClearance& lc = out.links[l];
         const Eigen::Isometry3d& pose = frames[shapes[s].frame];
+        if (measure == Measure::exact) {
+          // The distance field bounds the exact distance from below (lower) and above (upper) in a
+          // lookup per ball of the cover. Below the margin only if lower is: then the exact
+          // distance decides. The link's least distance can only be at a sample whose lower bound
+          // is below the least upper bound: those are kept for the exact pass after the stretches.
+          // Skipped (as the octree readings) where the last lower bound less the shape's motion
+          // since is past the margin and past the least upper bound.
+          // Not moved at all (the same placement as at the last bound): the same distance, the
+          // same decision, no new candidate (the earlier sample is one if this would be).
+          if (wall_at[s] > -inf) {
+            const double motion = shape_motion(shapes[s], corners[s], pose, wall_pose[s]);
+            if (motion == 0.0 && last_below[s] >= 0) {
+              below[l] = below[l] || last_below[s] == 1;
+              continue;
+            }
+            const double moved = wall_at[s] - motion;
+            if (moved >= lc.margin_m && moved > out.upper_m[l]) continue;
+          }
+          double lower = inf, upper = inf;
+          const BallCover& cover = covers[s];
+          for (std::size_t j = 0; j < cover.centre.size(); ++j) {
+            const auto b = wall.field_bounds(pose * cover.centre[j], cover.radius[j]);
+            lower = std::min(lower, b.lower_m);
+            upper = std::min(upper, b.upper_m - cover.inner[j]);  // a ball inside the shape about the centre
+          }
+          ++out.field_queries;
+          wall_at[s] = lower;
+          wall_pose[s] = pose;
+          last_below[s] = 0;
+          if (lower < lc.margin_m) {
+            if (below[l]) {
+              last_below[s] = -1;  // not measured: the link is below by another shape
+            } else {
+              ++out.exact_queries;
+              below[l] = wall.exact_distance(shapes[s], pose, nullptr, lc.margin_m) < lc.margin_m;
+              last_below[s] = below[l] ? 1 : 0;
+            }
+          }
+          out.upper_m[l] = std::min(out.upper_m[l], std::max(0.0, upper));
+          if (lower <= out.upper_m[l]) out.candidates[l].push_back({lower, k, s});
+          continue;
+        }
         // Skipped where the last octree reading less the motion since is past the margin and past
         // the least reading so far less the tolerance: the octree never reads long, so such a
         // sample is provably not below the margin (nor, by the exact distance, which is at least
@@ -430,29 +645,59 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
       rep.self.min_m = c.self.min_m, rep.self.at_time_s = c.self.at_time_s, rep.self.link_a = c.self.link_a, rep.self.link_b = c.self.link_b;
     rep.self.samples_below_margin += c.self.samples_below_margin;
     rep.wall_queries += c.wall_queries;
+    rep.field_queries += c.field_queries;
     rep.exact_queries += c.exact_queries;
     rep.self_queries += c.self_queries;
   }
   if (measure == Measure::exact) {
-    // Each link's least distance read exactly at the sample of its least octree reading: the
-    // reported value, point and time are those of a real sample; the least exact distance over
-    // every sample lies between the least reading less the tolerance and it.
+    // Each link's least distance: its candidates in the order of their lower bounds, each
+    // measured exactly (only nearer than the best so far: at_most) until the next lower bound is
+    // above the best (then the least is exact over every sample: every other sample's bound was
+    // above the least upper bound, so above the least distance) or kMaxMinQueries were run (then
+    // no sample is nearer than the next candidate's bound: min_lower_m). Ties: the first in
+    // (bound, sample) order, the earlier sample when poses are equal. A cylinder or sphere placed
+    // where one was already measured (the same axis: the turret slewing about its own) is not
+    // measured again: its distance is the same.
+    std::vector<long long> link_exact(rep.links.size(), 0);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(static_cast<int>(kThreads))
     for (long li = 0; li < static_cast<long>(rep.links.size()); ++li) {
       const auto l = static_cast<std::size_t>(li);
+      double upper = std::numeric_limits<double>::infinity();
+      for (const ChunkResult& c : results) upper = std::min(upper, c.upper_m[l]);
+      std::vector<Candidate> cands;
+      for (const ChunkResult& c : results)
+        for (const Candidate& cd : c.candidates[l])
+          if (cd.lower_m <= upper) cands.push_back(cd);
+      std::sort(cands.begin(), cands.end());
       LinkClearance& lc = rep.links[l];
-      const std::size_t k = min_at[l].first;
-      lc.min_lower_m = std::max(0.0, lc.min_m - kMinTolerance_m);
-      const auto frames = robot.link_frames(trajectory.q[k]);
       lc.min_m = std::numeric_limits<double>::infinity();
-      for (std::size_t s = 0; s < shapes.size(); ++s)
-        if (static_cast<std::size_t>(link_of[s]) == l) {
-          Eigen::Vector3d closest;
-          const double d = wall.exact_distance(shapes[s], frames[shapes[s].frame], &closest);
-          if (d < lc.min_m) lc.min_m = d, lc.closest_m = closest;
+      lc.min_lower_m = 0.0;
+      std::set<std::array<double, 7>> measured;  // shape, its centre and axis in the world
+      std::size_t next = 0;
+      for (; next < cands.size(); ++next) {
+        const Candidate& cd = cands[next];
+        if (cd.lower_m > lc.min_m || lc.min_m == 0.0 || link_exact[l] == kMaxMinQueries) break;
+        const CollisionShape& shape = shapes[cd.shape];
+        const auto frames = robot.link_frames(trajectory.q[cd.sample]);
+        if (shape.kind != CollisionShape::Kind::box) {
+          const Eigen::Isometry3d T = frames[shape.frame] * shape.origin;
+          const Eigen::Vector3d axis = shape.kind == CollisionShape::Kind::cylinder ? Eigen::Vector3d(T.linear().col(2)) : Eigen::Vector3d::Zero();
+          const std::array<double, 7> key{double(cd.shape), T.translation().x(), T.translation().y(), T.translation().z(),
+                                          axis.x(), axis.y(), axis.z()};
+          if (!measured.insert(key).second) continue;  // measured already: not nearer than the best
         }
+        Eigen::Vector3d closest;
+        const double d = wall.exact_distance(shape, frames[shape.frame], &closest, lc.min_m);
+        ++link_exact[l];
+        if (d < lc.min_m) lc.min_m = d, lc.closest_m = closest, lc.at_time_s = trajectory.t_s[cd.sample];
+      }
+      // Every candidate measured (or bounded above the least distance): exact; else the next
+      // candidate's bound is the least any unmeasured sample can be.
+      lc.min_lower_m = next < cands.size() && link_exact[l] == kMaxMinQueries && !(cands[next].lower_m > lc.min_m)
+                           ? std::max(0.0, std::min(lc.min_m, cands[next].lower_m))
+                           : lc.min_m;
     }
-    rep.exact_queries += static_cast<long long>(shapes.size());
+    for (long long e : link_exact) rep.exact_queries += e;
   }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (progress) progress("clearance", 1.0);

@@ -1,7 +1,9 @@
 #pragma once
 // Space allowance of the arm (seed method: key points and optimal space allowance): the distance of
 // every link's collision shape to the wall and to the other links, at every trajectory sample.
-// The wall is an octomap octree queried through FCL; shapes are the URDF's <collision> geometry.
+// The wall is an octomap octree queried through FCL (the transit router's screen), a Euclidean
+// distance field (check_clearance's bounds) and a KD-tree of its points (exact distances); shapes
+// are the URDF's <collision> geometry.
 #include <limits>
 #include <memory>
 #include <string>
@@ -19,7 +21,8 @@ struct TimedTrajectory;
 
 /// The wall as an obstacle: an octree of points (leaf edge `resolution_m`). Each occupied leaf is a
 /// box, so a distance reads at most a leaf diagonal (sqrt(3) x resolution) short of the
-/// distance to the points themselves, never long.
+/// distance to the points themselves, never long. The distance field and the KD-tree are built
+/// on first use (thread-safe).
 class WallOctree {
  public:
   WallOctree(const Points& xyz_m, double resolution_m);
@@ -38,8 +41,28 @@ class WallOctree {
   /// the least distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
   /// within d + r of the centre of a ball of radius r that holds the shape's nearest point), each
   /// measured exactly (point_shape_distance). `closest_m`: the point (the first of equal ones).
+  /// With `at_most_m`: a distance of at least at_most_m comes back as at_most_m (closest_m unset);
+  /// only points nearer than it are gathered.
   double exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
-                        Eigen::Vector3d* closest_m = nullptr) const;
+                        Eigen::Vector3d* closest_m = nullptr,
+                        double at_most_m = std::numeric_limits<double>::infinity()) const;
+  /// Bounds [m] from the wall's Euclidean distance field (an exact EDT of the cells of edge
+  /// field_voxel_m() that hold a wall point, built on first use): no point within `radius_m` of
+  /// `centre_m` is nearer than `lower` to a wall point, and some wall point is at most `upper` from
+  /// `centre_m`. lower = field value at the centre's cell - the centre's offset from the cell's
+  /// centre - half a cell diagonal (a point's offset in its cell) - radius_m; upper adds the same
+  /// offsets instead (outside the points' bounding box: read at the centre's projection onto it,
+  /// combined with the distance to it). O(1): a lookup.
+  struct FieldBounds {
+    double lower_m, upper_m;
+  };
+  FieldBounds field_bounds(const Eigen::Vector3d& centre_m, double radius_m) const;
+  /// A lower bound [m] on exact_distance(shape, link_pose), never above it: the least
+  /// field_bounds().lower_m over a sphere cover of the shape (balls at most 5 mm past it).
+  double field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const;
+  /// Edge [m] of the distance field's cells: half the octree's leaf, coarser only if the wall's
+  /// bounding box would need more than 64 M cells.
+  double field_voxel_m() const;
   double resolution_m() const;
   std::size_t occupied_leaves() const;
 
@@ -70,7 +93,7 @@ struct LinkClearance {
   double min_m = 0.0;                // least distance to the wall (see check_clearance)
   double at_time_s = 0.0;            // when
   Eigen::Vector3d closest_m = Eigen::Vector3d::Zero();  // the wall's closest point then
-  double min_lower_m = 0.0;          // check_clearance: no sample is closer than this (<= min_m)
+  double min_lower_m = 0.0;          // check_clearance: no sample is closer than this (<= min_m; = min_m: exact over every sample)
   int samples_below_margin = 0;
 };
 struct SelfClearance {
@@ -85,25 +108,30 @@ struct ClearanceReport {
   double octree_resolution_m = 0.0;
   std::size_t octree_leaves = 0, wall_points = 0;
   int samples = 0;
-  // Queries run (the other samples were bounded by the shape's motion): wall_queries octree
-  // readings (FCL), exact_queries exact distances to the wall's points (check_clearance only),
-  // self_queries FCL shape-shape distances.
-  long long wall_queries = 0, exact_queries = 0, self_queries = 0;
+  // Queries run: wall_queries octree readings (FCL; check_clearance_octree, the other samples
+  // bounded by the shape's motion), field_queries distance-field bounds of a shape at a sample
+  // (check_clearance: every sample and shape), exact_queries exact distances to the wall's points
+  // (check_clearance only), self_queries FCL shape-shape distances (motion-bounded as the octree's).
+  long long wall_queries = 0, field_queries = 0, exact_queries = 0, self_queries = 0;
   double seconds = 0.0;
   int samples_below_margin() const;  // over the links and the self check
 };
 
-/// The space allowance along `trajectory`. A sample is read on the octree (FCL; never long, at
-/// most a leaf diagonal short) unless a lower bound proves it cannot be below the margin nor lower
-/// the least reading by more than 10 mm: the reading at the last query less how far the shape has
-/// moved since (every point of a rigid shape moves at most as far as the farthest corner of its
-/// bounding box; a link pair's distance changes by at most b's motion relative to a). A sample
-/// the octree reads below a margin is measured exactly (WallOctree::exact_distance), so the
-/// counts below the margins are those of a check of every sample by exact distances. Each link's
-/// least distance (min_m, closest_m, at_time_s) is the exact distance at the sample of its least
-/// reading; the least exact distance over every sample lies in [min_lower_m, min_m] (min_lower_m:
-/// the least reading less 10 mm). Two fixed stretches of the trajectory run on two threads: the
-/// result does not depend on their timing.
+/// The space allowance along `trajectory`, by exact distances to the wall's points. Every sample
+/// and shape is bounded on the wall's distance field (WallOctree::field_bounds over a sphere cover
+/// of the shape: a lower and an upper bound on the exact distance, a lookup per ball). A sample is
+/// below a link's margin when the exact distance (WallOctree::exact_distance) of one of the link's
+/// shapes is; it is measured only where the lower bound is below the margin, so the counts are
+/// those of a check of every sample by exact distances. A shape is not bounded again while its
+/// last bound less its motion since is past the margin and the least upper bound (a cylinder that
+/// only turns about its own axis does not move). Each link's least distance (min_m, closest_m,
+/// at_time_s) is the least exact distance over the samples whose lower bound is below the least
+/// upper bound, measured in the order of their bounds until the next bound is above the least
+/// found (then exact over every sample, min_lower_m = min_m) or 32 were measured (then
+/// min_lower_m: the next bound, no sample is nearer). Link pairs: FCL's distance, a sample skipped where
+/// the pair's distance at its last query less b's motion relative to a since (the farthest corner
+/// of its bounding box) is past the margin and past the least so far less 10 mm. Two fixed
+/// stretches of the trajectory run on two threads: the result does not depend on their timing.
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress = {});
 
