@@ -312,6 +312,7 @@ void bind_timing(py::module_& m) {
       .def_readonly("max_position_violation_m", &TimedTrajectory::max_position_violation_m,
                     "largest excursion of a prismatic joint outside its position limits [m]")
       .def_readonly("untracked_regions", &TimedTrajectory::untracked_regions)
+      .def_readonly("untracked_region_ids", &TimedTrajectory::untracked_region_ids, "their region indices")
       .def("joint_table", &TimedTrajectory::joint_table, "(N, 1 + 3 dof): t, q, qd, qdd")
       .def("joint_table_header", &TimedTrajectory::joint_table_header)
       .def("to_csv", &TimedTrajectory::to_csv)

@@ -534,7 +534,7 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     tr.transit_time_s += part.transit_time_s;
     tr.spray_time_s += part.spray_time_s;
     tr.cycle_time += part.cycle_time;
-    if (!best.tracked) ++tr.untracked_regions;
+    if (!best.tracked) ++tr.untracked_regions, tr.untracked_region_ids.push_back(static_cast<int>(r));
     if (!part.q.empty()) q_prev = part.q.back();
     pass_offset += static_cast<int>(regions[r].size());
   }

@@ -30,8 +30,8 @@ struct SpeedCapMap {
   /// the pass sample its run leaves or reaches (for a velocity, when the run moves at 90 % of that
   /// pass sample's speed or more), and for a turn-around sample over a velocity limit at about the
   /// passes' speeds, one at each pass end it joins: the speed scaled so the joints come out at
-  /// limit_share of their limits (velocity ~ v, acceleration ~ v^2). Returns the number of bounds
-  /// added.
+  /// limit_share of their limits (velocity ~ v, acceleration ~ v^2). Samples of regions the arm
+  /// does not track (tr.untracked_region_ids) teach nothing. Returns the number of bounds added.
   int learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_limit, const Eigen::VectorXd& acc_limit,
             double limit_share);
 };

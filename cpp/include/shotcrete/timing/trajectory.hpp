@@ -73,6 +73,7 @@ struct TimedTrajectory {
   double max_position_violation_rad = 0.0;
   double max_position_violation_m = 0.0;
   int untracked_regions = 0;  // regions where exact tracking failed and solve_path's result is used
+  std::vector<int> untracked_region_ids;  // their region indices (time_plan)
 
   std::size_t size() const { return t_s.size(); }
   /// Dense matrix (samples x (1 + 3 dof)): t, q..., qd..., qdd... ; for CSV / numpy.
