@@ -225,13 +225,20 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   EXPECT_NEAR(own.speed_mps.back(), 0.2 * 0.9 / 1.5, 1e-12);
   // A turn-around between two passes (samples 3-5: run, arc, run) over a velocity limit at the
   // passes' speed bounds both pass ends it joins; a turn at its own lower speed bounds neither.
-  TimedTrajectory turn = tr;
-  for (int i = 0; i < 9; ++i) {
-    turn.kind[i] = static_cast<char>(i == 4 ? SegmentKind::Turn : i == 3 || i == 5 ? SegmentKind::Link : SegmentKind::Pass);
-    turn.spraying[i] = turn.kind[i] == static_cast<char>(SegmentKind::Pass);
-    turn.qd[i] = Eigen::Vector2d(0.0, 0.5);
-    turn.qdd[i].setZero();
-  }
+  // tr's samples relabelled (spraying on the passes), joint 1 at half its velocity limit.
+  const auto relabelled = [&tr](auto kind_of) {
+    TimedTrajectory out = tr;
+    for (int i = 0; i < 9; ++i) {
+      out.kind[i] = static_cast<char>(kind_of(i));
+      out.spraying[i] = kind_of(i) == SegmentKind::Pass;
+      out.qd[i] = Eigen::Vector2d(0.0, 0.5);
+      out.qdd[i].setZero();
+    }
+    return out;
+  };
+  TimedTrajectory turn = relabelled([](int i) {
+    return i == 4 ? SegmentKind::Turn : i == 3 || i == 5 ? SegmentKind::Link : SegmentKind::Pass;
+  });
   turn.qd[4] = Eigen::Vector2d(2.0, 0.0);
   SpeedCapMap around;
   EXPECT_EQ(around.learn(turn, vel, acc, 0.9), 2);
@@ -263,13 +270,9 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 1);
   EXPECT_NEAR(change.speed_mps[0], 1.3 * std::sqrt(0.9 / 3.0), 1e-9);
   // A run-in (the link comes after a joint move and before a pass): the next pass's first sample.
-  TimedTrajectory in = tr;
-  for (int i = 0; i < 9; ++i) {
-    in.kind[i] = static_cast<char>(i < 2 ? SegmentKind::Transit : i < 4 ? SegmentKind::Link : SegmentKind::Pass);
-    in.spraying[i] = i >= 4;
-    in.qd[i] = Eigen::Vector2d(0.0, 0.5);
-    in.qdd[i].setZero();
-  }
+  TimedTrajectory in = relabelled([](int i) {
+    return i < 2 ? SegmentKind::Transit : i < 4 ? SegmentKind::Link : SegmentKind::Pass;
+  });
   in.qdd[2] = Eigen::Vector2d(0.0, 4.0);
   SpeedCapMap run_in;
   EXPECT_EQ(run_in.learn(in, vel, acc, 0.9), 1);
