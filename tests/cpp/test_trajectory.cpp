@@ -269,6 +269,11 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   ramp.qdd[4] = Eigen::Vector2d(2.0, 3.0);  // joint 1: q'' v^2 = 3 at sample 4 (v = 1.3 m/s)
   EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 1);
   EXPECT_NEAR(change.speed_mps[0], 1.3 * std::sqrt(0.9 / 3.0), 1e-9);
+  // A zig-zag (joint 1's acceleration flips sign from sample to sample) is no curve a lower speed
+  // would follow: no bound.
+  for (int i = 0; i < 9; ++i) ramp.qdd[i] = Eigen::Vector2d(2.0, i % 2 ? 3.0 : -3.0);
+  SpeedCapMap zigzag;
+  EXPECT_EQ(zigzag.learn(ramp, fast, acc, 0.9), 0);
   // A run-in (the link comes after a joint move and before a pass): the next pass's first sample.
   TimedTrajectory in = relabelled([](int i) {
     return i < 2 ? SegmentKind::Transit : i < 4 ? SegmentKind::Link : SegmentKind::Pass;

@@ -116,15 +116,23 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
     if (pass) {
       // On a pass qdd = q'' v^2 + q' dv/dt: a lower speed bound shrinks the first part only, and
       // the speed change into a bounded stretch adds to the second. So the bound follows the
-      // part that scales with v^2; an excess the speed change makes is not the speed's (bounding
-      // it anyway fed back: each re-plan's slower stretch needed a steeper change into it, down
-      // to 0.03 m/s on a graded pass of the default bay and 130 mm over-filled).
+      // part that scales with v^2; an excess the speed change makes is not the speed's.
       double fc = fa;
       const double v = speed_at(i);
       if (ra > 1.0 && v > 1e-6 && i >= 2 && i + 2 < tr.size()) {
         const double a = (speed_at(i + 1) - speed_at(i - 1)) / (tr.t_s[i + 1] - tr.t_s[i - 1]);
         const double rc = (tr.qdd[i] - tr.qd[i] * (a / v)).cwiseAbs().cwiseQuotient(acc_limit).maxCoeff();
         fc = rc > 1.0 ? std::sqrt(limit_share / rc) : 1.0;
+        // An acceleration whose sign flips from sample to sample is the joint path zig-zagging
+        // (two telescopes at their limits, the tracking's limit avoidance against the task), not
+        // a curve a lower speed would follow: bounding it took a graded pass of the default bay
+        // down to 0.03 m/s over three re-plans and over-filled a pit by 150 mm. It stays, and the
+        // limit check reports it.
+        if (fc < 1.0) {
+          Eigen::Index j = 0;
+          tr.qdd[i].cwiseAbs().cwiseQuotient(acc_limit).maxCoeff(&j);
+          if (tr.qdd[i - 1][j] * tr.qdd[i][j] < 0.0 && tr.qdd[i + 1][j] * tr.qdd[i][j] < 0.0) fc = 1.0;
+        }
       }
       add(i, std::min(fv, fc));
       continue;
