@@ -85,10 +85,10 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
     ++added;
   };
   std::map<std::size_t, double> pass_end_factor;  // one bound per pass sample a run leaves / reaches
-  // A region the arm does not track exactly runs on the IK's waypoint solutions, whose finite
-  // differences are no joint speeds: learning from them brought a graded pass down to 0.03 m/s
-  // (14x "accelerations" at 0.1 m/s) and over-filled a pit by 130 mm. Such a region stays as it
-  // is and is reported (untracked_regions).
+  // A region the arm does not track exactly runs on the IK's waypoint solutions, a staircase
+  // whose finite differences are no joint speeds (the graded springline region of the default
+  // bay read 4.3x its acceleration limits at a crawl): nothing to learn. Such a region stays as
+  // it is and is reported (untracked_regions).
   const auto untracked = [&](std::size_t i) {
     return std::find(tr.untracked_region_ids.begin(), tr.untracked_region_ids.end(), tr.region_index[i]) !=
            tr.untracked_region_ids.end();
