@@ -380,12 +380,24 @@ WallOctree::FieldBounds WallOctree::field_bounds(const Eigen::Vector3d& centre_m
   return {std::sqrt(out * out + near * near) - radius_m, out + field + offset};
 }
 
+namespace {
+// The field's bounds of a shape from its cover placed at link_pose: lower, the least ball bound;
+// upper, the least ball upper bound less the ball's inner radius (a ball of that radius about
+// the centre lies inside the shape).
+WallOctree::FieldBounds shape_field_bounds(const WallOctree& wall, const BallCover& cover,
+                                           const Eigen::Isometry3d& link_pose) {
+  WallOctree::FieldBounds out{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+  for (std::size_t j = 0; j < cover.centre.size(); ++j) {
+    const auto b = wall.field_bounds(link_pose * cover.centre[j], cover.radius[j]);
+    out.lower_m = std::min(out.lower_m, b.lower_m);
+    out.upper_m = std::min(out.upper_m, b.upper_m - cover.inner[j]);
+  }
+  return out;
+}
+}  // namespace
+
 double WallOctree::field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const {
-  const BallCover cover = ball_cover(shape, kFieldCoverSlack_m);
-  double lower = std::numeric_limits<double>::infinity();
-  for (std::size_t j = 0; j < cover.centre.size(); ++j)
-    lower = std::min(lower, field_bounds(link_pose * cover.centre[j], cover.radius[j]).lower_m);
-  return lower;
+  return shape_field_bounds(*this, ball_cover(shape, kFieldCoverSlack_m), link_pose).lower_m;
 }
 
 double WallOctree::field_voxel_m() const {
@@ -551,13 +563,7 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
             const double moved = wall_at[s] - motion;
             if (moved >= lc.margin_m && moved > out.upper_m[l]) continue;
           }
-          double lower = inf, upper = inf;
-          const BallCover& cover = covers[s];
-          for (std::size_t j = 0; j < cover.centre.size(); ++j) {
-            const auto b = wall.field_bounds(pose * cover.centre[j], cover.radius[j]);
-            lower = std::min(lower, b.lower_m);
-            upper = std::min(upper, b.upper_m - cover.inner[j]);  // a ball inside the shape about the centre
-          }
+          const auto [lower, upper] = shape_field_bounds(wall, covers[s], pose);
           ++out.field_queries;
           wall_at[s] = lower;
           wall_pose[s] = pose;

@@ -37,7 +37,8 @@ class WallOctree {
                   double at_most_m = std::numeric_limits<double>::max()) const;
   /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
   /// a sphere cover of the shape (balls at most 2 mm past it, KD-tree of the points built on first
-  /// use) bounds it from each ball's nearest point; then only the balls whose lower bound is below
+  /// use) is bounded ball by ball from the distance field (field_bounds); then, in the order of
+  /// those bounds, only the balls whose lower bound is below
   /// the least distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
   /// within d + r of the centre of a ball of radius r that holds the shape's nearest point), each
   /// measured exactly (point_shape_distance). `closest_m`: the point (the first of equal ones).
@@ -58,7 +59,7 @@ class WallOctree {
   };
   FieldBounds field_bounds(const Eigen::Vector3d& centre_m, double radius_m) const;
   /// A lower bound [m] on exact_distance(shape, link_pose), never above it: the least
-  /// field_bounds().lower_m over a sphere cover of the shape (balls at most 5 mm past it).
+  /// field_bounds().lower_m over a sphere cover of the shape (balls at most 1 cm past it).
   double field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const;
   /// Edge [m] of the distance field's cells: half the octree's leaf, coarser only if the wall's
   /// bounding box would need more than 64 M cells.
