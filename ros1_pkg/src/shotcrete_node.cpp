@@ -9,6 +9,9 @@
 //            round planned, all by the core's rescan_job (as `shotcrete rescan`); published on
 //            ~thickness (PointCloud2 per measured cell, intensity = layer [m]), ~corrective_passes
 //            (MarkerArray, as ~passes) and ~rescan_status (String: the status JSON, or the error).
+//            The corrective round then becomes the node's job: ~execute sprays it (on the
+//            registered after-scan's wall, with the calibrated flow), and a rescan after that
+//            measures it against the after-scan. rescan.reference mask reads ~rescan_mask_file.
 // Published: ~cloud (PointCloud2, TD as intensity and rgb; republished while concrete is deposited),
 //            ~grid_levels, ~passes (MarkerArray), ~summary (String: the plan's JSON summary),
 //            ~clearance (MarkerArray: each link's collision shapes at the posture of its least
@@ -51,6 +54,7 @@
 #include "shotcrete/io/io.hpp"
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/robot/robot.hpp"
+#include "shotcrete/surface/preprocess.hpp"
 #include "shotcrete/surface/surface.hpp"
 #include "shotcrete/io/synth.hpp"
 #include "shotcrete/timing/timing.hpp"
@@ -155,6 +159,7 @@ class ShotcreteNode {
     pnh_.param("cloud_rate_hz", cloud_rate_hz_, 2.0);
     pnh_.param("td_color_max_m", td_color_max_m_, 0.0);  // 0 = the largest TD of the scan
     pnh_.param("max_points", max_points_, 20000000);     // larger clouds on ~cloud_in are refused
+    pnh_.param<std::string>("rescan_mask_file", rescan_mask_file_, "");  // rescan.reference mask: the mask cloud
     std::vector<double> pose;
     if (pnh_.getParam("rescan_initial_pose", pose)) {  // 16 numbers, row-major: after -> before start
       if (pose.size() != 16) throw std::invalid_argument("~rescan_initial_pose needs 16 numbers (a 4x4 row-major)");
@@ -292,7 +297,6 @@ class ShotcreteNode {
       trajectory_ = trajectory;
       executed_ = executed;
       plan_problems_ = problems;
-      sprayed_m_.reset();  // nothing of this plan sprayed yet
     }
     publish_passes(*surface, *plan, passes_pub_);
     if (job.clearance && trajectory) publish_clearance(*job.clearance, *trajectory);
@@ -395,9 +399,13 @@ class ShotcreteNode {
     summary = s.str();
     if (!ros::ok()) return false;
     // What ~rescan measures against: the executed deposit per cell of the grid planned on.
-    auto deposit = std::make_shared<Eigen::VectorXd>(surface->grid.td_m - executed->td_after_m);
+    auto job = std::make_shared<SprayedJob>();
+    job->surface = surface;
+    job->deposit_m = std::make_shared<Eigen::VectorXd>(surface->grid.td_m - executed->td_after_m);
     std::lock_guard<std::mutex> lock(state_mutex_);
-    sprayed_m_ = deposit;
+    job->before = before_scan_, job->bay = synthetic_bay_, job->config = job_config_;
+    job->corrective = job_is_corrective_;
+    sprayed_ = job;
     return true;
   }
 
@@ -411,44 +419,60 @@ class ShotcreteNode {
       status = "busy: a plan, an execution or a rescan is running";
       return false;
     }
-    std::shared_ptr<const Surface> surface;
-    std::shared_ptr<const Cloud> before;
-    std::shared_ptr<const Eigen::VectorXd> sprayed;
-    std::shared_ptr<const shotcrete::SyntheticBay> bay;
-    shotcrete::Config config;  // config_ in the before-scan's local frame
+    std::shared_ptr<const SprayedJob> job;
     Eigen::Vector3d origin;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
-      surface = surface_, before = before_scan_, sprayed = sprayed_m_, bay = synthetic_bay_;
-      config = job_config_, origin = local_origin_m_;
+      job = sprayed_, origin = local_origin_m_;
+      if (!surface_ || !before_scan_) {
+        status = "no before-scan: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
+        return false;
+      }
     }
-    if (!surface || !before) {
-      status = "no before-scan: publish one on " + pnh_.resolveName("cloud_in") + ", or set ~synthetic or ~cloud_file";
-      return false;
-    }
-    if (!sprayed) {
+    if (!job) {
       status = "nothing sprayed yet: call " + pnh_.resolveName("plan") + " and " + pnh_.resolveName("execute") +
                " first (the rescan measures what the executed plan laid)";
       return false;
     }
+    const Surface* surface = job->surface.get();
+    const shotcrete::Config& config = job->config;  // config_ in the before-scan's local frame (calibrated: a corrective round)
     const auto t0 = Clock::now();
     Cloud after;
     if (after_in != nullptr) {
       after = *after_in;  // in the before-scan's frame: into its local frame too
       if (!origin.isZero(0.0)) after.xyz.rowwise() -= (origin / config.io.unit_scale).transpose();
-    } else if (bay) {
-      after = shotcrete::make_after_scan(*bay, surface->grid, sprayed->unaryExpr([](double v) {
+    } else if (job->bay) {
+      after = shotcrete::make_after_scan(*job->bay, surface->grid, job->deposit_m->unaryExpr([](double v) {
                                            return std::isfinite(v) ? v : 0.0;
                                          }), config_).cloud;
     } else {
-      status = "no after-scan file given; the synthetic after-scan needs ~synthetic";
+      status = job->corrective
+                   ? "no after-scan file given; the synthetic after-scan is of the synthetic bay's first job, not of a "
+                     "corrective round: give the after-scan's file or publish it on " + pnh_.resolveName("after_scan")
+                   : "no after-scan file given; the synthetic after-scan needs ~synthetic";
       return false;
+    }
+    // rescan.reference mask: the mask cloud (~rescan_mask_file, in the before-scan's frame).
+    std::optional<Cloud> mask;
+    if (config.rescan.reference == shotcrete::ReferenceArea::mask) {
+      if (rescan_mask_file_.empty()) {
+        status = "rescan.reference is mask but ~rescan_mask_file is not set";
+        return false;
+      }
+      try {
+        mask = shotcrete::read_cloud(rescan_mask_file_);
+      } catch (const std::exception& e) {
+        status = std::string("mask cloud: ") + e.what();  // read_cloud names the file
+        return false;
+      }
+      if (!origin.isZero(0.0)) mask->xyz.rowwise() -= (origin / config.io.unit_scale).transpose();
     }
     shotcrete::RescanOutcome out;
     std::optional<shotcrete::JobSummary> correction;
     try {
       double last_report = -1.0;
-      out = shotcrete::rescan_job(surface->grid, *sprayed, *before, after, config, nullptr, initial_pose_, robot_.get(),
+      out = shotcrete::rescan_job(surface->grid, *job->deposit_m, *job->before, after, config, mask ? &*mask : nullptr,
+                                  initial_pose_, robot_.get(),
                                   [&](const std::string& stage, double fraction) {
                                     const double t = seconds_since(t0);
                                     if (t - last_report >= 2.0) {
@@ -530,7 +554,52 @@ class ShotcreteNode {
              correction ? (std::to_string(correction->rounds) + " rounds, " + std::to_string(correction->passes) + " passes").c_str()
                         : "none",
              rescan_status_pub_.getTopic().c_str());
+    if (correction) adopt_correction(std::move(out), *correction, after, source);
     return true;
+  }
+
+  /// The rescan's corrective round becomes the node's job: its surface (the after-scan's wall),
+  /// plan, trajectory and executed deposit, the calibrated config, and the registered after-scan as
+  /// the before-scan of a rescan after it; ~execute sprays it, ~summary shows it. A round that is not
+  /// executable (its summary's problems) is shown, and ~execute refuses it as any plan.
+  void adopt_correction(shotcrete::RescanOutcome&& out, const shotcrete::JobSummary& summary, const Cloud& after,
+                        const std::string& source) {
+    auto surface = std::make_shared<const Surface>(std::move(*out.correction_surface));
+    const Cloud scaled = out.correction_config->io.unit_scale != 1.0
+                             ? shotcrete::scale_cloud(after, out.correction_config->io.unit_scale)
+                             : after;
+    auto before = std::make_shared<const Cloud>(shotcrete::transform_cloud(scaled, out.registration.transform));
+    auto plan = std::make_shared<const Plan>(std::move(out.correction->plan));
+    std::shared_ptr<const shotcrete::TimedTrajectory> trajectory;
+    std::shared_ptr<const shotcrete::ExecutedDeposit> executed;
+    if (out.correction->trajectory)
+      trajectory = std::make_shared<const shotcrete::TimedTrajectory>(std::move(*out.correction->trajectory));
+    if (out.correction->executed)
+      executed = std::make_shared<const shotcrete::ExecutedDeposit>(std::move(*out.correction->executed));
+    std::string problems;
+    for (const auto& p : summary.problems) problems += (problems.empty() ? "" : "; ") + p.message + " [" + p.code + "]";
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      surface_ = surface;
+      before_scan_ = before;
+      synthetic_bay_.reset();
+      job_config_ = std::move(*out.correction_config);
+      points_in_ = static_cast<long>(surface->cloud.size());
+      plan_ = plan;
+      plan_problems_ = problems;
+      trajectory_ = trajectory;
+      executed_ = executed;
+      job_is_corrective_ = true;
+    }
+    const Eigen::VectorXd td = shotcrete::point_td(surface->cloud, surface->axis, surface->profile);
+    publish_cloud(surface->cloud.xyz, td);
+    publish_levels(*surface);
+    std_msgs::String msg;
+    msg.data = summary.to_json();
+    summary_pub_.publish(msg);
+    ROS_INFO("the corrective round of %s is the job now: %d rounds, %d passes, %s (call %s to spray it)", source.c_str(),
+             summary.rounds, summary.passes, problems.empty() ? "executable" : ("not executable: " + problems).c_str(),
+             pnh_.resolveName("execute").c_str());
   }
 
   /// Runs rescan and reports it: the status (or the error as {"ok": false, "error": ...}) on
@@ -650,7 +719,8 @@ class ShotcreteNode {
       job_config_ = config;
       before_scan_ = before_scan ? before_scan : cloud;
       synthetic_bay_.reset();
-      sprayed_m_.reset();
+      sprayed_.reset();
+      job_is_corrective_ = false;
       points_in_ = static_cast<long>(cloud->size());
       plan_.reset();
       plan_problems_.clear();
@@ -972,9 +1042,23 @@ class ShotcreteNode {
   std::string plan_problems_;  // of plan_ (JobSummary problems); ~execute refuses while not empty
   std::shared_ptr<const shotcrete::TimedTrajectory> trajectory_;
   std::shared_ptr<const shotcrete::ExecutedDeposit> executed_;  // of trajectory_
-  std::shared_ptr<const Cloud> before_scan_;  // what ~rescan registers to (the input, or the synthetic scan)
+  std::shared_ptr<const Cloud> before_scan_;  // what a rescan of surface_'s job registers to (the input, the
+                                              // synthetic scan, or the registered after-scan of a corrective round)
   std::shared_ptr<const shotcrete::SyntheticBay> synthetic_bay_;  // with ~synthetic: the after-scan's generator
-  std::shared_ptr<const Eigen::VectorXd> sprayed_m_;  // per grid cell: the executed deposit, once ~execute ran
+  // What ~rescan measures: the job ~execute ran last (its surface, before-scan, config and executed
+  // deposit per grid cell). A rescan makes its corrective round the node's job (surface_, plan_, ...),
+  // so ~execute sprays it; until then further rescans still measure the job sprayed before.
+  struct SprayedJob {
+    std::shared_ptr<const Surface> surface;
+    std::shared_ptr<const Cloud> before;
+    std::shared_ptr<const shotcrete::SyntheticBay> bay;  // null: no synthetic after-scan (a corrective round)
+    Config config;
+    std::shared_ptr<const Eigen::VectorXd> deposit_m;
+    bool corrective = false;  // a rescan's corrective round
+  };
+  std::shared_ptr<const SprayedJob> sprayed_;
+  bool job_is_corrective_ = false;  // surface_'s job is a rescan's corrective round
+  std::string rescan_mask_file_;  // ~rescan_mask_file: the mask cloud of rescan.reference mask
   Eigen::Matrix4d initial_pose_ = Eigen::Matrix4d::Identity();  // ~rescan_initial_pose: after -> before start
 
   ros::Publisher cloud_pub_, levels_pub_, passes_pub_, clearance_pub_, summary_pub_, joint_pub_, tf_static_pub_;
@@ -999,11 +1083,12 @@ int main(int argc, char** argv) {
   }
   ros::AsyncSpinner spinner(3);  // services block while planning / executing; topics keep flowing
   spinner.start();
-  bool auto_plan = false, auto_execute = false, auto_rescan = false;
+  bool auto_plan = false, auto_execute = false, auto_rescan = false, auto_correct = false;
   std::string after_scan_file;
   pnh.param("auto_plan", auto_plan, false);
   pnh.param("auto_execute", auto_execute, false);
   pnh.param("auto_rescan", auto_rescan, false);          // after auto_execute: ~rescan of ~after_scan_file
+  pnh.param("auto_correct", auto_correct, false);        // after auto_rescan: ~execute of its corrective round
   pnh.param<std::string>("after_scan_file", after_scan_file, "");  // empty: the synthetic after-scan
   try {
     const bool have_cloud = node->load_initial_cloud();
@@ -1013,7 +1098,12 @@ int main(int argc, char** argv) {
         if (auto_execute) {
           if (node->execute(summary)) {
             ROS_INFO("execute: %s", summary.c_str());
-            if (auto_rescan) node->rescan_file(after_scan_file, summary);
+            if (auto_rescan && node->rescan_file(after_scan_file, summary) && auto_correct) {
+              if (node->execute(summary))
+                ROS_INFO("execute (corrective round): %s", summary.c_str());
+              else
+                ROS_WARN("execute (corrective round): %s", summary.c_str());
+            }
           } else {
             ROS_WARN("execute: %s", summary.c_str());
           }

@@ -6,9 +6,11 @@ the node plans and executes the same bay (the job's figures are checked to match
 measures the after-scan. The published thickness per cell, the registration, the flow factor and
 the corrective round are checked against the truth files and the job's cells.csv. Bad input
 (nothing executed yet, a missing file, NaN, an after-scan of another place, empty or NaN clouds on
-~after_scan) gives an error in the response and on ~rescan_status, and the node keeps serving. Last,
-the node's own synthetic after-scan (an empty path, as demo.launch loop:=true runs it) against the
-same truth."""
+~after_scan) gives an error in the response and on ~rescan_status, and the node keeps serving. The
+same after-scan published on ~after_scan, and the node's own synthetic after-scan (an empty path, as
+demo.launch loop:=true runs it), against the same truth. Last, the corrective round the rescan made
+the node's job is sprayed by ~execute (its deposit checked against the round's own summary), and a
+synthetic after-scan of it is refused with the reason."""
 import csv
 import json
 import math
@@ -24,7 +26,7 @@ import rostest
 import yaml
 from sensor_msgs import point_cloud2
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import String
+from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
@@ -47,6 +49,13 @@ for section, values in json.loads(sys.argv[1]).items():
             setattr(getattr(cfg, section), key, value)
 cfg.validate()
 open(sys.argv[2], "w").write(cfg.to_yaml())
+"""
+# The after-scan as raw little-endian float32 x, y, z (the ROS Python has no numpy to read a PLY).
+RAW_SCRIPT = """
+import sys
+import numpy as np
+import shotcrete
+np.asarray(shotcrete.read_cloud(sys.argv[1]).xyz, dtype="<f4").tofile(sys.argv[2])
 """
 SHIFT_SCRIPT = """
 import sys
@@ -248,7 +257,39 @@ class RescanLoop(unittest.TestCase):
         res, _ = self.call(os.path.join(d, "missing.ply"))
         self.assertFalse(res.success)
 
-    def test_4_synthetic_after_scan_of_the_node(self):
+    def test_4_after_scan_on_the_topic(self):
+        # The after-scan of test 2 as a PointCloud2 on ~after_scan: the same pose and layer.
+        d = self.tmp
+        raw = os.path.join(d, "after.f32")
+        code, out = _run("-c", RAW_SCRIPT, self.after, raw)
+        self.assertEqual(code, 0, out)
+        data = open(raw, "rb").read()
+        msg = PointCloud2(header=Header(frame_id="tunnel", stamp=rospy.Time.now()), height=1, width=len(data) // 12,
+                          fields=u.float_fields("x", "y", "z"), is_bigendian=False, point_step=12,
+                          row_step=len(data), data=data, is_dense=True)
+        pub = rospy.Publisher(u.NS + "/after_scan", PointCloud2, queue_size=1, latch=True)
+        time.sleep(1.0)
+        t0 = time.time()
+        pub.publish(msg)
+        st = self.status.wait(lambda m: json.loads(m.data).get("source") == "topic " + u.NS + "/after_scan",
+                              timeout=300, after=t0)
+        self.assertIsNotNone(st, "no ok status for the after-scan on ~after_scan")
+        st = json.loads(st.data)
+        truth = json.load(open(os.path.join(d, "after_truth.json")))
+        E = _inv_times(st["registration"]["matrix"], truth["pose_after_to_before"])
+        self.assertLess(_angle_deg(E), 0.05)
+        self.assertLess(math.hypot(E[0][3], E[1][3], E[2][3]), 0.005)
+        tcsv = _csv(os.path.join(d, "after_truth.csv"))
+        th = self.thickness.wait(lambda m: m.width > 0, timeout=10, after=t0)
+        self.assertIsNotNone(th)
+        pts = list(point_cloud2.read_points(th, field_names=("intensity", "cell")))
+        self.assertGreater(len(pts), 0.99 * len(tcsv))
+        err = [p[0] * 1000.0 - tcsv[int(p[1])]["true_thickness_mm"] for p in pts]
+        self.assertLess(abs(_mean(err)), 1.0)
+        self.assertLess(_rms(err), 4.0)
+        self.assertAlmostEqual(st["calibration"]["flow_factor"], 0.85, delta=0.03 * 0.85)
+
+    def test_5_synthetic_after_scan_of_the_node(self):
         # An empty path: the node's own synthetic after-scan (the core's make_after_scan of its executed
         # deposit, the same generator and seed as `synth --after`): the same truth applies.
         t0 = time.time()
@@ -265,6 +306,39 @@ class RescanLoop(unittest.TestCase):
         self.assertAlmostEqual(st["calibration"]["flow_factor"], 0.85, delta=0.03 * 0.85)
         self.assertIsNotNone(st["correction"])
         self.assertEqual(st["source"], "the synthetic after-scan")
+
+        self.__class__.correction = st["correction"]
+
+    def test_6_the_corrective_round_is_sprayed(self):
+        # Test 5's rescan made its corrective round the node's job: ~execute sprays it on the
+        # after-scan's wall with the calibrated flow.
+        corr = self.correction
+        self.assertEqual(corr["status"], "ok", corr.get("problems"))
+        cloud = u.Collector(u.NS + "/cloud", PointCloud2)
+        t0 = time.time()
+        ex = rospy.ServiceProxy(u.NS + "/execute", Trigger)()
+        self.assertTrue(ex.success, ex.message)
+        # Its levels are the round's own executed deposit (the summary the rescan gave).
+        levels = {k: v for k, v in corr["levels_after"].items()}
+        text = "levels_after={" + ", ".join(f"{k}: {v}" for k, v in sorted(levels.items(), key=lambda kv: int(kv[0]))) + "}"
+        self.assertIn(text, ex.message)
+        self.assertEqual(set(levels), {"0"})
+        # The wall published at the end is the after-scan's wall with the round's deposit: its TD
+        # per point averages the round's residual per cell (points, not cells: a few mm apart), far
+        # below the TD the round started from.
+        self.assertIsNotNone(cloud.wait(lambda m: m.width > 0, timeout=30, after=t0))
+        time.sleep(2.0)  # ~execute publishes the final wall before it answers
+        msg = cloud.snapshot()[-1][1]
+        _, td = u.cloud_arrays(msg)
+        td_mm = _mean(td) * 1000.0
+        self.assertAlmostEqual(td_mm, corr["residual_mm"]["mean"], delta=3.0)
+        self.assertLess(td_mm, corr["td_before_mm"]["mean"] - 10.0)
+
+    def test_7_a_corrective_round_has_no_synthetic_after_scan(self):
+        res, st = self.call("")
+        self.assertFalse(res.success)
+        self.assertIn("corrective round", res.message)
+        self.assertEqual(st, {"ok": False, "error": res.message})
 
 
 if __name__ == "__main__":
