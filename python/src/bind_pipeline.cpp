@@ -14,6 +14,7 @@ void bind_executed(py::module_& m) {
       .def_readonly("commanded_on_s", &FlowSchedule::commanded_on_s)
       .def_readonly("bridged_s", &FlowSchedule::bridged_s)
       .def_readonly("extended_s", &FlowSchedule::extended_s)
+      .def_readonly("dropped_s", &FlowSchedule::dropped_s)
       .def_readonly("commanded_switches", &FlowSchedule::commanded_switches)
       .def("switches", &FlowSchedule::switches)
       .def("shortest_on_s", &FlowSchedule::shortest_on_s)
@@ -23,13 +24,18 @@ void bind_executed(py::module_& m) {
       .def("integral_to", &FlowSchedule::integral_to, py::arg("t_s"));
   m.def(
       "flow_schedule",
-      [](const std::vector<double>& t_s, const py::array_t<double, py::array::forcecast>& spraying, const FlowConfig& flow) {
-        std::vector<char> flags(static_cast<std::size_t>(spraying.size()));
-        for (py::ssize_t i = 0; i < spraying.size(); ++i) flags[static_cast<std::size_t>(i)] = spraying.data()[i] != 0.0;
-        return flow_schedule(t_s, flags, flow);
+      [](const std::vector<double>& t_s, const py::array_t<double, py::array::forcecast>& spraying, const FlowConfig& flow,
+         const std::optional<py::array_t<double, py::array::forcecast>>& blocked) {
+        auto flags_of = [](const py::array_t<double, py::array::forcecast>& a) {
+          std::vector<char> flags(static_cast<std::size_t>(a.size()));
+          for (py::ssize_t i = 0; i < a.size(); ++i) flags[static_cast<std::size_t>(i)] = a.data()[i] != 0.0;
+          return flags;
+        };
+        return flow_schedule(t_s, flags_of(spraying), flow, blocked ? flags_of(*blocked) : std::vector<char>{});
       },
-      py::arg("t_s"), py::arg("spraying"), py::arg("flow"),
-        "The pump's schedule for the spraying flags of samples at t_s (FlowConfig); ValueError on bad input.");
+      py::arg("t_s"), py::arg("spraying"), py::arg("flow"), py::arg("blocked") = py::none(),
+        "The pump's schedule for the spraying flags of samples at t_s (FlowConfig); `blocked`: samples where the flow "
+        "must be off, ramps included (joint moves); ValueError on bad input.");
   m.def("flow_dwells", &flow_dwells, py::arg("schedule"), py::arg("t_s"),
         "Full-flow dwell of every sample: the schedule's flow over the sample's share of time.");
   py::class_<DepositVolumes>(m, "DepositVolumes", "Volumes of the executed deposit [m^3].")

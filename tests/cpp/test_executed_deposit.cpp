@@ -134,9 +134,74 @@ TEST(FlowSchedule, NoSpellShorterThanTheMinimums) {
       for (std::size_t k = 0; k < s.on_s.size(); ++k) inside = inside || (t[i] >= s.on_s[k] && t[i] <= s.off_s[k]);
       EXPECT_TRUE(inside) << t[i];
     }
-    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s, 1e-9);
+    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s, 1e-9);
     EXPECT_GE(s.bridged_s, 0.0);
     EXPECT_GE(s.extended_s, -1e-9);
+  }
+}
+
+TEST(FlowSchedule, NoFlowThroughAJointMove) {
+  const std::vector<double> t = times(101, 0.1);  // 0 .. 10 s
+  std::vector<char> spraying(t.size(), 0), blocked(t.size(), 0);
+  for (int i = 10; i <= 29; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [0.95, 2.95]
+  for (int i = 32; i <= 36; ++i) blocked[static_cast<std::size_t>(i)] = 1;   // joint move [3.15, 3.65]
+  for (int i = 38; i <= 39; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [3.75, 3.95]: 0.2 s
+  for (int i = 41; i <= 45; ++i) blocked[static_cast<std::size_t>(i)] = 1;   // joint move [4.05, 4.55]
+  for (int i = 60; i <= 62; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [5.95, 6.25]: 0.3 s
+  for (int i = 70; i <= 74; ++i) blocked[static_cast<std::size_t>(i)] = 1;   // joint move [6.95, 7.45]
+  for (int i = 76; i <= 90; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [7.55, 9.05]
+  const FlowConfig f = flow(0.5, 1.0, 1.0);
+  // Without the joint moves the pump sprays through the first two and the third.
+  const FlowSchedule wet = flow_schedule(t, spraying, f);
+  ASSERT_EQ(wet.on_s.size(), 2u);
+  EXPECT_NEAR(wet.off_s[0], 3.95, 1e-12);
+  EXPECT_NEAR(wet.on_s[1], 5.6, 1e-12);
+  const FlowSchedule s = flow_schedule(t, spraying, f, blocked);
+  // The spell between the first two joint moves has 0.4 - 0.5 s of free time: dropped. The
+  // first spell ends half a ramp before the first move (2.95 -> 2.9); the 0.3 s spell grows to
+  // 1 s about its middle (its window 4.8 .. 6.7 holds it); the last starts half a ramp after the
+  // third move (7.55 -> 7.7).
+  ASSERT_EQ(s.on_s.size(), 3u);
+  EXPECT_NEAR(s.on_s[0], 0.95, 1e-12);
+  EXPECT_NEAR(s.off_s[0], 2.9, 1e-12);
+  EXPECT_NEAR(s.on_s[1], 5.6, 1e-12);
+  EXPECT_NEAR(s.off_s[1], 6.6, 1e-12);
+  EXPECT_NEAR(s.on_s[2], 7.7, 1e-12);
+  EXPECT_NEAR(s.off_s[2], 9.05, 1e-12);
+  EXPECT_NEAR(s.dropped_s, 0.05 + 0.2 + 0.15, 1e-12);
+  EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s, 1e-12);
+  for (std::size_t i = 0; i < t.size(); ++i)
+    if (blocked[i]) {
+      EXPECT_NEAR(s.flow_at(t[i]), 0.0, 1e-12) << t[i];
+      EXPECT_NEAR(s.flow_at(t[i] - 0.05), 0.0, 1e-12) << t[i];
+      EXPECT_NEAR(s.flow_at(t[i] + 0.05), 0.0, 1e-12) << t[i];
+    }
+}
+
+TEST(FlowSchedule, JointMovesKeepTheMinimumsAndStayDry) {
+  std::mt19937 rng(11);
+  for (int trial = 0; trial < 20; ++trial) {
+    const std::vector<double> t = times(2000, 0.02);
+    std::vector<char> spraying(t.size(), 0), blocked(t.size(), 0);
+    char state = 0;
+    for (std::size_t i = 0; i < t.size(); ++i) {
+      if (rng() % 25 == 0) state = static_cast<char>(!state);
+      spraying[i] = state;
+      if (rng() % 150 == 0)  // a joint move of 0.2 - 1 s, where the flags never spray
+        for (std::size_t j = i, m = 10 + rng() % 40; j < std::min(t.size(), i + m); ++j) blocked[j] = 1, spraying[j] = 0;
+    }
+    for (std::size_t i = 0; i < t.size(); ++i)
+      if (blocked[i]) spraying[i] = 0;
+    const FlowConfig f = flow(0.3, 1.5, 0.8);
+    const FlowSchedule s = flow_schedule(t, spraying, f, blocked);
+    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s, 1e-9);
+    EXPECT_GE(s.dropped_s, 0.0);
+    if (s.on_s.empty()) continue;
+    EXPECT_GE(s.shortest_on_s(), f.min_on_s - 1e-9);
+    if (s.on_s.size() > 1) EXPECT_GE(s.shortest_off_s(), f.min_off_s - 1e-9);
+    const std::vector<double> d = flow_dwells(s, t);
+    for (std::size_t i = 0; i < t.size(); ++i)
+      if (blocked[i]) EXPECT_NEAR(d[i], 0.0, 1e-12) << "trial " << trial << " t " << t[i];
   }
 }
 

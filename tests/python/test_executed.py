@@ -44,7 +44,7 @@ def test_summary_reports_the_executed_deposit(job):
     # The pump's schedule: no spell shorter than the minimums, the added time accounted for.
     assert f["shortest_on_s"] >= cfg.flow.min_on_s - 1e-9
     assert f["switches"] <= 2 or f["shortest_off_s"] >= cfg.flow.min_off_s - 1e-9
-    assert f["flow_on_s"] == pytest.approx(f["commanded_on_s"] + f["bridged_s"] + f["extended_s"])
+    assert f["flow_on_s"] == pytest.approx(f["commanded_on_s"] + f["bridged_s"] + f["extended_s"] - f["dropped_s"])
     assert f["commanded_on_s"] == pytest.approx(arm.trajectory.dwell_s.sum())
     rate = _core.spot_model_from_config(cfg.deposition).volume_rate_m3ps()
     assert f["bridged_volume_m3"] == pytest.approx(rate * f["bridged_s"])
@@ -55,7 +55,11 @@ def test_first_round_against_numpy_integration(job):
     cfg, surface, _, arm = job
     tr, plan = arm.trajectory, arm.plan
     t = np.asarray(tr.t_s)
-    sched = _core.flow_schedule(t, tr.spraying, cfg.flow)
+    moving = np.asarray(tr.kind) == 4  # joint moves (SegmentKind.Transit): the pump is off there
+    sched = _core.flow_schedule(t, tr.spraying, cfg.flow, moving)
+    assert list(sched.on_s) == list(arm.executed.flow.on_s) and list(sched.off_s) == list(arm.executed.flow.off_s)
+    # Dry through every joint move, ramps included: no sample of one gets any flow.
+    assert moving.any() and np.all(np.asarray(_core.flow_dwells(sched, t))[moving] == pytest.approx(0.0, abs=1e-12))
     # The flow's dwells by our own integration: piecewise-linear flow through its kinks, trapezoid rule.
     r = cfg.flow.ramp_s
     kt, kf = [-1e9], [0.0]

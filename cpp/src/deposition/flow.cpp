@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -40,12 +41,75 @@ void commanded_spells(const std::vector<double>& t, const std::vector<char>& spr
   }
 }
 
-// Merges spells separated by less than min_off; returns whether any were merged.
-bool bridge_gaps(FlowSchedule& s, double min_off) {
+// Free stretches of time between blocked samples (joint moves), each shrunk by half a ramp at a
+// blocked end so that no ramp reaches into a joint move; the trajectory's own ends stay.
+struct Windows {
+  std::vector<double> lo, hi;
+  // Index of the window holding time t (-1: none).
+  int at(double t) const {
+    for (std::size_t w = 0; w < lo.size(); ++w)
+      if (t >= lo[w] - 1e-9 && t <= hi[w] + 1e-9) return static_cast<int>(w);
+    return -1;
+  }
+};
+
+Windows free_windows(const std::vector<double>& t, const std::vector<char>& blocked, double ramp_s) {
+  const std::size_t n = t.size();
+  Windows w;
+  const double half = 0.5 * std::max(0.0, ramp_s);
+  double start = t.front();
+  bool start_blocked = false;
+  for (std::size_t i = 0; i < n;) {
+    if (!blocked[i]) {
+      ++i;
+      continue;
+    }
+    std::size_t j = i;
+    while (j + 1 < n && blocked[j + 1]) ++j;
+    const double b_lo = i == 0 ? t.front() : 0.5 * (t[i - 1] + t[i]);
+    const double b_hi = j + 1 == n ? t.back() : 0.5 * (t[j] + t[j + 1]);
+    const double lo = start + (start_blocked ? half : 0.0), hi = b_lo - half;
+    if (hi > lo) w.lo.push_back(lo), w.hi.push_back(hi);
+    start = b_hi, start_blocked = true;
+    i = j + 1;
+  }
+  const double lo = start + (start_blocked ? half : 0.0);
+  if (t.back() > lo) w.lo.push_back(lo), w.hi.push_back(t.back());
+  return w;
+}
+
+// Spells clipped into the free window holding their middle (the flags' spells never hold a
+// blocked sample, but their ramps may reach one); spells left empty are dropped.
+void clip_to_windows(FlowSchedule& s, const Windows& w) {
+  std::vector<double> on, off;
+  for (std::size_t k = 0; k < s.on_s.size(); ++k) {
+    const double length = s.off_s[k] - s.on_s[k];
+    // The window the spell overlaps most.
+    int best = -1;
+    double most = 0.0;
+    for (std::size_t v = 0; v < w.lo.size(); ++v) {
+      const double overlap = std::min(s.off_s[k], w.hi[v]) - std::max(s.on_s[k], w.lo[v]);
+      if (overlap > most) most = overlap, best = static_cast<int>(v);
+    }
+    if (best < 0) {
+      s.dropped_s += length;
+      continue;
+    }
+    s.dropped_s += length - most;
+    on.push_back(std::max(s.on_s[k], w.lo[static_cast<std::size_t>(best)]));
+    off.push_back(std::min(s.off_s[k], w.hi[static_cast<std::size_t>(best)]));
+  }
+  s.on_s = std::move(on);
+  s.off_s = std::move(off);
+}
+
+// Merges spells separated by less than min_off within one free window (across a joint move the
+// flow is never kept on); returns whether any were merged.
+bool bridge_gaps(FlowSchedule& s, double min_off, const Windows* w) {
   std::vector<double> on, off;
   bool merged = false;
   for (std::size_t k = 0; k < s.on_s.size(); ++k) {
-    if (!on.empty() && s.on_s[k] - off.back() < min_off) {
+    if (!on.empty() && s.on_s[k] - off.back() < min_off && (w == nullptr || w->at(off.back()) == w->at(s.on_s[k]))) {
       s.bridged_s += std::max(0.0, s.on_s[k] - off.back());
       off.back() = std::max(off.back(), s.off_s[k]);
       merged = true;
@@ -59,22 +123,53 @@ bool bridge_gaps(FlowSchedule& s, double min_off) {
   return merged;
 }
 
-// Extends spells shorter than min_on about their middle, within [t0, t1]; returns whether any grew.
-bool extend_spells(FlowSchedule& s, double min_on, double t0, double t1) {
-  bool grown = false;
-  const double target = std::min(min_on, t1 - t0);
+// Extends spells shorter than min_on about their middle, within [t0, t1] and within their free
+// window; a spell whose window is shorter than min_on cannot be served by the pump and is dropped
+// (switched off). Returns whether any spell grew or was dropped.
+bool extend_spells(FlowSchedule& s, double min_on, double t0, double t1, const Windows* w) {
+  bool changed = false;
+  std::vector<double> on, off;
   for (std::size_t k = 0; k < s.on_s.size(); ++k) {
-    double& a = s.on_s[k];
-    double& b = s.off_s[k];
+    double a = s.on_s[k], b = s.off_s[k];
+    double lo = t0, hi = t1;
+    if (w != nullptr) {
+      const int v = w->at(0.5 * (a + b));
+      if (v >= 0) lo = std::max(lo, w->lo[static_cast<std::size_t>(v)]), hi = std::min(hi, w->hi[static_cast<std::size_t>(v)]);
+    }
+    const double target = w == nullptr ? std::min(min_on, t1 - t0) : min_on;
     const double need = target - (b - a);
-    if (!(need > 1e-12)) continue;
-    a -= 0.5 * need;
-    b += 0.5 * need;
-    if (a < t0) b += t0 - a, a = t0;
-    if (b > t1) a = std::max(t0, a - (b - t1)), b = t1;
-    grown = true;
+    if (need > 1e-12) {
+      if (hi - lo < target - 1e-12) {  // the pump cannot run this short a spell here
+        s.dropped_s += b - a;
+        changed = true;
+        continue;
+      }
+      a -= 0.5 * need;
+      b += 0.5 * need;
+      if (a < lo) b += lo - a, a = lo;
+      if (b > hi) a = std::max(lo, a - (b - hi)), b = hi;
+      changed = true;
+    }
+    on.push_back(a);
+    off.push_back(b);
   }
-  return grown;
+  s.on_s = std::move(on);
+  s.off_s = std::move(off);
+  return changed;
+}
+
+// Across a joint move the flow is off for the move and its ramps; if that gap is still shorter
+// than min_off, the shorter of the two spells is switched off. Returns whether one was.
+bool drop_short_blocked_gaps(FlowSchedule& s, double min_off) {
+  for (std::size_t k = 1; k < s.on_s.size(); ++k) {
+    if (s.on_s[k] - s.off_s[k - 1] >= min_off) continue;
+    const std::size_t drop = s.off_s[k - 1] - s.on_s[k - 1] <= s.off_s[k] - s.on_s[k] ? k - 1 : k;
+    s.dropped_s += s.off_s[drop] - s.on_s[drop];
+    s.on_s.erase(s.on_s.begin() + static_cast<std::ptrdiff_t>(drop));
+    s.off_s.erase(s.off_s.begin() + static_cast<std::ptrdiff_t>(drop));
+    return true;
+  }
+  return false;
 }
 
 void check_times(const std::vector<double>& t_s) {
@@ -118,13 +213,17 @@ double FlowSchedule::integral_to(double t) const {
   return sum;
 }
 
-FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow) {
+FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
+                           const std::vector<char>& blocked) {
   Config c;
   c.flow = flow;
   validate(c);
   if (t_s.size() != spraying.size())
     throw std::invalid_argument("flow_schedule: " + std::to_string(t_s.size()) + " times but " +
                                 std::to_string(spraying.size()) + " spraying flags");
+  if (!blocked.empty() && blocked.size() != t_s.size())
+    throw std::invalid_argument("flow_schedule: " + std::to_string(t_s.size()) + " times but " +
+                                std::to_string(blocked.size()) + " blocked flags");
   check_times(t_s);
   FlowSchedule s;
   s.ramp_s = flow.ramp_s;
@@ -132,13 +231,21 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
   commanded_spells(t_s, spraying, s);
   s.commanded_on_s = s.on_time_s();
   s.commanded_switches = s.switches();
-  // Bridging only merges and extending only lengthens, so this settles; the cap is a safeguard.
-  for (int pass = 0; pass < 1000; ++pass) {
-    const bool merged = bridge_gaps(s, flow.min_off_s);
-    const bool grown = extend_spells(s, flow.min_on_s, t_s.front(), t_s.back());
-    if (!merged && !grown) break;
+  std::optional<Windows> windows;
+  if (std::find(blocked.begin(), blocked.end(), 1) != blocked.end()) {
+    windows = free_windows(t_s, blocked, flow.ramp_s);
+    clip_to_windows(s, *windows);
   }
-  s.extended_s = s.on_time_s() - s.commanded_on_s - s.bridged_s;
+  const Windows* w = windows ? &*windows : nullptr;
+  // Bridging only merges, extending only lengthens and dropping only removes, so this settles;
+  // the cap is a safeguard.
+  for (int pass = 0; pass < 1000; ++pass) {
+    const bool merged = bridge_gaps(s, flow.min_off_s, w);
+    const bool grown = extend_spells(s, flow.min_on_s, t_s.front(), t_s.back(), w);
+    const bool dropped = w != nullptr && drop_short_blocked_gaps(s, flow.min_off_s);
+    if (!merged && !grown && !dropped) break;
+  }
+  s.extended_s = s.on_time_s() - s.commanded_on_s - s.bridged_s + s.dropped_s;
   return s;
 }
 

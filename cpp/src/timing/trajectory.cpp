@@ -568,6 +568,12 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
 // Joint moves (re-routed by collision/transit)
 // ------------------------------------------------------------------------------------------------
 
+std::vector<char> joint_move_samples(const TimedTrajectory& tr) {
+  std::vector<char> out(tr.size(), 0);
+  for (std::size_t i = 0; i < tr.size(); ++i) out[i] = tr.kind[i] == static_cast<char>(SegmentKind::Transit);
+  return out;
+}
+
 std::vector<JointMove> joint_moves(const TimedTrajectory& tr) {
   const auto transit = static_cast<char>(SegmentKind::Transit);
   std::vector<JointMove> out;

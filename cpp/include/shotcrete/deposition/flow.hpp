@@ -16,6 +16,8 @@ struct FlowSchedule {
   double commanded_on_s = 0.0;  // flow-on time the trajectory's spraying flags ask for
   double bridged_s = 0.0;       // off-gaps shorter than min_off_s the flow stayed on through
   double extended_s = 0.0;      // flow-on time added to spells shorter than min_on_s
+  double dropped_s = 0.0;       // commanded flow-on time switched off: spells or their ends the pump
+                                // could not serve without spraying into a joint move
   int commanded_switches = 0;   // on and off switches the flags ask for
   /// On and off switches of the schedule.
   int switches() const { return 2 * static_cast<int>(on_s.size()); }
@@ -34,9 +36,16 @@ struct FlowSchedule {
 /// flags ask for the flow over each flagged sample's share of time (from the midpoint with its
 /// previous sample to the midpoint with its next; the first and last samples reach the ends), as
 /// spray_dwells does; off-gaps shorter than min_off_s are bridged, spells shorter than min_on_s
-/// are extended about their middle (within [t_s.front(), t_s.back()]), until both hold. Throws
-/// std::invalid_argument for unequal sizes, non-increasing times or a config that validate rejects.
-FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow);
+/// are extended about their middle (within [t_s.front(), t_s.back()]), until both hold.
+/// `blocked` (empty, or one flag per sample): samples where the flow must be off, ramps included:
+/// the joint moves, where the arm swings the nozzle from rest to rest (spraying there piles concrete
+/// where it stands and streaks it across the wall). Spells are clipped to end and start half a ramp
+/// clear of them, are never bridged across one and grow only within the free time between two; a
+/// spell that cannot reach min_on_s there, or the shorter of two spells closer than min_off_s
+/// around one, is switched off (dropped_s). Throws std::invalid_argument for unequal sizes,
+/// non-increasing times or a config that validate rejects.
+FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
+                           const std::vector<char>& blocked = {});
 
 /// Full-flow dwell of every sample: the schedule's flow integrated over the sample's share of
 /// time (midpoints with its neighbours; the first and last samples take everything before / after),

@@ -112,6 +112,10 @@ struct JointMove {
 /// The trajectory's joint moves in time order: every run of Transit samples.
 std::vector<JointMove> joint_moves(const TimedTrajectory& tr);
 
+/// Per sample, 1 on a joint move (kind Transit): where the pump's flow must be off (flow_schedule's
+/// `blocked`).
+std::vector<char> joint_move_samples(const TimedTrajectory& tr);
+
 /// Rest-to-rest joint quintics through `postures` in turn (at least two), each leg as time_plan
 /// times its joint moves (quintic_nozzle_duration: joint and nozzle limits), sampled at
 /// timing.trajectory_rate_hz. Times start at 0 at postures.front(), which is not included; samples
