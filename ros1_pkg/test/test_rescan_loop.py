@@ -57,6 +57,19 @@ import numpy as np
 import shotcrete
 np.asarray(shotcrete.read_cloud(sys.argv[1]).xyz, dtype="<f4").tofile(sys.argv[2])
 """
+# The mask of rescan.reference mask: the before-scan's points off the bay (the lined previous bay
+# behind it, the face at its far end, the invert below the springlines).
+MASK_SCRIPT = """
+import sys
+import numpy as np
+import shotcrete
+from shotcrete import _core
+cfg = shotcrete.Config.from_yaml(open(sys.argv[1]).read())
+xyz = np.asarray(_core.make_synthetic_bay(cfg.synth).sample_scan(cfg.grid.cell_size_m).xyz)
+keep = (xyz[:, 0] < -0.1) | (xyz[:, 0] > cfg.synth.length_m - 0.02) | (xyz[:, 2] < -1.0)
+shotcrete.write_cloud(sys.argv[2], _core.Cloud(xyz[keep]))
+"""
+MASK_PATH = "/tmp/shotcrete_rescan_loop_mask.ply"  # rescan_loop.test's ~rescan_mask_file
 SHIFT_SCRIPT = """
 import sys
 import numpy as np
@@ -339,6 +352,37 @@ class RescanLoop(unittest.TestCase):
         self.assertFalse(res.success)
         self.assertIn("corrective round", res.message)
         self.assertEqual(st, {"ok": False, "error": res.message})
+
+
+    def test_8_mask_reference(self):
+        # A second node with rescan.reference mask registers on the mask cloud: refused with the
+        # reason while the file is missing, then the same pose as the dry reference.
+        ns = u.NS + "_mask"
+        if os.path.exists(MASK_PATH):
+            os.remove(MASK_PATH)
+        plan = rospy.ServiceProxy(ns + "/plan", Trigger)()
+        self.assertTrue(plan.success, plan.message)
+        ex = rospy.ServiceProxy(ns + "/execute", Trigger)()
+        self.assertTrue(ex.success, ex.message)
+        rescan = rospy.ServiceProxy(ns + "/rescan", Rescan)
+        res = rescan(self.after)
+        self.assertFalse(res.success)
+        self.assertIn("mask cloud", res.message)
+        self.assertIn(MASK_PATH, res.message)
+        code, out = _run("-c", MASK_SCRIPT, self.cfg_path, MASK_PATH)
+        self.assertEqual(code, 0, out)
+        try:
+            res = rescan(self.after)
+        finally:
+            os.remove(MASK_PATH)
+        self.assertTrue(res.success, res.message)
+        st = json.loads(res.message)
+        self.assertEqual(st["registration"]["reference"], "mask")
+        truth = json.load(open(os.path.join(self.tmp, "after_truth.json")))
+        E = _inv_times(st["registration"]["matrix"], truth["pose_after_to_before"])
+        self.assertLess(_angle_deg(E), 0.05)
+        self.assertLess(math.hypot(E[0][3], E[1][3], E[2][3]), 0.005)
+        self.assertAlmostEqual(st["calibration"]["flow_factor"], 0.85, delta=0.03 * 0.85)
 
 
 if __name__ == "__main__":
