@@ -270,6 +270,7 @@ def correction_summary(surface, arm_plan, config) -> dict:
             "total_time_s", "required_volume_m3", "td_before_mm")
     out = {k: s[k] for k in keys if k in s}
     out["deposition_peak_rate_mps"] = config.deposition.peak_rate_mps
+    out["time_weight_mm2_per_s"] = config.planner.time_weight_mm2_per_s  # rescan.correction_time_weight_mm2_per_s
     return out
 
 

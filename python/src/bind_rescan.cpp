@@ -106,7 +106,7 @@ void bind_rescan(py::module_& m) {
       .def_readonly("calibration", &RescanOutcome::calibration, "Calibration, or None (calibration_error says why)")
       .def_readonly("calibration_error", &RescanOutcome::calibration_error)
       .def_readonly("calibrated", &RescanOutcome::calibrated, "config with the calibrated deposition rate, or None")
-      .def_readonly("correction_config", &RescanOutcome::correction_config, "calibrated with grid.bay whole, or None")
+      .def_readonly("correction_config", &RescanOutcome::correction_config, "calibrated, grid.bay whole, planner.time_weight_mm2_per_s = rescan.correction_time_weight_mm2_per_s; or None")
       .def_readonly("correction_surface", &RescanOutcome::correction_surface, "Surface of the corrective round, or None")
       .def_readonly("correction", &RescanOutcome::correction, "ArmPlan of the corrective round, or None")
       .def_readonly("register_s", &RescanOutcome::register_s)

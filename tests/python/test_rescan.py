@@ -140,6 +140,9 @@ def test_corrective_round_planned_on_the_measured_residual(loop):
     assert corr["deposition_peak_rate_mps"] == pytest.approx(
         shotcrete.load_config().deposition.peak_rate_mps * rep["calibration"]["flow_factor"])
     assert corr["rounds"] >= 1 and corr["levels_after"] == {"0": corr["levels_after"]["0"]}
+    # Planned with the finishing layer's time weight, not the job's.
+    cfg = shotcrete.load_config(loop / "cfg.yaml")
+    assert corr["time_weight_mm2_per_s"] == cfg.rescan.correction_time_weight_mm2_per_s != cfg.planner.time_weight_mm2_per_s
     assert (loop / "out" / "plan.json").is_file()
     html = (loop / "out" / "report.html").read_text()
     for f in rep["files"]["figures"]:

@@ -211,6 +211,8 @@ template <class F> void visit(RescanConfig*, F&& f) {
   f("cylinder_half_length_m", &RescanConfig::cylinder_half_length_m, 0.01, 10.0, "M3C2 cylinder half length [m]");
   f("min_cylinder_points", &RescanConfig::min_cylinder_points, 1, 100000, "least points per scan in a cylinder");
   f("calibration_min_deposit_m", &RescanConfig::calibration_min_deposit_m, 0.0, 1.0, "least predicted deposit of a calibration cell [m]");
+  f("correction_time_weight_mm2_per_s", &RescanConfig::correction_time_weight_mm2_per_s, 0.0, 1e6,
+    "the corrective round's planner.time_weight_mm2_per_s (optimal mode)");
 }
 
 template <class G> void visit_sections(G&& g) {

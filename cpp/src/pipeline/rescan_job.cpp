@@ -117,6 +117,8 @@ RescanOutcome rescan_job(const Grid& grid, const Eigen::VectorXd& predicted_depo
   // wall_points is the bay already; sprayed near flush it would look lined to grid.bay detect.
   out.correction_config = *out.calibrated;
   out.correction_config->grid.bay = BaySelection::whole;
+  // A thin finishing layer: the last cells off flush are worth more seconds than in a first round.
+  out.correction_config->planner.time_weight_mm2_per_s = config.rescan.correction_time_weight_mm2_per_s;
   const Cloud wall = wall_points(grid, after_reg, out.thickness.residual_td_m, kRescanWallBand_m);
   out.correction_surface = build_surface(wall, *out.correction_config);
   out.correction = plan_for_arm(*out.correction_surface, *out.correction_config, *robot, progress);
