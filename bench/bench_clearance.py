@@ -122,7 +122,7 @@ def bay(cfg, label: str) -> dict:
     return {
         "label": label, "samples": rep.samples, "shapes": len(robot.collision_shapes), "trajectory_s": tr.duration_s,
         "samples_below_margin": rep.samples_below_margin,
-        "links": {l.link: {"min_m": l.min_m, "min_lower_m": l.min_lower_m, "margin_m": l.margin_m,
+        "links": {l.link: {"min_m": l.min_m, "margin_m": l.margin_m,
                            "below": l.samples_below_margin} for l in rep.links},
         "self": {"pair": f"{rep.self_clearance.link_a}-{rep.self_clearance.link_b}",
                  "min_m": rep.self_clearance.min_m, "below": rep.self_clearance.samples_below_margin},
@@ -214,7 +214,7 @@ def targets(result: dict) -> dict:
             "octree_reading_max_short_mm": acc["octree_short_mm"]["max"],
             "octree_reading_within_half_cell": acc["octree_short_mm"]["max"] <= acc["half_leaf_mm"],
             "note": "the octree reading is the transit screen's bound only (check_clearance bounds on the distance "
-                    "field); the every-sample least distance lies in [min_lower_m, min_m] per link"}
+                    "field); each link's min_m is its exact least distance over every sample"}
     full = next((b for b in result.get("bays", []) if b.get("label") == "default bay, optimal" and "check_s" in b), None)
     if full:
         out["full_trajectory_check"] = {

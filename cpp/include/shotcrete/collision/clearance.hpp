@@ -36,7 +36,7 @@ class WallOctree {
   double distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m = nullptr,
                   double at_most_m = std::numeric_limits<double>::max()) const;
   /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
-  /// a sphere cover of the shape (balls at most 2 mm past it, KD-tree of the points built on first
+  /// a sphere cover of the shape (balls at most 10 cm past it, KD-tree of the points built on first
   /// use) is bounded ball by ball from the distance field (field_bounds); then, in the order of
   /// those bounds, only the balls whose lower bound is below
   /// the least distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
@@ -91,10 +91,9 @@ std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot);
 struct LinkClearance {
   std::string link;
   double margin_m = 0.0;             // clearance.link_margin_m or nozzle_margin_m
-  double min_m = 0.0;                // least distance to the wall (see check_clearance)
-  double at_time_s = 0.0;            // when
+  double min_m = 0.0;                // least distance to the wall over every sample (see check_clearance)
+  double at_time_s = 0.0;            // when (the earliest sample at that distance)
   Eigen::Vector3d closest_m = Eigen::Vector3d::Zero();  // the wall's closest point then
-  double min_lower_m = 0.0;          // check_clearance: no sample is closer than this (<= min_m; = min_m: exact over every sample)
   int samples_below_margin = 0;
 };
 struct SelfClearance {
@@ -126,10 +125,11 @@ struct ClearanceReport {
 /// those of a check of every sample by exact distances. A shape is not bounded again while its
 /// last bound less its motion since is past the margin and the least upper bound (a cylinder that
 /// only turns about its own axis does not move). Each link's least distance (min_m, closest_m,
-/// at_time_s) is the least exact distance over the samples whose lower bound is below the least
-/// upper bound, measured in the order of their bounds until the next bound is above the least
-/// found (then exact over every sample, min_lower_m = min_m) or 32 were measured (then
-/// min_lower_m: the next bound, no sample is nearer). Link pairs: FCL's distance, a sample skipped where
+/// at_time_s) is exact over every sample, by branch and bound: the samples whose lower bound is
+/// below the least upper bound, in the order of their bounds, each measured exactly unless its
+/// bound (the field's, or a measured sample's distance less the shape's motion since) keeps it
+/// from beating the least found, until the next bound is past the least found; ties within 1e-12 m
+/// go to the earliest sample. Link pairs: FCL's distance, a sample skipped where
 /// the pair's distance at its last query less b's motion relative to a since (the farthest corner
 /// of its bounding box) is past the margin and past the least so far less 10 mm. Two fixed
 /// stretches of the trajectory run on two threads: the result does not depend on their timing.
