@@ -405,6 +405,40 @@ double WallOctree::field_lower_bound(const CollisionShape& shape, const Eigen::I
   return shape_field_bounds(*this, ball_cover(shape, kFieldCoverSlack_m), link_pose).lower_m;
 }
 
+double WallOctree::field_distance(const Eigen::Vector3d& p_m, Eigen::Vector3d* gradient, double step_m) const {
+  impl_->build_field();
+  const Impl& f = *impl_;
+  const auto read = [&](const Eigen::Vector3d& p) {
+    const Eigen::Vector3d inside = p.cwiseMax(f.lo).cwiseMin(f.hi);
+    // Trilinear between the centres of the 8 cells around the point (clamped at the grid's edges).
+    Eigen::Vector3i i0;
+    Eigen::Vector3d w;
+    for (int a = 0; a < 3; ++a) {
+      const double u = std::clamp((inside[a] - f.lo[a]) / f.h - 0.5, 0.0, static_cast<double>(f.n[a] - 1));
+      i0[a] = std::min(static_cast<int>(u), std::max(0, f.n[a] - 2));
+      w[a] = std::min(1.0, u - i0[a]);
+    }
+    const auto at = [&](int dx, int dy, int dz) {
+      const std::size_t x = static_cast<std::size_t>(std::min(i0.x() + dx, f.n.x() - 1));
+      const std::size_t y = static_cast<std::size_t>(std::min(i0.y() + dy, f.n.y() - 1));
+      const std::size_t z = static_cast<std::size_t>(std::min(i0.z() + dz, f.n.z() - 1));
+      return static_cast<double>(f.field_m[x + static_cast<std::size_t>(f.n.x()) * (y + static_cast<std::size_t>(f.n.y()) * z)]);
+    };
+    double v = 0.0;
+    for (int dz = 0; dz < 2; ++dz)
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 2; ++dx)
+          v += (dx ? w.x() : 1 - w.x()) * (dy ? w.y() : 1 - w.y()) * (dz ? w.z() : 1 - w.z()) * at(dx, dy, dz);
+    return v + (p - inside).norm();
+  };
+  if (gradient)
+    for (int a = 0; a < 3; ++a) {
+      const Eigen::Vector3d e = 0.5 * step_m * Eigen::Vector3d::Unit(a);
+      (*gradient)[a] = (read(p_m + e) - read(p_m - e)) / step_m;
+    }
+  return read(p_m);
+}
+
 double WallOctree::field_voxel_m() const {
   impl_->build_field();
   return impl_->h;
@@ -727,6 +761,59 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
 }
 
 }  // namespace
+
+NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
+  NullSpaceObjective out;
+  out.gain = config.null_space_gain;
+  if (!(out.gain > 0.0)) return out;
+  // Key points in their link frames, with the radius the shape reaches past them.
+  struct Key {
+    int frame;
+    Eigen::Vector3d p;
+    double radius_m;
+  };
+  std::vector<Key> keys;
+  for (const CollisionShape& s : robot.collision_shapes()) {
+    if (s.link.rfind("nozzle", 0) == 0) continue;  // placed by the task: the null space cannot move them
+    if (s.kind == CollisionShape::Kind::cylinder) {
+      const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / 0.25)));
+      for (int k = 0; k < m; ++k)
+        keys.push_back({s.frame, s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m + (k + 0.5) * s.length_m / m), s.radius_m});
+    } else {
+      keys.push_back({s.frame, s.origin.translation(), s.kind == CollisionShape::Kind::sphere ? s.radius_m : 0.5 * s.size_m.minCoeff()});
+    }
+  }
+  const double d0 = config.null_space_influence_m;
+  const Robot* rb = &robot;
+  const WallOctree* w = &wall;
+  out.gradient = [rb, w, keys, d0](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
+    grad.setZero(q.size());
+    const auto frames = rb->link_frames(q);
+    // dU/dx at each key point inside the influence distance: -(d0 - d) / d0 times the field's gradient.
+    std::vector<std::pair<std::size_t, Eigen::Vector3d>> active;
+    for (std::size_t k = 0; k < keys.size(); ++k) {
+      const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].p;
+      Eigen::Vector3d g;
+      const double d = w->field_distance(x, &g) - keys[k].radius_m;
+      if (d < d0) active.emplace_back(k, -(d0 - d) / d0 * g);
+    }
+    if (active.empty()) return;
+    // Point Jacobians by forward differences of the frames (1e-6 per joint unit).
+    constexpr double kStep = 1e-6;
+    for (Eigen::Index j = 0; j < q.size(); ++j) {
+      Eigen::VectorXd qj = q;
+      qj[j] += kStep;
+      const auto fj = rb->link_frames(qj);
+      double sum = 0.0;
+      for (const auto& [k, dudx] : active) {
+        const auto fr = static_cast<std::size_t>(keys[k].frame);
+        sum += dudx.dot((fj[fr] * keys[k].p - frames[fr] * keys[k].p) / kStep);
+      }
+      grad[j] = sum;
+    }
+  };
+  return out;
+}
 
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress) {

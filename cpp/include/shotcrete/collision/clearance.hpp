@@ -12,6 +12,7 @@
 #include <Eigen/Geometry>
 
 #include "shotcrete/config.hpp"
+#include "shotcrete/robot/joint_tracking.hpp"  // NullSpaceObjective
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/types.hpp"
 
@@ -61,6 +62,11 @@ class WallOctree {
   /// A lower bound [m] on exact_distance(shape, link_pose), never above it: the least
   /// field_bounds().lower_m over a sphere cover of the shape (balls at most 1 cm past it).
   double field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const;
+  /// A smooth reading [m] of the distance field at p (trilinear between cell centres; outside the
+  /// points' bounding box, at p's projection onto it plus the distance to it) and its gradient by
+  /// central differences `step_m` apart (smoothed over that span): the clearance term's guide, not
+  /// a bound (it reads up to about a cell diagonal off the distance to the points).
+  double field_distance(const Eigen::Vector3d& p_m, Eigen::Vector3d* gradient = nullptr, double step_m = 0.1) const;
   /// Edge [m] of the distance field's cells: half the octree's leaf, coarser only if the wall's
   /// bounding box would need more than 64 M cells.
   double field_voxel_m() const;
@@ -135,6 +141,14 @@ struct ClearanceReport {
 /// stretches of the trajectory run on two threads: the result does not depend on their timing.
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress = {});
+
+/// The tracking's clearance term (clearance.null_space_gain, null_space_influence_m d0): the
+/// gradient in joint space of U(q) = sum over key points of 0.5 (d0 - d)^2 / d0 where d < d0, d the
+/// field's smooth reading at the point less the shape's radius. Key points: along each cylinder's
+/// axis at most 0.25 m apart, a sphere's or box's centre, on every link but the nozzle* ones
+/// (the task sets where the nozzle is). Point Jacobians by forward differences of link_frames.
+/// `wall` must outlive the objective. gain 0: an inactive objective.
+NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config);
 
 /// The transit router's screen (transit.cpp): the same check on the octree's reading alone (no
 /// exact distances): a sample is below the margin when its reading is, and the minima are the
