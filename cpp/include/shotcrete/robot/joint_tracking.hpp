@@ -49,7 +49,7 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
 /// configuration, then track_joint_path follows the poses exactly from there. If that leaves the
 /// limits or misses a target by more than the config's tolerances, solve_path's result is used and
 /// *tracked (optional) is false. With an active `objective` (the clearance term) the tracking
-/// first tries it at each limit gain, then without it (the path the arm would take without it).
+/// tries it at each limit gain, then at a quarter of its gain, then without it.
 std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                                const Eigen::VectorXd& seed, const RobotConfig& robot_config,
                                                bool* tracked = nullptr, const NullSpaceObjective& objective = {});
