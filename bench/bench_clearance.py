@@ -19,9 +19,14 @@ re-routed by the seed method.
   the nozzle's margin where the straight transit between them passes: re-routed, its least allowance
   by exact distances, and the time it costs.
 
+- the tracking's clearance term (clearance.null_space_gain): the default bay and the narrow bay with
+  the rock, planned with the config's term and with it off (gain 0): the least exact distance per
+  link while spraying (check_clearance of the spraying samples, against the wall as scanned and as
+  sprayed), the cycle time, the joint limit ratios and the untracked regions.
+
 Writes <out>/clearance.json.
 
-    python bench/bench_clearance.py --out bench/results [--quick] [--part accuracy|bays]
+    python bench/bench_clearance.py --out bench/results [--quick] [--part accuracy|bays|term]
 
 `targets` in the file: both issue-18 targets with the measured figure and pass/fail.
 """
@@ -122,7 +127,7 @@ def bay(cfg, label: str) -> dict:
     return {
         "label": label, "samples": rep.samples, "shapes": len(robot.collision_shapes), "trajectory_s": tr.duration_s,
         "samples_below_margin": rep.samples_below_margin,
-        "links": {l.link: {"min_m": l.min_m, "min_lower_m": l.min_lower_m, "margin_m": l.margin_m,
+        "links": {l.link: {"min_m": l.min_m, "margin_m": l.margin_m,
                            "below": l.samples_below_margin} for l in rep.links},
         "self": {"pair": f"{rep.self_clearance.link_a}-{rep.self_clearance.link_b}",
                  "min_m": rep.self_clearance.min_m, "below": rep.self_clearance.samples_below_margin},
@@ -142,6 +147,53 @@ def bay(cfg, label: str) -> dict:
         "target_check_s": 2.0, "target": "0 samples below margin, every region still sprayed",
         "threads": 2,
     }
+
+
+def narrow_bay(cfg, protrusion: float):
+    cfg.profile.design_radius_m = 4.5
+    cfg.synth.design_radius_m = 4.5
+    # Over the crown, where the narrow bay's straight transit between its first regions passes
+    # nearest the wall (0.28 m past the nozzle's margin without the rock).
+    cfg.synth.protrusion_height_m = protrusion
+    cfg.synth.protrusion_d_m, cfg.synth.protrusion_theta_rad, cfg.synth.protrusion_radius_m = 0.65, 1.54, 0.6
+    return cfg
+
+
+def term_effect(make_cfg, label: str) -> dict:
+    """The bay planned with the config's clearance term and with it off: the least exact distance per
+    link while spraying, the cycle time and the limits."""
+    out = {"label": label}
+    for name, gain in (("with_term", None), ("without_term", 0.0)):
+        cfg = make_cfg()
+        if gain is not None:
+            cfg.clearance.null_space_gain = gain
+        robot = load_robot(cfg)
+        surface = _core.build_surface(synthetic_cloud(cfg), cfg)
+        t0 = time.perf_counter()
+        arm = _core.plan_for_arm(surface, cfg, robot)
+        t_plan = time.perf_counter() - t0
+        tr = arm.trajectory
+        spraying = _core.arm_clearance(surface, _core.spraying_samples(tr), arm.executed, robot, cfg.clearance)
+        out[name] = {
+            "null_space_gain": cfg.clearance.null_space_gain,
+            "null_space_influence_m": cfg.clearance.null_space_influence_m,
+            "term_used": arm.clearance_term_used,
+            "spraying_min_m": {l.link: l.min_m for l in spraying.links},
+            "spraying_samples": spraying.samples,
+            "whole_trajectory_min_m": {l.link: l.min_m for l in arm.clearance.links},
+            "samples_below_margin": arm.clearance.samples_below_margin,
+            "duration_s": tr.duration_s, "spray_time_s": tr.spray_time_s,
+            "max_velocity_ratio": tr.max_velocity_ratio, "max_acceleration_ratio": tr.max_acceleration_ratio,
+            "untracked_regions": tr.untracked_regions, "replans": arm.replans, "plan_s": t_plan,
+            "load_average_1min": os.getloadavg()[0],
+        }
+    w, wo = out["with_term"], out["without_term"]
+    links = [l for l in w["spraying_min_m"] if not l.startswith("nozzle")]
+    out["spraying_gain_m"] = {l: w["spraying_min_m"][l] - wo["spraying_min_m"][l] for l in w["spraying_min_m"]}
+    out["least_link_spraying_m"] = {"with_term": min(w["spraying_min_m"][l] for l in links),
+                                    "without_term": min(wo["spraying_min_m"][l] for l in links)}
+    out["cycle_time_change_s"] = w["duration_s"] - wo["duration_s"]
+    return out
 
 
 def _test_region(theta0: float, R: float) -> list:
@@ -214,7 +266,7 @@ def targets(result: dict) -> dict:
             "octree_reading_max_short_mm": acc["octree_short_mm"]["max"],
             "octree_reading_within_half_cell": acc["octree_short_mm"]["max"] <= acc["half_leaf_mm"],
             "note": "the octree reading is the transit screen's bound only (check_clearance bounds on the distance "
-                    "field); the every-sample least distance lies in [min_lower_m, min_m] per link"}
+                    "field); each link's min_m is its exact least distance over every sample"}
     full = next((b for b in result.get("bays", []) if b.get("label") == "default bay, optimal" and "check_s" in b), None)
     if full:
         out["full_trajectory_check"] = {
@@ -229,13 +281,21 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("bench/results"))
     ap.add_argument("--quick", action="store_true", help="1,000 poses, default bay in optimal mode only")
     ap.add_argument("--poses", type=int, default=0, help="random poses for the accuracy (default 10,000; 1,000 quick)")
-    ap.add_argument("--part", choices=["all", "accuracy", "bays"], default="all",
+    ap.add_argument("--part", choices=["all", "accuracy", "bays", "term"], default="all",
                     help="one part only (written to clearance_<part>.json)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     result = {"machine": platform.machine()}
     if args.part in ("all", "accuracy"):
         result["accuracy"] = accuracy(load_config(), args.poses or (1000 if args.quick else 10000))
+    if args.part in ("all", "term"):
+        result["clearance_term"] = [term_effect(load_config, "default bay, optimal"),
+                                    term_effect(lambda: narrow_bay(load_config(), 0.3),
+                                                "narrow bay (design radius 4.5 m), rock protrusion 0.3 m over the crown")]
+    if args.part == "term":
+        (args.out / "clearance_term.json").write_text(json.dumps(result, indent=1) + "\n")
+        print(json.dumps(result, indent=1))
+        return
     if args.part == "accuracy":
         result["targets"] = targets(result)
         (args.out / "clearance_accuracy.json").write_text(json.dumps(result, indent=1) + "\n")
@@ -248,13 +308,7 @@ def main() -> None:
         bays.append(bay(cfg, f"default bay, {mode}"))
     if not args.quick:
         for protrusion in (0.0, 0.3):
-            cfg = load_config()
-            cfg.profile.design_radius_m = 4.5
-            cfg.synth.design_radius_m = 4.5
-            # Over the crown, where the narrow bay's straight transit between its first regions passes
-            # nearest the wall (0.28 m past the nozzle's margin without the rock).
-            cfg.synth.protrusion_height_m = protrusion
-            cfg.synth.protrusion_d_m, cfg.synth.protrusion_theta_rad, cfg.synth.protrusion_radius_m = 0.65, 1.54, 0.6
+            cfg = narrow_bay(load_config(), protrusion)
             bays.append(bay(cfg, "narrow bay (design radius 4.5 m)" +
                             (f", rock protrusion {protrusion} m over the crown" if protrusion else "")))
     result["bays"] = bays

@@ -63,8 +63,6 @@ void bind_collision(py::module_& m) {
       .def_readonly("min_m", &LinkClearance::min_m)
       .def_readonly("at_time_s", &LinkClearance::at_time_s)
       .def_readonly("closest_m", &LinkClearance::closest_m)
-      .def_readonly("min_lower_m", &LinkClearance::min_lower_m,
-                    "no sample is closer than this (check_clearance: <= min_m; equal when min_m is exact over every sample)")
       .def_readonly("samples_below_margin", &LinkClearance::samples_below_margin);
   py::class_<SelfClearance>(m, "SelfClearance")
       .def_readonly("link_a", &SelfClearance::link_a)
@@ -96,8 +94,8 @@ void bind_collision(py::module_& m) {
       py::arg("robot"), py::arg("trajectory"), py::arg("wall"), py::arg("config"), py::arg("progress") = nullptr,
       "Least distance of every link to the wall and between non-neighbouring links along the trajectory, and "
       "the samples below the margins (exact: samples are skipped only where a motion bound proves them clear, "
-      "and those the octree reads below a margin are measured exactly); each link's min_m is the exact distance "
-      "at the sample of its least octree reading.");
+      "and those the distance field bounds below a margin are measured exactly); each link's min_m is its least "
+      "exact distance over every sample (branch and bound), at_time_s the earliest sample where it occurs.");
   m.def("shape_margin_m", &shape_margin_m, py::arg("shape"), py::arg("config"),
         "Wall margin of a shape: nozzle_margin_m for links named nozzle*, else link_margin_m.");
   m.def("self_check_pairs", &self_check_pairs, py::arg("robot"),

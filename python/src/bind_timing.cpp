@@ -455,6 +455,8 @@ void bind_timing(py::module_& m) {
       .def_readonly("config_duration_s", &ArmPlan::config_duration_s,
                     "trajectory duration with the config's timing parameters [s]")
       .def_readonly("tuned_timing_used", &ArmPlan::tuned_timing_used)
+      .def_readonly("clearance_term_used", &ArmPlan::clearance_term_used,
+                    "the regions were tracked with the clearance term (clearance.null_space_gain > 0)")
       .def_readonly("tuning_error", &ArmPlan::tuning_error)
       .def_property_readonly("executed",
                              [](const ArmPlan& a) -> py::object { return a.executed ? py::cast(*a.executed) : py::none(); },
@@ -465,6 +467,9 @@ void bind_timing(py::module_& m) {
       .def_property_readonly("transits",
                              [](const ArmPlan& a) -> py::object { return a.transits ? py::cast(*a.transits) : py::none(); },
                              "TransitReport of its joint moves (clearance.enabled), or None");
+  m.def("spraying_samples", &spraying_samples, py::arg("trajectory"),
+        "The trajectory's spraying samples only (times, joints, poses; no derivatives): check_clearance of it "
+        "gives the clearance while spraying.");
   m.def(
       "joint_moves",
       [](const TimedTrajectory& tr) {

@@ -192,6 +192,8 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("self_margin_m", &ClearanceConfig::self_margin_m, 0.0, 5.0, "least distance between non-neighbouring links [m]");
   f("reroute_transits", &ClearanceConfig::reroute_transits, 0, 0, "re-route joint moves closer than the margins through a via posture of maximum space allowance");
   f("via_allowance_m", &ClearanceConfig::via_allowance_m, 0.0, 5.0, "allowance beyond the margins sought at a via posture [m]");
+  f("null_space_gain", &ClearanceConfig::null_space_gain, 0.0, 100.0, "clearance term of the regions' joint tracking (null-space drift from the wall, per metre of path); 0 = off");
+  f("null_space_influence_m", &ClearanceConfig::null_space_influence_m, 0.01, 10.0, "links' key points nearer the wall than this are pushed away by the clearance term [m]");
 }
 
 template <class F> void visit(RescanConfig*, F&& f) {

@@ -19,7 +19,7 @@ inline int omp_get_thread_num() { return 0; }
 #include <cmath>
 #include <limits>
 #include <mutex>
-#include <set>
+#include <map>
 #include <stdexcept>
 #include <tuple>
 
@@ -122,9 +122,12 @@ BallCover ball_cover(const CollisionShape& s, double slack) {
   return out;
 }
 
-// The fine cover of exact_distance; the coarser one of the distance-field bounds (each ball a
-// lookup: its slack adds to the bound's gap below the exact distance).
-constexpr double kExactCoverSlack_m = 0.002;
+// The cover of exact_distance: each ball a KD-tree radius search, and neighbouring balls gather
+// mostly the same points, so few large balls (slices up to 10 cm past the shape) cost the least
+// (a 2 mm cover took over twice the time on the default bay's check); any cover gives the exact
+// distance. The distance-field bounds' finer one: each ball a lookup, its slack adds to the
+// bound's gap below the exact distance.
+constexpr double kExactCoverSlack_m = 0.1;
 constexpr double kFieldCoverSlack_m = 0.01;
 
 // The distance field's cells: half an octree leaf, coarser while the wall's bounding box would
@@ -194,12 +197,14 @@ constexpr double kQuerySlack_m = 0.25;
 // spread over kThreads threads: the machine's two cores.
 constexpr std::size_t kChunkSamples = 2048, kMaxChunks = 2, kThreads = 2;
 
-// Exact queries per link for its least distance (check_clearance), in the order of the samples'
-// field bounds: past them min_lower_m is the next bound (< min_m). On the default bay 0.8-70 k
-// samples per link have a bound below the link's least distance (the field reads up to ~2 cell
-// diagonals short, and during slews the distances stay within centimetres of their minima):
-// measuring all of them would take tens of seconds.
-constexpr long long kMaxMinQueries = 32;
+// Each link's least distance (check_clearance): a measurement asks for the distance up to the best
+// so far plus this much (farther comes back as that bound). A larger ask bounds more of the
+// samples around it by their motion but gathers more wall points: 2 cm takes the least time on the
+// default bay (bench_clearance.py; 5 cm: 30 % fewer queries, 20 % more time).
+constexpr double kMinAskSlack_m = 0.02;
+// Distances within this much are ties (rounding: a cylinder turned about its own axis): the
+// earliest sample is reported.
+constexpr double kTie_m = 1e-12;
 
 }  // namespace
 
@@ -345,8 +350,8 @@ double WallOctree::exact_distance(const CollisionShape& shape, const Eigen::Isom
   for (const auto& [lower, j] : order) {
     if (lower > best) break;
     const Eigen::Vector3d& c = centre[j];
-    kd.radiusSearch(pcl::PointXYZ(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z())),
-                    best + cover.radius[j] + kFloatSlack_m, idx, d2);
+    const pcl::PointXYZ query(static_cast<float>(c.x()), static_cast<float>(c.y()), static_cast<float>(c.z()));
+    kd.radiusSearch(query, best + cover.radius[j] + kFloatSlack_m, idx, d2);
     for (int i : idx) {
       const double d = point_shape_distance(impl_->points.row(i).transpose(), shape, link_pose);
       if (d < best || (d == best && best_i >= 0 && i < best_i)) best = d, best_i = i;
@@ -398,6 +403,40 @@ WallOctree::FieldBounds shape_field_bounds(const WallOctree& wall, const BallCov
 
 double WallOctree::field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const {
   return shape_field_bounds(*this, ball_cover(shape, kFieldCoverSlack_m), link_pose).lower_m;
+}
+
+double WallOctree::field_distance(const Eigen::Vector3d& p_m, Eigen::Vector3d* gradient, double step_m) const {
+  impl_->build_field();
+  const Impl& f = *impl_;
+  const auto read = [&](const Eigen::Vector3d& p) {
+    const Eigen::Vector3d inside = p.cwiseMax(f.lo).cwiseMin(f.hi);
+    // Trilinear between the centres of the 8 cells around the point (clamped at the grid's edges).
+    Eigen::Vector3i i0;
+    Eigen::Vector3d w;
+    for (int a = 0; a < 3; ++a) {
+      const double u = std::clamp((inside[a] - f.lo[a]) / f.h - 0.5, 0.0, static_cast<double>(f.n[a] - 1));
+      i0[a] = std::min(static_cast<int>(u), std::max(0, f.n[a] - 2));
+      w[a] = std::min(1.0, u - i0[a]);
+    }
+    const auto at = [&](int dx, int dy, int dz) {
+      const std::size_t x = static_cast<std::size_t>(std::min(i0.x() + dx, f.n.x() - 1));
+      const std::size_t y = static_cast<std::size_t>(std::min(i0.y() + dy, f.n.y() - 1));
+      const std::size_t z = static_cast<std::size_t>(std::min(i0.z() + dz, f.n.z() - 1));
+      return static_cast<double>(f.field_m[x + static_cast<std::size_t>(f.n.x()) * (y + static_cast<std::size_t>(f.n.y()) * z)]);
+    };
+    double v = 0.0;
+    for (int dz = 0; dz < 2; ++dz)
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 2; ++dx)
+          v += (dx ? w.x() : 1 - w.x()) * (dy ? w.y() : 1 - w.y()) * (dz ? w.z() : 1 - w.z()) * at(dx, dy, dz);
+    return v + (p - inside).norm();
+  };
+  if (gradient)
+    for (int a = 0; a < 3; ++a) {
+      const Eigen::Vector3d e = 0.5 * step_m * Eigen::Vector3d::Unit(a);
+      (*gradient)[a] = (read(p_m + e) - read(p_m - e)) / step_m;
+    }
+  return read(p_m);
 }
 
 double WallOctree::field_voxel_m() const {
@@ -656,14 +695,17 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
     rep.self_queries += c.self_queries;
   }
   if (measure == Measure::exact) {
-    // Each link's least distance: its candidates in the order of their lower bounds, each
-    // measured exactly (only nearer than the best so far: at_most) until the next lower bound is
-    // above the best (then the least is exact over every sample: every other sample's bound was
-    // above the least upper bound, so above the least distance) or kMaxMinQueries were run (then
-    // no sample is nearer than the next candidate's bound: min_lower_m). Ties: the first in
-    // (bound, sample) order, the earlier sample when poses are equal. A cylinder or sphere placed
-    // where one was already measured (the same axis: the turret slewing about its own) is not
-    // measured again: its distance is the same.
+    // Each link's least distance, exact over every sample, by branch and bound: its candidates in
+    // the order of their field lower bounds, each measured exactly unless a bound already keeps it
+    // from beating the best so far, until the next lower bound is past the best (every other
+    // sample's bound was above the least upper bound, so above the least distance). Besides the
+    // field bound, a measured sample bounds its shape at the others: the distance there is at
+    // least the measured one less the shape's motion between them (shape_motion), read from the
+    // measured samples on either side in time (on the default bay this leaves ~1 in 40 of the
+    // samples whose field bound is below the least distance to measure). A measurement asks for
+    // the distance only up to the best + kMinAskSlack_m: nearer ones come back exact, farther ones
+    // as that bound, which is what the motion bound needs. Ties (within kTie_m, rounding): the
+    // earliest sample.
     std::vector<long long> link_exact(rep.links.size(), 0);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(static_cast<int>(kThreads))
     for (long li = 0; li < static_cast<long>(rep.links.size()); ++li) {
@@ -675,33 +717,41 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
         for (const Candidate& cd : c.candidates[l])
           if (cd.lower_m <= upper) cands.push_back(cd);
       std::sort(cands.begin(), cands.end());
-      LinkClearance& lc = rep.links[l];
-      lc.min_m = std::numeric_limits<double>::infinity();
-      lc.min_lower_m = 0.0;
-      std::set<std::array<double, 7>> measured;  // shape, its centre and axis in the world
-      std::size_t next = 0;
-      for (; next < cands.size(); ++next) {
-        const Candidate& cd = cands[next];
-        if (cd.lower_m > lc.min_m || lc.min_m == 0.0 || link_exact[l] == kMaxMinQueries) break;
+      double best = std::numeric_limits<double>::infinity();
+      std::size_t best_sample = std::numeric_limits<std::size_t>::max();
+      Eigen::Vector3d best_closest = Eigen::Vector3d::Zero();
+      // Per shape: sample -> (a lower bound on the distance there, exact or the bound asked; the link pose).
+      std::map<std::size_t, std::map<std::size_t, std::pair<double, Eigen::Isometry3d>>> measured;
+      for (const Candidate& cd : cands) {
+        if (cd.lower_m > best + kTie_m) break;
+        // A sample at least `bound` away can still win when nearer than the best, or as near and earlier.
+        const auto can_win = [&](double bound) {
+          return bound < best - kTie_m || (bound <= best + kTie_m && cd.sample < best_sample);
+        };
+        if (!can_win(cd.lower_m)) continue;
         const CollisionShape& shape = shapes[cd.shape];
-        const auto frames = robot.link_frames(trajectory.q[cd.sample]);
-        if (shape.kind != CollisionShape::Kind::box) {
-          const Eigen::Isometry3d T = frames[shape.frame] * shape.origin;
-          const Eigen::Vector3d axis = shape.kind == CollisionShape::Kind::cylinder ? Eigen::Vector3d(T.linear().col(2)) : Eigen::Vector3d::Zero();
-          const std::array<double, 7> key{double(cd.shape), T.translation().x(), T.translation().y(), T.translation().z(),
-                                          axis.x(), axis.y(), axis.z()};
-          if (!measured.insert(key).second) continue;  // measured already: not nearer than the best
+        const Eigen::Isometry3d pose = robot.link_frames(trajectory.q[cd.sample])[shape.frame];
+        auto& at = measured[cd.shape];
+        const auto after = at.lower_bound(cd.sample);
+        double bound = cd.lower_m;
+        if (after != at.end())
+          bound = std::max(bound, after->second.first - shape_motion(shape, corners[cd.shape], pose, after->second.second));
+        if (after != at.begin()) {
+          const auto before = std::prev(after);
+          bound = std::max(bound, before->second.first - shape_motion(shape, corners[cd.shape], pose, before->second.second));
         }
+        if (!can_win(bound)) continue;
         Eigen::Vector3d closest;
-        const double d = wall.exact_distance(shape, frames[shape.frame], &closest, lc.min_m);
+        const double d = wall.exact_distance(shape, pose, &closest, best + kMinAskSlack_m);
         ++link_exact[l];
-        if (d < lc.min_m) lc.min_m = d, lc.closest_m = closest, lc.at_time_s = trajectory.t_s[cd.sample];
+        at[cd.sample] = {d, pose};
+        if (d < best - kTie_m || (d <= best + kTie_m && cd.sample < best_sample))
+          best = d, best_sample = cd.sample, best_closest = closest;
       }
-      // Every candidate measured (or bounded above the least distance): exact; else the next
-      // candidate's bound is the least any unmeasured sample can be.
-      lc.min_lower_m = next < cands.size() && link_exact[l] == kMaxMinQueries && !(cands[next].lower_m > lc.min_m)
-                           ? std::max(0.0, std::min(lc.min_m, cands[next].lower_m))
-                           : lc.min_m;
+      LinkClearance& lc = rep.links[l];
+      lc.min_m = best;
+      lc.closest_m = best_closest;
+      lc.at_time_s = best_sample < n ? trajectory.t_s[best_sample] : 0.0;
     }
     for (long long e : link_exact) rep.exact_queries += e;
   }
@@ -711,6 +761,59 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
 }
 
 }  // namespace
+
+NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
+  NullSpaceObjective out;
+  out.gain = config.null_space_gain;
+  if (!(out.gain > 0.0)) return out;
+  // Key points in their link frames, with the radius the shape reaches past them.
+  struct Key {
+    int frame;
+    Eigen::Vector3d p;
+    double radius_m;
+  };
+  std::vector<Key> keys;
+  for (const CollisionShape& s : robot.collision_shapes()) {
+    if (s.link.rfind("nozzle", 0) == 0) continue;  // placed by the task: the null space cannot move them
+    if (s.kind == CollisionShape::Kind::cylinder) {
+      const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / 0.25)));
+      for (int k = 0; k < m; ++k)
+        keys.push_back({s.frame, s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m + (k + 0.5) * s.length_m / m), s.radius_m});
+    } else {
+      keys.push_back({s.frame, s.origin.translation(), s.kind == CollisionShape::Kind::sphere ? s.radius_m : 0.5 * s.size_m.minCoeff()});
+    }
+  }
+  const double d0 = config.null_space_influence_m;
+  const Robot* rb = &robot;
+  const WallOctree* w = &wall;
+  out.gradient = [rb, w, keys, d0](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
+    grad.setZero(q.size());
+    const auto frames = rb->link_frames(q);
+    // dU/dx at each key point inside the influence distance: -(d0 - d) / d0 times the field's gradient.
+    std::vector<std::pair<std::size_t, Eigen::Vector3d>> active;
+    for (std::size_t k = 0; k < keys.size(); ++k) {
+      const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].p;
+      Eigen::Vector3d g;
+      const double d = w->field_distance(x, &g) - keys[k].radius_m;
+      if (d < d0) active.emplace_back(k, -(d0 - d) / d0 * g);
+    }
+    if (active.empty()) return;
+    // Point Jacobians by forward differences of the frames (1e-6 per joint unit).
+    constexpr double kStep = 1e-6;
+    for (Eigen::Index j = 0; j < q.size(); ++j) {
+      Eigen::VectorXd qj = q;
+      qj[j] += kStep;
+      const auto fj = rb->link_frames(qj);
+      double sum = 0.0;
+      for (const auto& [k, dudx] : active) {
+        const auto fr = static_cast<std::size_t>(keys[k].frame);
+        sum += dudx.dot((fj[fr] * keys[k].p - frames[fr] * keys[k].p) / kStep);
+      }
+      grad[j] = sum;
+    }
+  };
+  return out;
+}
 
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress) {

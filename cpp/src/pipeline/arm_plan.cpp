@@ -164,7 +164,7 @@ namespace {
 // timing.tune_with_pso: the swarm's per-region timing replaces the config's when the whole
 // trajectory comes out shorter and no worse on the joint limits.
 void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regions, const Config& config,
-                        const Robot& robot, const ProgressFn& progress) {
+                        const Robot& robot, const ProgressFn& progress, const NullSpaceObjective& clearance_term) {
   if (progress) progress("timing swarm", 0.0);
   try {
     out.tuning = tune_timing(&robot, regions, robot.stow(), config.timing, config.robot,
@@ -173,7 +173,7 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
     const TimedTrajectory& cur = *out.trajectory;
     auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
     std::vector<TimingParams> params = out.tuning->params;
-    TimedTrajectory tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params);
+    TimedTrajectory tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params, clearance_term);
     // The swarm judges the leads and turns on its model; elsewhere the arm reaches the passes in
     // slightly other postures than the re-plans saw. Regions that came out worse keep the
     // config's parameters, and that mix is timed once more.
@@ -185,7 +185,7 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
       if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), used[r] = 0, mixed = true;
     if (mixed) {
       if (progress) progress("timing swarm", 0.9);
-      tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params);
+      tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params, clearance_term);
     }
     if (tuned.duration_s < cur.duration_s && no_worse(tuned.max_velocity_ratio, cur.max_velocity_ratio) &&
         no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
@@ -245,6 +245,15 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     return c;
   };
   const double share = 1.0 - config.timing.joint_limit_margin;
+  // The tracking's clearance term steers the spare degrees of freedom by the wall as scanned (the
+  // sprayed layers add centimetres; the check below uses both).
+  std::unique_ptr<WallOctree> scan_wall;
+  NullSpaceObjective clearance_term;
+  if (config.clearance.enabled && config.clearance.null_space_gain > 0.0 && surface.cloud.xyz.rows() > 0) {
+    scan_wall = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
+    clearance_term = clearance_objective(robot, *scan_wall, config.clearance);
+  }
+  out.clearance_term_used = clearance_term.active();
   std::vector<std::vector<Pass>> regions;
   for (int attempt = 0;; ++attempt) {
     const std::string prefix = attempt == 0 ? "" : "re-plan " + std::to_string(attempt) + ": ";
@@ -258,7 +267,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     out.timing_error.clear();
     if (regions.empty()) break;
     try {
-      out.trajectory = time_plan(robot, regions, robot.stow(), config.timing, config.robot);
+      out.trajectory = time_plan(robot, regions, robot.stow(), config.timing, config.robot, {}, clearance_term);
     } catch (const std::exception& e) {
       out.timing_error = e.what();
       break;
@@ -269,7 +278,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   }
   if (!out.trajectory) return out;
   out.config_duration_s = out.trajectory->duration_s;
-  if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, progress);
+  if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, progress, clearance_term);
   if (progress) progress("executed deposit", 0.0);
   out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
   if (progress) progress("executed deposit", 1.0);

@@ -204,9 +204,7 @@ void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m, const 
     write_distance(w, l.min_m);
     w.field("at_time_s", l.at_time_s).key("closest_m").begin_array();
     for (int i = 0; i < 3; ++i) w.value(l.closest_m[i]);
-    w.end_array().key("min_lower_m");
-    write_distance(w, l.min_lower_m);
-    w.field("samples_below_margin", l.samples_below_margin).end_object();
+    w.end_array().field("samples_below_margin", l.samples_below_margin).end_object();
   }
   w.end_array().key("self").begin_object().field("link_a", c.self.link_a).field("link_b", c.self.link_b);
   w.field("margin_m", self_margin_m).key("min_m");

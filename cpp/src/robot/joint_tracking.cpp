@@ -53,11 +53,12 @@ struct JointRange {
 
 // Null-space step of q away from the limits for a path step ds at pose `at`: the projection of
 // -grad H (H = sum 1 / (4 x (1 - x)), x = normalised joint position) onto the null space of the
-// task, a descent direction of H, times limit_gain * ds, scaled down as a whole (direction kept) so
+// task, a descent direction of H, times limit_gain * ds (plus objective.gain times the objective's
+// descent, projected alike), scaled down as a whole (direction kept) so
 // no joint drifts faster than kMaxDrift of its range per metre of path. Returns the largest step
 // as a share of the joint range.
 double null_step(const Robot& robot, const JointRange& jr, const NozzlePose& at, double ds, double limit_gain,
-                 Eigen::VectorXd& q) {
+                 Eigen::VectorXd& q, const NullSpaceObjective& objective) {
   constexpr double kMaxDrift = 0.05, kNearDrift = 0.5, kNearBand = 0.1;
   const int n = robot.dof();
   Eigen::MatrixXd A;
@@ -67,8 +68,17 @@ double null_step(const Robot& robot, const JointRange& jr, const NozzlePose& at,
     const double x = std::clamp((q(i) - jr.lo(i)) / jr.range(i), 1e-4, 1.0 - 1e-4);
     g(i) = (1.0 - 2.0 * x) / (4.0 * x * x * (1.0 - x) * (1.0 - x)) / jr.range(i);
   }
+  double scale = limit_gain;
+  if (objective.active()) {
+    // The second potential's descent, weighed by its gain against the limits' (same units: per
+    // joint unit, per metre of path). Without it the arithmetic is the limits' alone, as before.
+    Eigen::VectorXd grad = Eigen::VectorXd::Zero(n);
+    objective.gradient(q, grad);
+    g = limit_gain * g - objective.gain * grad;
+    scale = 1.0;
+  }
   const Eigen::Matrix<double, 5, 5> M = A * A.transpose() + 1e-12 * Eigen::Matrix<double, 5, 5>::Identity();
-  Eigen::VectorXd dq = limit_gain * ds * (g - A.transpose() * M.ldlt().solve(A * g));
+  Eigen::VectorXd dq = scale * ds * (g - A.transpose() * M.ldlt().solve(A * g));
   // Near a limit the task itself may push the joint outwards faster than kMaxDrift can pull it
   // back (e.g. the arm telescope at the edge of the reach): the allowed drift grows smoothly up
   // to kNearDrift as the closest joint comes within kNearBand of its range.
@@ -101,7 +111,7 @@ void correct(const Robot& robot, const NozzlePose& target, Eigen::VectorXd& q) {
 
 std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                               const Eigen::VectorXd& q0, double limit_gain, double* max_error_m,
-                                              double* max_error_rad) {
+                                              double* max_error_rad, const NullSpaceObjective& objective) {
   if (q0.size() != robot.dof()) throw std::invalid_argument("track_joint_path: q0 does not match the robot");
   const JointRange jr(robot);
   std::vector<Eigen::VectorXd> out;
@@ -113,7 +123,7 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
   if (!poses.empty() && limit_gain > 0.0) {
     correct(robot, poses.front(), q);
     for (int it = 0; it < 2000; ++it) {
-      const double step = null_step(robot, jr, poses.front(), 0.05, limit_gain, q);
+      const double step = null_step(robot, jr, poses.front(), 0.05, limit_gain, q, objective);
       correct(robot, poses.front(), q);
       if (step < 1e-6) break;
     }
@@ -121,7 +131,7 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
   for (std::size_t k = 0; k < poses.size(); ++k) {
     const double ds = k == 0 ? 0.0 : (poses[k].position_m - poses[k - 1].position_m).norm();
     // Drift proportional to the path step: q(s) depends on the path only, as smooth as the path.
-    if (ds > 0.0 && limit_gain > 0.0) null_step(robot, jr, poses[k - 1], ds, limit_gain, q);
+    if (ds > 0.0 && limit_gain > 0.0) null_step(robot, jr, poses[k - 1], ds, limit_gain, q, objective);
     correct(robot, poses[k], q);  // minimal-norm Gauss-Newton onto the exact target
     const TaskError te = task_error(robot, q, poses[k], nullptr, AxisError::CrossProduct);
     emax = std::max(emax, te.position_m);
@@ -138,7 +148,8 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
 // meaningless: so the samples are tracked exactly (minimal-norm steps + smooth null-space limit
 // avoidance) from solve_path's first solution.
 std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
-                                               const Eigen::VectorXd& seed, const RobotConfig& rc, bool* tracked) {
+                                               const Eigen::VectorXd& seed, const RobotConfig& rc, bool* tracked,
+                                               const NullSpaceObjective& objective) {
   const JointPath jp = solve_path(robot, poses, seed, rc);
   // The default limit avoidance is gentle, so q(s) stays close to the minimal-norm path; where it
   // lets a joint run past its limit (the telescope at the edge of the reach, late in a long
@@ -146,11 +157,21 @@ std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::ve
   // falling back to solve_path's staircase, whose finite differences break the acceleration limits.
   std::vector<Eigen::VectorXd> q;
   bool ok = false;
-  for (const double limit_gain : {0.02, 0.1, 0.3}) {
-    double em = 0.0, ea = 0.0;
-    q = track_joint_path(robot, poses, jp.q.front(), limit_gain, &em, &ea);
-    ok = em <= rc.ik_position_tolerance_m && ea <= rc.ik_angle_tolerance_rad;
-    for (const auto& x : q) ok = ok && robot.within_limits(x);
+  // With a second objective (the clearance term) every limit gain is tried with it first, then
+  // with a quarter of its gain (over a long region its drift can take a joint past a limit the
+  // full gain's does not come back from: a 93 k-sample region of the narrow bay), then without
+  // it: the term never costs a region its exact tracking.
+  for (const double share : {1.0, 0.25, 0.0}) {
+    NullSpaceObjective used = objective;
+    used.gain *= share;
+    if (share > 0.0 && !used.active()) continue;
+    for (const double limit_gain : {0.02, 0.1, 0.3}) {
+      double em = 0.0, ea = 0.0;
+      q = track_joint_path(robot, poses, jp.q.front(), limit_gain, &em, &ea, share > 0.0 ? used : NullSpaceObjective{});
+      ok = em <= rc.ik_position_tolerance_m && ea <= rc.ik_angle_tolerance_rad;
+      for (const auto& x : q) ok = ok && robot.within_limits(x);
+      if (ok) break;
+    }
     if (ok) break;
   }
   if (tracked) *tracked = ok;

@@ -237,6 +237,7 @@ struct TimingContext {
   const Robot& robot;
   const TimingConfig& timing;
   const RobotConfig& robot_config;
+  const NullSpaceObjective& objective;  // the tracking's second null-space objective (clearance)
 };
 
 // A region to time: its passes, its place in the spraying order and the number of passes before it,
@@ -332,7 +333,7 @@ std::vector<Eigen::VectorXd> first_stretch_joints(const TimingContext& ctx, cons
     prefix = poses.size();
     poses.insert(poses.end(), samples.begin(), samples.end());
     try {
-      jq = timing_joint_path(ctx.robot, poses, q_prev, ctx.robot_config, &tracked);
+      jq = timing_joint_path(ctx.robot, poses, q_prev, ctx.robot_config, &tracked, ctx.objective);
       break;
     } catch (const std::exception& e) {
       if (unused <= 0.0) throw std::runtime_error("time_plan: region " + std::to_string(job.region) + ": " + e.what());
@@ -379,7 +380,7 @@ RegionTiming time_region(const TimingContext& ctx, const RegionJob& job, const E
       jq = first_stretch_joints(ctx, job, rs, cs.nozzle, q_prev, tracked);
     } else {
       try {
-        jq = timing_joint_path(ctx.robot, cs.nozzle, q_prev, ctx.robot_config, &tracked);
+        jq = timing_joint_path(ctx.robot, cs.nozzle, q_prev, ctx.robot_config, &tracked, ctx.objective);
       } catch (const std::exception& e) {
         throw std::runtime_error("time_plan: region " + std::to_string(r) + ", stretch " + std::to_string(c) +
                                  " (after a stop-and-go move): " + e.what());
@@ -513,9 +514,9 @@ void check_plan_input(const Robot& robot, const std::vector<std::vector<Pass>>& 
 
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
                           const TimingConfig& timing, const RobotConfig& robot_config,
-                          const std::vector<TimingParams>& params_in) {
+                          const std::vector<TimingParams>& params_in, const NullSpaceObjective& objective) {
   check_plan_input(robot, regions, q_start, params_in);
-  const TimingContext ctx{robot, timing, robot_config};
+  const TimingContext ctx{robot, timing, robot_config, objective};
   TimedTrajectory tr;
   push_sample(tr, 0.0, q_start, pose_of(robot.fk(q_start)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
   double t0 = 0.0;
@@ -571,6 +572,14 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
 std::vector<char> joint_move_samples(const TimedTrajectory& tr) {
   std::vector<char> out(tr.size(), 0);
   for (std::size_t i = 0; i < tr.size(); ++i) out[i] = tr.kind[i] == static_cast<char>(SegmentKind::Transit);
+  return out;
+}
+
+TimedTrajectory spraying_samples(const TimedTrajectory& tr) {
+  TimedTrajectory out;
+  for (std::size_t k = 0; k < tr.size(); ++k)
+    if (tr.spraying[k])
+      push_sample(out, tr.t_s[k], tr.q[k], tr.nozzle[k], tr.spraying[k], tr.pass_index[k], tr.region_index[k], tr.kind[k]);
   return out;
 }
 

@@ -12,6 +12,7 @@
 #include <Eigen/Geometry>
 
 #include "shotcrete/config.hpp"
+#include "shotcrete/robot/joint_tracking.hpp"  // NullSpaceObjective
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/types.hpp"
 
@@ -36,7 +37,7 @@ class WallOctree {
   double distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m = nullptr,
                   double at_most_m = std::numeric_limits<double>::max()) const;
   /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
-  /// a sphere cover of the shape (balls at most 2 mm past it, KD-tree of the points built on first
+  /// a sphere cover of the shape (balls at most 10 cm past it, KD-tree of the points built on first
   /// use) is bounded ball by ball from the distance field (field_bounds); then, in the order of
   /// those bounds, only the balls whose lower bound is below
   /// the least distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
@@ -61,6 +62,11 @@ class WallOctree {
   /// A lower bound [m] on exact_distance(shape, link_pose), never above it: the least
   /// field_bounds().lower_m over a sphere cover of the shape (balls at most 1 cm past it).
   double field_lower_bound(const CollisionShape& shape, const Eigen::Isometry3d& link_pose) const;
+  /// A smooth reading [m] of the distance field at p (trilinear between cell centres; outside the
+  /// points' bounding box, at p's projection onto it plus the distance to it) and its gradient by
+  /// central differences `step_m` apart (smoothed over that span): the clearance term's guide, not
+  /// a bound (it reads up to about a cell diagonal off the distance to the points).
+  double field_distance(const Eigen::Vector3d& p_m, Eigen::Vector3d* gradient = nullptr, double step_m = 0.1) const;
   /// Edge [m] of the distance field's cells: half the octree's leaf, coarser only if the wall's
   /// bounding box would need more than 64 M cells.
   double field_voxel_m() const;
@@ -91,10 +97,9 @@ std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot);
 struct LinkClearance {
   std::string link;
   double margin_m = 0.0;             // clearance.link_margin_m or nozzle_margin_m
-  double min_m = 0.0;                // least distance to the wall (see check_clearance)
-  double at_time_s = 0.0;            // when
+  double min_m = 0.0;                // least distance to the wall over every sample (see check_clearance)
+  double at_time_s = 0.0;            // when (the earliest sample at that distance)
   Eigen::Vector3d closest_m = Eigen::Vector3d::Zero();  // the wall's closest point then
-  double min_lower_m = 0.0;          // check_clearance: no sample is closer than this (<= min_m; = min_m: exact over every sample)
   int samples_below_margin = 0;
 };
 struct SelfClearance {
@@ -126,15 +131,24 @@ struct ClearanceReport {
 /// those of a check of every sample by exact distances. A shape is not bounded again while its
 /// last bound less its motion since is past the margin and the least upper bound (a cylinder that
 /// only turns about its own axis does not move). Each link's least distance (min_m, closest_m,
-/// at_time_s) is the least exact distance over the samples whose lower bound is below the least
-/// upper bound, measured in the order of their bounds until the next bound is above the least
-/// found (then exact over every sample, min_lower_m = min_m) or 32 were measured (then
-/// min_lower_m: the next bound, no sample is nearer). Link pairs: FCL's distance, a sample skipped where
+/// at_time_s) is exact over every sample, by branch and bound: the samples whose lower bound is
+/// below the least upper bound, in the order of their bounds, each measured exactly unless its
+/// bound (the field's, or a measured sample's distance less the shape's motion since) keeps it
+/// from beating the least found, until the next bound is past the least found; ties within 1e-12 m
+/// go to the earliest sample. Link pairs: FCL's distance, a sample skipped where
 /// the pair's distance at its last query less b's motion relative to a since (the farthest corner
 /// of its bounding box) is past the margin and past the least so far less 10 mm. Two fixed
 /// stretches of the trajectory run on two threads: the result does not depend on their timing.
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress = {});
+
+/// The tracking's clearance term (clearance.null_space_gain, null_space_influence_m d0): the
+/// gradient in joint space of U(q) = sum over key points of 0.5 (d0 - d)^2 / d0 where d < d0, d the
+/// field's smooth reading at the point less the shape's radius. Key points: along each cylinder's
+/// axis at most 0.25 m apart, a sphere's or box's centre, on every link but the nozzle* ones
+/// (the task sets where the nozzle is). Point Jacobians by forward differences of link_frames.
+/// `wall` must outlive the objective. gain 0: an inactive objective.
+NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config);
 
 /// The transit router's screen (transit.cpp): the same check on the octree's reading alone (no
 /// exact distances): a sample is below the margin when its reading is, and the minima are the

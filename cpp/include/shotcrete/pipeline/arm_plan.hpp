@@ -50,6 +50,8 @@ struct ArmPlan {
   std::optional<TimingTuning> tuning;
   double config_duration_s = 0.0;
   bool tuned_timing_used = false;
+  // The regions were tracked with the clearance term (clearance.enabled, null_space_gain > 0).
+  bool clearance_term_used = false;
   std::string tuning_error;  // why the swarm or its timing failed (the config's timing stands)
   // With clearance.enabled and a trajectory: the space allowance of every link along it, against
   // the wall as scanned and as sprayed (check_clearance).

@@ -3,6 +3,7 @@
 // the path for finite differences, so they give the joint velocities and accelerations of a timed
 // path, and the nozzle speeds at which the arm stays within its joint limits.
 #include <Eigen/Core>
+#include <functional>
 #include <vector>
 
 #include "shotcrete/config.hpp"
@@ -21,24 +22,37 @@ void finite_differences(const std::vector<double>& t, const std::vector<Eigen::V
                         std::vector<Eigen::VectorXd>& qd, std::vector<Eigen::VectorXd>& qdd,
                         bool one_sided_ends = false);
 
+/// A second objective of the tracking's null-space drift (besides the joint limits): `gradient`
+/// writes the joint-space gradient of a potential at q (dof entries) that the drift descends,
+/// scaled by `gain` (0 or no gradient: off). The clearance module gives one that keeps the links
+/// away from the wall (clearance_objective); the robot module knows nothing of the wall.
+struct NullSpaceObjective {
+  std::function<void(const Eigen::VectorXd& q, Eigen::VectorXd& gradient)> gradient;
+  double gain = 0.0;
+  bool active() const { return gain > 0.0 && static_cast<bool>(gradient); }
+};
+
 /// Joint path through closely spaced poses: from q0, the start configuration is first settled in
 /// the null space away from the joint limits (at rest), then minimal-norm Gauss-Newton steps on the
 /// task error (task_error) reach every pose (position and spray axis to ~1e-10) plus a null-space
 /// drift away from the limits proportional to the path step (limit_gain * dH/dx, at most 0.05
 /// normalised joint range per metre, rising quadratically to 0.5 at a limit once a joint is within
 /// 10 % of its range of it), so q is a smooth function of the path and finite differences are
-/// meaningful. Reports the worst errors.
+/// meaningful. With `objective` the drift descends limit_gain * H + objective.gain * its potential
+/// (the same projection and the same cap per metre). Reports the worst errors.
 std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                               const Eigen::VectorXd& q0, double limit_gain = 0.02,
-                                              double* max_error_m = nullptr, double* max_error_rad = nullptr);
+                                              double* max_error_m = nullptr, double* max_error_rad = nullptr,
+                                              const NullSpaceObjective& objective = {});
 
 /// Joint path for timing: solve_path (limits, restarts, no flips) gives the branch and the start
 /// configuration, then track_joint_path follows the poses exactly from there. If that leaves the
 /// limits or misses a target by more than the config's tolerances, solve_path's result is used and
-/// *tracked (optional) is false.
+/// *tracked (optional) is false. With an active `objective` (the clearance term) the tracking
+/// tries it at each limit gain, then at a quarter of its gain, then without it.
 std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                                const Eigen::VectorXd& seed, const RobotConfig& robot_config,
-                                               bool* tracked = nullptr);
+                                               bool* tracked = nullptr, const NullSpaceObjective& objective = {});
 
 /// Highest constant nozzle speed at each pose at which the arm follows `poses` within limit_share
 /// of its joint velocity and acceleration limits while leaving room for speed changes of up to

@@ -8,6 +8,7 @@
 #include "shotcrete/config.hpp"
 #include "shotcrete/deposition/deposition.hpp"  // NozzlePose
 #include "shotcrete/planning/planner.hpp"  // Pass
+#include "shotcrete/robot/joint_tracking.hpp"  // NullSpaceObjective
 #include "shotcrete/timing/cartesian_path.hpp"
 #include "shotcrete/timing/region_path.hpp"  // TimingParams
 #include "shotcrete/timing/speed_profile.hpp"
@@ -96,10 +97,15 @@ struct TimedTrajectory {
 /// (the others keep theirs); the passes keep their planned speeds. params: empty = the config's
 /// for every region, one = for every region, or one per region (tune_timing's). Whatever stays
 /// over a limit (on the passes, or where longer runs would leave the reach)
-/// is reported in max_acceleration_ratio, not hidden.
+/// is reported in max_acceleration_ratio, not hidden. `objective`: a second null-space objective
+/// of the regions' joint tracking (timing_joint_path; plan_for_arm passes the clearance term).
 TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass>>& regions_in_order,
                           const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
-                          const std::vector<TimingParams>& params = {});
+                          const std::vector<TimingParams>& params = {}, const NullSpaceObjective& objective = {});
+
+/// The samples of `tr` with the nozzle spraying, in order (times, joints, poses and flags; no
+/// derivatives or totals): what check_clearance reads for the clearance while spraying.
+TimedTrajectory spraying_samples(const TimedTrajectory& tr);
 
 /// A rest-to-rest joint move of a trajectory (a transit between regions, the move from the start
 /// posture, or a stop-and-go move inside a region): it starts at rest at sample `start` and its
