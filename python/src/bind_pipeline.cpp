@@ -157,6 +157,7 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("axis_direction", &JobSummary::axis_direction)
       .def_readonly("axis_fit_arc_deg", &JobSummary::axis_fit_arc_deg)
       .def_readonly("axis_fit_points", &JobSummary::axis_fit_points)
+      .def_readonly("axis_fit_inlier_share", &JobSummary::axis_fit_inlier_share)
       .def_readonly("levels_before", &JobSummary::levels_before)
       .def_readonly("td_before_mm", &JobSummary::td_before_mm)
       .def_readonly("levels_after", &JobSummary::levels_after)

@@ -131,10 +131,12 @@ void bind_surface(py::module_& m) {
       .def_readonly("rms_m", &AxisFit::rms_m)
       .def_readonly("arc_rad", &AxisFit::arc_rad)
       .def_readonly("points", &AxisFit::points)
+      .def_readonly("inlier_share", &AxisFit::inlier_share, "points / the cloud's points (the rest is not wall)")
       .def_readonly("origin_fitted", &AxisFit::origin_fitted);
-  m.def("fit_axis", &fit_axis, py::arg("cloud"), py::arg("profile") = ProfileConfig(),
-        "Fit the tunnel axis to a cloud with normals (direction from the normals, refined with the centre by a "
-        "lower-envelope cylinder fit); ValueError, one line, when the cloud is not a tunnel wall.");
+  m.def("fit_axis", &fit_axis, py::arg("cloud"), py::arg("profile") = ProfileConfig(), py::arg("grid") = GridConfig(),
+        "Fit the tunnel axis to the wall of a cloud with normals, which may hold a whole scene (RANSAC seed, the "
+        "points the grid takes as wall, a lower-envelope cylinder fit, repeated until it settles); ValueError, one "
+        "line, when the cloud is not a tunnel wall.");
   m.def("estimate_normals", &estimate_normals, py::arg("cloud"), py::arg("k_neighbors"), py::arg("axis"),
         "PCL k-NN normals oriented toward the tunnel axis.");
 

@@ -206,17 +206,20 @@ TEST(Axis, ClosedFormCylinderIsRecoveredExactly) {
   const AxisFit fit = fit_axis(c, pc);
   EXPECT_NEAR(fit.radius_m, 4.0, 1e-6);
   EXPECT_LT(fit.rms_m, 1e-6);
-  EXPECT_LT(angle_deg(fit.axis.ex, pl.rot.col(0)), 1e-5);
+  EXPECT_LT(angle_deg(fit.axis.ex, pl.rot.col(0)), 3e-5);  // 5e-7 rad
   EXPECT_GT(fit.axis.ex.dot(pl.rot.col(0)), 0);  // oriented like profile.axis_direction (x)
   EXPECT_LT(off_line(fit.axis.origin_m, pl.offset, pl.rot.col(0)), 1e-6);
   EXPECT_NEAR(fit.arc_rad, 0.5 * kPi, 1.0 * kPi / 180);  // half-degree bins
   EXPECT_EQ(fit.points, c.size());
   EXPECT_TRUE(fit.origin_fitted);
   // The origin is where the scan starts along the axis (its 0.5 % quantile): the grid's first
-  // column begins there.
-  int before = 0;
-  for (int i = 0; i < c.size(); ++i) before += (c.xyz.row(i).transpose() - fit.axis.origin_m).dot(fit.axis.ex) < -1e-9;
-  EXPECT_NEAR(before, 0.005 * c.size(), 1.0);
+  // column begins there. (The lattice's rows lie across the axis, so the quantile is a row's place
+  // and counting the points before it depends on the last nanometre of the direction.)
+  std::vector<double> along(static_cast<std::size_t>(c.size()));
+  for (int i = 0; i < c.size(); ++i) along[static_cast<std::size_t>(i)] = (c.xyz.row(i).transpose() - pl.offset).dot(pl.rot.col(0));
+  const auto k = static_cast<std::ptrdiff_t>(0.005 * static_cast<double>(c.size()));
+  std::nth_element(along.begin(), along.begin() + k, along.end());
+  EXPECT_NEAR((fit.axis.origin_m - pl.offset).dot(pl.rot.col(0)), along[static_cast<std::size_t>(k)], 1e-6);
 }
 
 TEST(Axis, GivenOriginIsKeptAndOnlyTheDirectionFitted) {
@@ -847,4 +850,52 @@ TEST(Scene, ADuctOrARigNeedsItsSurroundings) {
   sc.context_duct_diameter_m = 1.2;
   sc.context_duct_y_m = 6.0;  // outside the 5.6 m circle
   EXPECT_THROW(make_synthetic_bay(sc).sample_context(0.05, 20, 0.005, 1), std::invalid_argument);
+}
+
+TEST(Scene, EstimatedAxisOnTheWholeSceneGivesTheKnownAxisTd) {
+  // Issue 16: the axis fitted on the generator's whole scene (lined previous bay, invert, face, a
+  // 1.2 m duct 0.3 m under the crown, the rig's carrier), as given and turned 30 deg on a 5 % grade,
+  // must give every cell the TD the known axis gives it. The former fit refused it (radius 2.72 m:
+  // the face's and the floor's normals turned its direction 90 deg, the duct pulled the envelope in).
+  Config cfg;  // the generator's density (20 points per cell; at 8 the test reads the same TD, volume -1.3 %)
+  cfg.synth.context_enabled = true;
+  cfg.synth.context_duct_diameter_m = 1.2;
+  cfg.synth.context_rig_length_m = 4.0;
+  const SyntheticBay bay = make_synthetic_bay(cfg.synth);
+  const Cloud scan = bay.sample_scan(cfg.grid.cell_size_m);
+  const Surface alone = build_surface(bay.sample(cfg.grid.cell_size_m), cfg);  // the bay alone, known axis
+  for (const Placement& pl : {placement(0, 0.0, Eigen::Vector3d::Zero()), placement(30, 0.05, {3.0, -2.0, 1.0})}) {
+    Config est = cfg;
+    est.profile.estimate_axis = true;
+    Surface s;
+    ASSERT_NO_THROW(s = build_surface(placed(scan, pl), est));
+    ASSERT_TRUE(s.axis_fit.has_value());
+    const TunnelAxis known = TunnelAxis::from_direction(pl.offset, pl.rot.col(0));
+    // Each valid cell's TD against its mean point's TD from the known axis (the axis error alone).
+    double sum = 0, worst = 0;
+    int cells = 0;
+    for (int c = 0; c < s.grid.size(); ++c) {
+      if (!s.grid.valid[c]) continue;
+      const Eigen::Vector3d p = s.grid.mean_xyz.row(c).transpose();
+      const double e = s.grid.td_m[c] - (known.to_cylindrical(p)[0] - s.profile.radius_m);
+      sum += e;
+      worst = std::max(worst, std::abs(e));
+      ++cells;
+    }
+    const double dir_deg = angle_deg(s.axis.ex, known.ex), v = missing_volume_m3(s.grid), v_alone = missing_volume_m3(alone.grid);
+    std::printf("[scene axis] %d cells: TD error mean %+.2f mm, worst %.2f mm; direction %.3f deg; volume %.4f vs bay alone "
+                "%.4f m^3 (%+.2f %%); fit on %ld points (%.1f %% of the scene), RMS %.1f mm, arc %.0f deg\n",
+                cells, 1000 * sum / cells, 1000 * worst, dir_deg, v, v_alone, 100 * (v / v_alone - 1), s.axis_fit->points,
+                100 * s.axis_fit->inlier_share, 1000 * s.axis_fit->rms_m, s.axis_fit->arc_rad * 180 / kPi);
+    EXPECT_GT(cells, alone.grid.valid_count() - 30);
+    EXPECT_LT(std::abs(sum / cells), 0.001);
+    EXPECT_LT(worst, 0.004);
+    EXPECT_LT(dir_deg, 0.1);
+    EXPECT_NEAR(v, v_alone, 0.01 * v_alone);  // the issue's target: the plan of the scene within 1 % of the bay alone's
+    EXPECT_NEAR(s.bay.range.end_m - s.bay.range.start_m, 1.2, 1e-6);
+    // The fit rests on the wall (lining and bay), under a third of the scene's points.
+    EXPECT_GT(s.axis_fit->inlier_share, 0.2);
+    EXPECT_LT(s.axis_fit->inlier_share, 0.35);
+    EXPECT_NEAR(s.axis_fit->inlier_share * static_cast<double>(s.cloud.size()), static_cast<double>(s.axis_fit->points), 1.0);
+  }
 }

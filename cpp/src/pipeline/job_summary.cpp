@@ -365,6 +365,7 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   if (surface.axis_fit) {
     s.axis_fit_arc_deg = surface.axis_fit->arc_rad * 180.0 / M_PI;
     s.axis_fit_points = surface.axis_fit->points;
+    s.axis_fit_inlier_share = surface.axis_fit->inlier_share;
   }
   s.levels_before = level_counts(surface.levels);
   s.td_before_mm = td_stats_mm(grid.td_m, grid.valid);
@@ -509,6 +510,8 @@ std::string JobSummary::to_json() const {
   w.key("fit_points");
   if (axis_fit_points) w.value(*axis_fit_points);
   else w.null();
+  w.key("fit_inlier_share");
+  write_optional(w, axis_fit_inlier_share);
   w.end_object();
   w.key("bay").begin_object().field("selection", bay.mode).field("start_m", bay.range.start_m).field("end_m", bay.range.end_m);
   w.field("scan_start_m", bay.scan_start_m).field("scan_end_m", bay.scan_end_m);

@@ -1,5 +1,6 @@
 #include "shotcrete/surface/profile.hpp"
 
+#include "shotcrete/surface/grid.hpp"
 #include "shotcrete/surface/preprocess.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -9,6 +10,9 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <optional>
+#include <random>
+#include <unordered_map>
 #include <iomanip>
 #include <sstream>
 #include <string>
@@ -402,38 +406,103 @@ Eigen::Vector3d direction_from_normals(const Points& normals) {
   return dir;
 }
 
-/// Quantile cylinder fit by iteratively reweighted Gauss-Newton: the cylinder with a fraction tau
-/// of the points inside it. Dig pits only ever add over-break, so the lower envelope follows the
-/// intact contour, which is concentric with the design line; a least-squares fit follows the pits
-/// instead (TD 40 mm low on the synthetic bay). Small-angle parameters, re-framed every step:
-/// centre line origin + x ex + (cu + a x) ey + (cv + b x) ez; (cu, cv) only when fit_origin.
-void quantile_cylinder(const Points& pts, bool fit_origin, double tau, Eigen::Vector3d& origin, Eigen::Vector3d& ex,
-                       double& radius) {
-  const int np = fit_origin ? 5 : 3;
+/// The quantile cylinder fit below with one radius per group of points (slab[i] in [0, slabs)).
+void quantile_cylinder_in_slabs(const Points& pts, const std::vector<int>& slab, int slabs, bool fit_origin, double tau,
+                                 Eigen::Vector3d& origin, Eigen::Vector3d& ex, Eigen::VectorXd& radii) {
+  const int na = fit_origin ? 4 : 2;  // axis parameters (a, b[, cu, cv]); then one radius per slab
   const double eps_m = 1e-3;  // residuals below 1 mm weigh as 1 mm (IRLS for the L1-type loss)
-  Eigen::VectorXd J(np);
+  const Eigen::Index n = pts.rows();
+  std::vector<long> per_slab(static_cast<std::size_t>(slabs), 0);
+  for (const int k : slab) ++per_slab[static_cast<std::size_t>(k)];
+  const int np = na + slabs;
+  Eigen::VectorXd J(na);
   for (int it = 0; it < 100; ++it) {
     const TunnelAxis f = TunnelAxis::from_direction(origin, ex);
     Eigen::MatrixXd JtJ = Eigen::MatrixXd::Zero(np, np);
     Eigen::VectorXd Jtr = Eigen::VectorXd::Zero(np);
-    for (Eigen::Index i = 0; i < pts.rows(); ++i) {
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const int k = na + slab[static_cast<std::size_t>(i)];
       const Eigen::Vector3d q = pts.row(i).transpose() - origin;
       const double x = q.dot(f.ex), u = q.dot(f.ey), v = q.dot(f.ez), r = std::max(std::hypot(u, v), 1e-12);
-      const double res = r - radius;
+      const double res = r - radii[k - na];
       const double w = (res > 0 ? tau : 1.0 - tau) / std::max(std::abs(res), eps_m);
       const double gu = -u / r, gv = -v / r;
-      if (fit_origin) J << gu * x, gv * x, -1.0, gu, gv;
-      else J << gu * x, gv * x, -1.0;
-      JtJ.noalias() += w * J * J.transpose();
-      Jtr.noalias() += w * res * J;
+      if (fit_origin) J << gu * x, gv * x, gu, gv;
+      else J << gu * x, gv * x;
+      JtJ.topLeftCorner(na, na).noalias() += w * J * J.transpose();
+      JtJ.block(0, k, na, 1).noalias() -= w * J;  // d res / d radius_k = -1
+      JtJ(k, k) += w;
+      Jtr.head(na).noalias() += w * res * J;
+      Jtr[k] -= w * res;
     }
-    const Eigen::VectorXd step = JtJ.ldlt().solve(-Jtr);
+    for (int k = 0; k < slabs; ++k)
+      if (per_slab[static_cast<std::size_t>(k)] == 0) JtJ(na + k, na + k) = 1.0;  // an empty slab: its radius stays
+    const Eigen::MatrixXd JtJ_full = JtJ.selfadjointView<Eigen::Upper>();
+    const Eigen::VectorXd step = JtJ_full.ldlt().solve(-Jtr);
     if (!step.allFinite()) throw std::invalid_argument("axis fit: no cylinder fits the cloud");
     ex = (f.ex + step[0] * f.ey + step[1] * f.ez).normalized();
-    radius += step[2];
-    if (fit_origin) origin += step[3] * f.ey + step[4] * f.ez;
+    if (fit_origin) origin += step[2] * f.ey + step[3] * f.ez;
+    radii += step.tail(slabs);
     if (step.cwiseAbs().maxCoeff() < 1e-9) break;
   }
+}
+
+/// Quantile cylinder fit by iteratively reweighted Gauss-Newton: the cylinder with a fraction tau
+/// of the points inside it. Dig pits only ever add over-break, so the lower envelope follows the
+/// intact contour, which is concentric with the design line; a least-squares fit follows the pits
+/// instead (TD 40 mm low on the synthetic bay). A scan's wall may step out along the axis, from a
+/// lined bay (on the design line) to the over-broken new one: one radius for both let the envelope
+/// tilt 2 deg to reach into the new bay. So with `runs` given, the radius is one per run of the wall
+/// along the axis: when `runs` is empty, first one per kAxisFitSlab_m slab, then one per run of
+/// slabs whose radii lie within kAxisFitStep_m of the run's first (slabs with under 2 % of the
+/// points join the run they sit in), and `runs` gets the runs' starts along the axis (a single
+/// surface: one radius, as slabs alone hold the tilt loosely: 0.4 deg on a bay); when not empty,
+/// those runs. Small-angle parameters, re-framed every step: centre line origin + x ex + (cu + a
+/// x) ey + (cv + b x) ez; (cu, cv) only when fit_origin. radius: the points' mean of their radius.
+void quantile_cylinder(const Points& pts, bool fit_origin, double tau, std::vector<double>* runs, Eigen::Vector3d& origin,
+                       Eigen::Vector3d& ex, double& radius) {
+  const Eigen::Index n = pts.rows();
+  std::vector<double> x(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i) x[static_cast<std::size_t>(i)] = (pts.row(i).transpose() - origin).dot(ex);
+  // Group of each point: its run (from the run starts), its slab, or one for all.
+  auto groups_from = [&](const std::vector<double>& starts, std::vector<int>& group) {
+    for (std::size_t i = 0; i < group.size(); ++i)
+      group[i] = std::max(0, static_cast<int>(std::upper_bound(starts.begin(), starts.end(), x[i]) - starts.begin()) - 1);
+    return std::max<int>(1, static_cast<int>(starts.size()));
+  };
+  std::vector<int> group(static_cast<std::size_t>(n), 0);
+  int groups = 1;
+  if (runs && !runs->empty()) {
+    groups = groups_from(*runs, group);
+  } else if (runs) {
+    const double xmin = n > 0 ? *std::min_element(x.begin(), x.end()) : 0.0;
+    for (std::size_t i = 0; i < group.size(); ++i) {
+      group[i] = static_cast<int>(std::floor((x[i] - xmin) / kAxisFitSlab_m));
+      groups = std::max(groups, group[i] + 1);
+    }
+  }
+  Eigen::VectorXd radii = Eigen::VectorXd::Constant(groups, radius);
+  quantile_cylinder_in_slabs(pts, group, groups, fit_origin, tau, origin, ex, radii);
+  if (runs && runs->empty()) {  // slabs -> runs, and the fit again with them
+    std::vector<long> per_slab(static_cast<std::size_t>(groups), 0);
+    for (const int k : group) ++per_slab[static_cast<std::size_t>(k)];
+    const double xmin = n > 0 ? *std::min_element(x.begin(), x.end()) : 0.0;
+    double run_radius = NAN;
+    for (int k = 0; k < groups; ++k) {
+      if (per_slab[static_cast<std::size_t>(k)] < std::max<long>(50, n / 50)) continue;  // sparse: joins its run
+      if (std::isnan(run_radius) || std::abs(radii[k] - run_radius) > kAxisFitStep_m) {
+        runs->push_back(runs->empty() ? -std::numeric_limits<double>::infinity() : xmin + k * kAxisFitSlab_m);
+        run_radius = radii[k];
+      }
+    }
+    if (runs->empty()) runs->push_back(-std::numeric_limits<double>::infinity());
+    groups = groups_from(*runs, group);
+    radii = Eigen::VectorXd::Constant(groups, radius);
+    quantile_cylinder_in_slabs(pts, group, groups, fit_origin, tau, origin, ex, radii);
+  }
+  double sum = 0.0;
+  for (const int k : group) sum += radii[k];
+  radius = sum / static_cast<double>(std::max<Eigen::Index>(n, 1));
 }
 
 /// Means of the points in 7.5 cm x 7.5 cm patches of the wall around `axis` (patches with >= 3 points).
@@ -456,47 +525,120 @@ Points patch_means(const Points& pts, const TunnelAxis& axis, double radius_m) {
   return out;
 }
 
-/// Indices of the points that can be wall around the axis along `dir`: a scene (floor, face,
-/// lining's end) holds more than the wall, and a cylinder fitted to it all is wrong. Each point
-/// whose normal lies across the axis votes for the centre one design radius along its normal; the
-/// densest 10 cm bin of votes is the centre, and the wall is the points within max_deviation_m of
-/// the design radius around it whose normals point at it within kWallNormalTilt_rad.
-std::vector<Eigen::Index> wall_candidates(const Cloud& cloud, const Eigen::Vector3d& dir, const ProfileConfig& profile) {
-  constexpr double kBin_m = 0.1, kWallNormalTilt_rad = 1.0472;
-  const TunnelAxis f = TunnelAxis::from_direction(Eigen::Vector3d::Zero(), dir);
+/// A first axis for a cloud that holds more than the wall (a scene: face, floor, duct, rig), whose
+/// normals alone point nowhere near the axis (the face's and the floor's outnumber the wall's).
+/// RANSAC on pairs of points with normals: two normals of a cylinder are perpendicular to its axis
+/// (direction n1 x n2) and their lines meet on it in the section plane (centre; the radii are the
+/// distances to it). A candidate whose two radii lie within max_deviation_m of the design radius
+/// scores the points of a sample within kSeedBand_m of its radius whose normals face its axis. Rough
+/// (two noisy normals: a few degrees, a few decimetres); fit_axis refines it on the wall it finds.
+/// nullopt when no candidate has a design-like radius and support (a plane, a gentle sheet).
+std::optional<TunnelAxis> seed_axis(const Cloud& cloud, const ProfileConfig& profile) {
+  constexpr std::size_t kSample = 5000;
+  constexpr int kCandidates = 2000;
+  constexpr double kSeedBand_m = 0.3, kMinCross = 0.2, kFacingCos = 0.866;  // normals >= 11.5 deg apart; facing within 30 deg
+  const Eigen::Index n = cloud.size();
+  std::mt19937_64 rng(16);  // fixed: the same cloud gives the same axis
+  std::uniform_int_distribution<Eigen::Index> pick(0, n - 1);
+  std::vector<Eigen::Index> sample;
+  for (std::size_t k = 0; k < 4 * kSample && sample.size() < kSample; ++k) {
+    const Eigen::Index i = pick(rng);
+    if (cloud.normals.row(i).squaredNorm() > 0.25 && cloud.xyz.row(i).allFinite()) sample.push_back(i);
+  }
+  if (sample.size() < 2) return std::nullopt;
+  const auto m = static_cast<Eigen::Index>(sample.size());
+  Points P(m, 3), N(m, 3);
+  for (Eigen::Index k = 0; k < m; ++k) {
+    P.row(k) = cloud.xyz.row(sample[static_cast<std::size_t>(k)]);
+    N.row(k) = cloud.normals.row(sample[static_cast<std::size_t>(k)]).normalized();
+  }
+  const Eigen::RowVector3d c0 = P.colwise().mean();
+  P.rowwise() -= c0;
   const double R = profile.design_radius_m;
-  std::map<std::pair<std::int64_t, std::int64_t>, int> votes;
-  std::vector<Eigen::Vector2d> centre(static_cast<std::size_t>(cloud.size()), Eigen::Vector2d::Constant(NAN));
-  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3d p = cloud.xyz.row(i).transpose(), n = cloud.normals.row(i).transpose();
-    const Eigen::Vector2d n2(n.dot(f.ey), n.dot(f.ez));
-    if (n2.norm() < 0.5) continue;  // the face: normal along the axis
-    const Eigen::Vector2d c = Eigen::Vector2d(p.dot(f.ey), p.dot(f.ez)) + R * n2.normalized();
-    centre[static_cast<std::size_t>(i)] = c;
-    ++votes[{static_cast<std::int64_t>(std::floor(c.x() / kBin_m)), static_cast<std::int64_t>(std::floor(c.y() / kBin_m))}];
+  std::uniform_int_distribution<Eigen::Index> pick_sample(0, m - 1);
+  long best_score = 0;
+  Eigen::Vector3d best_dir = Eigen::Vector3d::UnitX(), best_centre = Eigen::Vector3d::Zero();
+  for (int k = 0; k < kCandidates; ++k) {
+    const Eigen::Index a = pick_sample(rng), b = pick_sample(rng);
+    const Eigen::Vector3d n1 = N.row(a).transpose(), n2 = N.row(b).transpose();
+    Eigen::Vector3d d = n1.cross(n2);
+    if (d.norm() < kMinCross) continue;
+    d.normalize();
+    if (std::abs(d.z()) > 0.9) continue;  // a tunnel axis is mostly horizontal
+    const Eigen::Vector3d u = d.unitOrthogonal(), v = d.cross(u);
+    const Eigen::Vector2d a1(P.row(a).dot(u), P.row(a).dot(v)), a2(P.row(b).dot(u), P.row(b).dot(v));
+    const Eigen::Vector2d m1 = Eigen::Vector2d(n1.dot(u), n1.dot(v)).normalized(), m2 = Eigen::Vector2d(n2.dot(u), n2.dot(v)).normalized();
+    const double det = -m1.x() * m2.y() + m2.x() * m1.y();  // [m1, -m2] t = a2 - a1
+    if (std::abs(det) < 1e-9) continue;
+    const Eigen::Vector2d rhs = a2 - a1;
+    const double t1 = (-rhs.x() * m2.y() + m2.x() * rhs.y()) / det;
+    const Eigen::Vector2d c = a1 + t1 * m1;
+    const double r1 = (a1 - c).norm(), r2 = (a2 - c).norm();
+    if (!(std::abs(r1 - R) <= profile.max_deviation_m && std::abs(r2 - R) <= profile.max_deviation_m)) continue;
+    const double rc = 0.5 * (r1 + r2);
+    long score = 0;
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const double qu = P.row(i).dot(u) - c.x(), qv = P.row(i).dot(v) - c.y(), r = std::hypot(qu, qv);
+      if (std::abs(r - rc) < kSeedBand_m && std::abs(N.row(i).dot(qu * u + qv * v)) > kFacingCos * r) ++score;
+    }
+    if (score > best_score) {
+      best_score = score;
+      best_dir = d;
+      best_centre = c0.transpose() + c.x() * u + c.y() * v;
+    }
+  }
+  if (best_score < std::max<long>(10, m / 20)) return std::nullopt;  // under 5 % of the sample: no wall
+  if (best_dir.dot(profile.axis_direction) < 0) best_dir = -best_dir;
+  return TunnelAxis::from_direction(best_centre, best_dir);
+}
+
+/// Indices of the points build_grid grids around `axis` (the whole scan): within max_deviation_m of
+/// the design radius, facing the axis, not in front of the wall (a duct's top: grid.obstacle_gap_m)
+/// and not a floor's stray normals. Empty when none is.
+/// Of `wall`, the points no more than grid.obstacle_gap_m inside the median distance from `axis`
+/// of their bin (kAxisFitSlab_m along the axis, 15 deg around it): what the grid's obstacle rule
+/// leaves of a duct's top where the scan is sparse (its fine bins hold a point or none; at 8 points
+/// per cell it left enough for a lower envelope to follow at the scan's end). Over-break is
+/// outward, so the wall lies at or beyond the median.
+std::vector<Eigen::Index> without_inward_clutter(const Cloud& cloud, const std::vector<Eigen::Index>& wall,
+                                                 const TunnelAxis& axis, const GridConfig& grid) {
+  constexpr double kSector_rad = 15.0 * M_PI / 180.0;
+  std::vector<std::pair<std::int64_t, double>> keyed(wall.size());  // (bin, r)
+  for (std::size_t k = 0; k < wall.size(); ++k) {
+    const Eigen::Vector3d c = axis.to_cylindrical(cloud.xyz.row(wall[k]).transpose());
+    keyed[k] = {static_cast<std::int64_t>(std::floor(c[2] / kAxisFitSlab_m)) * 1000 +
+                    static_cast<std::int64_t>(std::floor((c[1] + M_PI) / kSector_rad)),
+                c[0]};
+  }
+  std::unordered_map<std::int64_t, std::vector<double>> bins;
+  for (const auto& kr : keyed) bins[kr.first].push_back(kr.second);
+  std::unordered_map<std::int64_t, double> median;
+  for (auto& kv : bins) {
+    auto& v = kv.second;
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    median[kv.first] = v[v.size() / 2];
   }
   std::vector<Eigen::Index> out;
-  if (votes.empty()) return out;
-  const auto best = std::max_element(votes.begin(), votes.end(), [](const auto& a, const auto& b) { return a.second < b.second; });
-  const Eigen::Vector2d bin_c((best->first.first + 0.5) * kBin_m, (best->first.second + 0.5) * kBin_m);
-  Eigen::Vector2d sum = Eigen::Vector2d::Zero();
-  int count = 0;
-  for (const auto& c : centre)
-    if (c.allFinite() && (c - bin_c).norm() < 3 * kBin_m) sum += c, ++count;
-  const Eigen::Vector2d c0 = sum / std::max(count, 1);
-  const double cos_tilt = std::cos(kWallNormalTilt_rad);
-  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3d p = cloud.xyz.row(i).transpose(), n = cloud.normals.row(i).transpose();
-    const Eigen::Vector2d q = Eigen::Vector2d(p.dot(f.ey), p.dot(f.ez)) - c0;
-    const double r = q.norm();
-    if (r < 1e-9 || std::abs(r - R) > profile.max_deviation_m) continue;
-    const Eigen::Vector3d radial = (q.x() * f.ey + q.y() * f.ez) / r;
-    if (std::abs(n.dot(radial)) >= cos_tilt * std::max(n.norm(), 1e-12)) out.push_back(i);
-  }
+  for (std::size_t k = 0; k < wall.size(); ++k)
+    if (keyed[k].second >= median[keyed[k].first] - grid.obstacle_gap_m) out.push_back(wall[k]);
   return out;
 }
 
-AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile) {
+std::vector<Eigen::Index> wall_points(const Cloud& cloud, const TunnelAxis& axis, const ProfileConfig& profile,
+                                      const GridConfig& grid) {
+  std::vector<char> kept;
+  try {
+    build_grid(cloud, axis, DesignProfile::circle(profile.design_radius_m), grid, profile.max_deviation_m, std::nullopt, &kept);
+  } catch (const std::invalid_argument&) {
+    return {};  // nothing near the design line around this axis
+  }
+  std::vector<Eigen::Index> out;
+  for (Eigen::Index i = 0; i < cloud.size(); ++i)
+    if (kept[static_cast<std::size_t>(i)]) out.push_back(i);
+  return out;
+}
+
+AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile, bool slab_radii) {
   const Eigen::Index n = cloud.size();
   if (n < kMinAxisFitPoints)
     throw std::invalid_argument("axis fit: need at least " + std::to_string(kMinAxisFitPoints) + " points, got " +
@@ -530,11 +672,12 @@ AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile) {
     for (Eigen::Index i = 0; i < n; ++i) radius += f.to_cylindrical(cloud.xyz.row(i).transpose())[0];
     radius /= static_cast<double>(n);
   }
-  quantile_cylinder(cloud.xyz, fit_origin, kAxisFitQuantile, origin, ex, radius);
+  std::vector<double> runs;  // the wall's runs along the axis (kept for the patches)
+  quantile_cylinder(cloud.xyz, fit_origin, kAxisFitQuantile, slab_radii ? &runs : nullptr, origin, ex, radius);
   // Again on the means of 7.5 cm patches: the scanner noise averages out, so the envelope is the
   // contour's, not that of the noise's extremes (which biases the centre by a few mm).
   const Points patches = patch_means(cloud.xyz, TunnelAxis::from_direction(origin, ex), radius);
-  if (patches.rows() >= 50) quantile_cylinder(patches, fit_origin, kAxisFitPatchQuantile, origin, ex, radius);
+  if (patches.rows() >= 50) quantile_cylinder(patches, fit_origin, kAxisFitPatchQuantile, slab_radii ? &runs : nullptr, origin, ex, radius);
   if (!ex.allFinite() || !origin.allFinite() || !std::isfinite(radius))
     throw std::invalid_argument("axis fit: no cylinder fits the cloud");
   if (fit_origin) {  // on the axis where the scan starts (its 0.5 % quantile along the axis, not one
@@ -586,24 +729,37 @@ AxisFit fit_cylinder(const Cloud& cloud, const ProfileConfig& profile) {
 
 }  // namespace
 
-AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile) {
-  if (cloud.size() < kMinAxisFitPoints)
+AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile, const GridConfig& grid) {
+  const Eigen::Index n = cloud.size();
+  if (n < kMinAxisFitPoints)
     throw std::invalid_argument("axis fit: need at least " + std::to_string(kMinAxisFitPoints) + " points, got " +
-                                std::to_string(cloud.size()));
+                                std::to_string(n));
   if (!cloud.has_normals()) throw std::invalid_argument("axis fit: the cloud needs normals");
-  try {
-    return fit_cylinder(cloud, profile);
-  } catch (const std::invalid_argument& whole_cloud) {
-    // A scene (floor, face) around the wall: fit the points that can be wall, and when that does
-    // not fit either, the whole cloud's reason stands.
-    const std::vector<Eigen::Index> wall = wall_candidates(cloud, direction_from_normals(cloud.normals), profile);
-    if (static_cast<long>(wall.size()) < kMinAxisFitPoints || wall.size() == static_cast<std::size_t>(cloud.size())) throw;
+  // The wall first: from a RANSAC seed, the points the grid would take as wall (no face, floor,
+  // duct or rig), fitted, and the wall taken again around the fitted axis until it settles.
+  if (std::optional<TunnelAxis> axis = seed_axis(cloud, profile)) {
     try {
-      return fit_cylinder(select_points(cloud, wall), profile);
+      std::optional<AxisFit> fit;
+      for (int round = 0; round < kAxisFitRounds; ++round) {
+        std::vector<Eigen::Index> wall = wall_points(cloud, *axis, profile, grid);
+        if (round > 0 && grid.obstacle_gap_m > 0) wall = without_inward_clutter(cloud, wall, *axis, grid);  // the seed is too rough for bins
+        if (static_cast<long>(wall.size()) < kMinAxisFitPoints) break;
+        fit = fit_cylinder(select_points(cloud, wall), profile, true);
+        const Eigen::Vector3d q = fit->axis.origin_m - axis->origin_m;
+        const bool settled = fit->axis.ex.dot(axis->ex) > std::cos(1e-5) && (q - q.dot(axis->ex) * axis->ex).norm() < 1e-4;
+        axis = fit->axis;
+        if (settled) break;
+      }
+      if (fit) {
+        fit->inlier_share = static_cast<double>(fit->points) / static_cast<double>(n);
+        return *fit;
+      }
     } catch (const std::invalid_argument&) {
-      throw whole_cloud;
+      // Refused on the wall found: the whole cloud's fit, or its reason (a scatter's RMS, a plane).
     }
   }
+  // No wall found around a seed (a plane, a gentle sheet): the whole cloud, whose refusal names the reason.
+  return fit_cylinder(cloud, profile, false);
 }
 
 }  // namespace shotcrete

@@ -1,5 +1,6 @@
 #include "shotcrete/surface/surface.hpp"
 
+#include <algorithm>
 #include <chrono>
 
 #include "shotcrete/surface/preprocess.hpp"
@@ -48,7 +49,7 @@ Surface build_surface(const Cloud& raw, const Config& config) {
   cloud = estimate_normals(cloud, config.normals.k_neighbors, s.axis);
   timer.lap("normals");
   if (config.profile.estimate_axis) {
-    const AxisFit fit = fit_axis(cloud, config.profile);
+    const AxisFit fit = fit_axis(cloud, config.profile, config.grid);
     s.axis = fit.axis;
     s.axis_fit_rms_m = fit.rms_m;
     s.axis_fit = fit;
@@ -61,16 +62,36 @@ Surface build_surface(const Cloud& raw, const Config& config) {
   s.bay = select_bay(scan_grid, config.grid);
   const bool other_wall = config.grid.bay == BaySelection::detect ? s.bay.lined_columns > 0
                                                                    : s.bay.range.start_m != s.bay.scan_start_m || s.bay.range.end_m != s.bay.scan_end_m;
-  if (config.profile.estimate_axis && other_wall) {
-    // The axis again from the bay's own wall: a cylinder through the lining and the over-broken bay
-    // together tilts to fit both. (Not for a bay whose sparse end column was only trimmed: the
-    // whole wall fits better than a shorter one.) One cross-section less at each end, where a column may hold a
-    // strip of lining (a lower envelope follows the lowest points).
+  if (config.profile.estimate_axis && other_wall && config.grid.bay == BaySelection::detect) {
+    // A lined bay beside the new one: the fit held both (each at its own radius; the lining, on
+    // the design line, pins the axis best), but its origin lies where the scan's wall starts, so
+    // the columns fall across the seam and the bay's first one is part lining. The origin moves to
+    // where the bay's own wall starts (the 0.1 % axial quantile of its points off the design line
+    // by more than lined_td_m: the 0.5 % one lay 6 mm in, and that strip of the bay made the column
+    // before it not lined) and the bay is selected again on columns from there.
+    const Cloud bay_wall = bay_wall_points(s.cloud, s.axis, s.profile, config, s.bay.range);
+    std::vector<double> d;
+    for (Eigen::Index i = 0; i < bay_wall.size(); ++i) {
+      const Eigen::Vector3d c = s.axis.to_cylindrical(bay_wall.xyz.row(i).transpose());
+      if (s.profile.td_m(c[0], c[1]) > config.grid.lined_td_m) d.push_back(c[2]);
+    }
+    if (static_cast<long>(d.size()) >= kMinAxisFitPoints) {
+      const auto k = static_cast<std::ptrdiff_t>(0.001 * static_cast<double>(d.size()));
+      std::nth_element(d.begin(), d.begin() + k, d.end());
+      s.axis.origin_m += d[static_cast<std::size_t>(k)] * s.axis.ex;
+      s.axis_fit->axis = s.axis;
+      scan_grid = build_grid(s.cloud, s.axis, s.profile, config.grid, config.profile.max_deviation_m);
+      s.bay = select_bay(scan_grid, config.grid);
+    }
+  } else if (config.profile.estimate_axis && other_wall) {
+    // The chainage range given: the axis again from the bay's own wall. (Not for a bay whose sparse end
+    // column was only trimmed: the whole wall fits better than a shorter one.) One cross-section
+    // less at each end, where a column may hold a strip of other wall.
     const double cs = config.grid.cell_size_m;
     const BayRange inner{s.bay.range.start_m + cs, s.bay.range.end_m - cs};
     const Cloud bay_wall = inner.start_m < inner.end_m ? bay_wall_points(s.cloud, s.axis, s.profile, config, inner) : Cloud{};
     if (bay_wall.size() >= kMinAxisFitPoints) {
-      const AxisFit fit = fit_axis(bay_wall, config.profile);
+      const AxisFit fit = fit_axis(bay_wall, config.profile, config.grid);
       s.axis = fit.axis;
       s.axis_fit_rms_m = fit.rms_m;
       s.axis_fit = fit;

@@ -120,6 +120,7 @@ struct JobSummary {
   Eigen::Vector3d axis_origin_m{0, 0, 0}, axis_direction{1, 0, 0};
   std::optional<double> axis_fit_arc_deg;  // arc the wall covers around the fitted axis
   std::optional<long> axis_fit_points;     // points the fit used
+  std::optional<double> axis_fit_inlier_share;  // those / the fit's cloud (a scene's wall: under a third)
   BaySelectionResult bay;                  // report.json `bay`: the stretch of the scan gridded
   long points_not_wall = 0, points_outside_bay = 0;  // near the design line but left out of the grid
   long points_obstacle = 0;  // wall-like but in front of the wall (grid.obstacle_gap_m): left out of the grid

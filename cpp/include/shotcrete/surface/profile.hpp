@@ -131,7 +131,8 @@ struct AxisFit {
   double radius_m = 0.0;    // mean distance of the points to the fitted axis
   double rms_m = 0.0;       // RMS distance of the points to the coaxial cylinder of radius_m
   double arc_rad = 0.0;     // arc the points cover around the axis (2 pi minus the largest gap)
-  long points = 0;          // points used
+  long points = 0;          // points used (the wall)
+  double inlier_share = 1.0;  // points / the cloud's points (the rest: face, floor, duct, rig, stray)
   bool origin_fitted = true;  // false: the centre line goes through the given profile.axis_origin_m
 };
 
@@ -142,16 +143,29 @@ constexpr double kMaxAxisFitRmsFraction = 0.05;
 /// Quantile of the radial distances the cylinder is fitted to: the intact contour (least
 /// over-break) of the wall, not its mean, which dig pits pull outward.
 constexpr double kAxisFitQuantile = 0.005;
+/// Length of the slabs along the axis that first get their own radius in the fit of a wall (a lined
+/// bay and an over-broken one are concentric at other radii; one radius let the envelope tilt 2 deg).
+constexpr double kAxisFitSlab_m = 0.3;
+/// Neighbouring slabs whose radii differ by less than this then share one radius (one surface).
+constexpr double kAxisFitStep_m = 0.03;
 /// The same, refitted on the means of 7.5 cm patches (less noise, so a looser quantile).
 constexpr double kAxisFitPatchQuantile = 0.01;
 
-/// Fits the tunnel axis: the direction starts as the one most perpendicular to the normals (with
+/// Rounds of "take the wall around the axis, fit it" after the seed (the last ones move it < 0.1 mm).
+constexpr int kAxisFitRounds = 4;
+
+/// Fits the tunnel axis to the wall in a cloud with normals, which may hold a whole scene (face,
+/// floor, lined bay, duct, rig): a RANSAC seed on pairs of oriented points, then the points
+/// build_grid (with `grid`) takes as wall around it (less points obstacle_gap_m inside their bin's
+/// median), fitted with a radius per run of the wall along the axis, taken again around the fit
+/// until it settles; when that is refused the whole cloud is fitted with one radius, as without a
+/// seed. Each fit: the direction starts as the one most perpendicular to the normals (with
 /// the most tilted normals dropped) and is refined with the centre by a quantile (lower envelope)
 /// cylinder fit of the points; profile.axis_direction orients it, profile.axis_origin_m is kept
-/// when profile.estimate_axis_origin is false. Throws std::invalid_argument, one line, when the
-/// cloud is not a tunnel wall: too few points, no curvature (a plane), a radius more than
-/// profile.max_deviation_m from the design radius, an arc below profile.min_fit_arc_rad, or an RMS
-/// above kMaxAxisFitRmsFraction of the radius.
-AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile);
+/// when profile.estimate_axis_origin is false. Throws
+/// std::invalid_argument, one line, when the cloud is not a tunnel wall: too few points, no
+/// curvature (a plane), a radius more than profile.max_deviation_m from the design radius, an arc
+/// below profile.min_fit_arc_rad, or an RMS above kMaxAxisFitRmsFraction of the radius.
+AxisFit fit_axis(const Cloud& cloud, const ProfileConfig& profile, const GridConfig& grid = GridConfig{});
 
 }  // namespace shotcrete
