@@ -55,11 +55,12 @@ def test_first_round_against_numpy_integration(job):
     cfg, surface, _, arm = job
     tr, plan = arm.trajectory, arm.plan
     t = np.asarray(tr.t_s)
-    moving = np.asarray(tr.kind) == 4  # joint moves (SegmentKind.Transit): the pump is off there
+    # Stop-and-go joint moves inside a region (SegmentKind.Transit, region >= 0): the pump is off there.
+    moving = (np.asarray(tr.kind) == 4) & (np.asarray(tr.region_index) >= 0)
     sched = _core.flow_schedule(t, tr.spraying, cfg.flow, moving)
     assert list(sched.on_s) == list(arm.executed.flow.on_s) and list(sched.off_s) == list(arm.executed.flow.off_s)
-    # Dry through every joint move, ramps included: no sample of one gets any flow.
-    assert moving.any() and np.all(np.asarray(_core.flow_dwells(sched, t))[moving] == pytest.approx(0.0, abs=1e-12))
+    # Dry through every stop-and-go move, ramps included: no sample of one gets any flow.
+    assert np.all(np.asarray(_core.flow_dwells(sched, t))[moving] == pytest.approx(0.0, abs=1e-12))
     # The flow's dwells by our own integration: piecewise-linear flow through its kinks, trapezoid rule.
     r = cfg.flow.ramp_s
     kt, kf = [-1e9], [0.0]

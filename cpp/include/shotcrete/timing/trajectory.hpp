@@ -118,8 +118,11 @@ struct JointMove {
 /// The trajectory's joint moves in time order: every run of Transit samples.
 std::vector<JointMove> joint_moves(const TimedTrajectory& tr);
 
-/// Per sample, 1 on a joint move (kind Transit): where the pump's flow must be off (flow_schedule's
-/// `blocked`).
+/// Per sample, 1 on a stop-and-go joint move inside a region (kind Transit, region index >= 0),
+/// where the nozzle stands still at both ends: the pump's flow must be off there (flow_schedule's
+/// `blocked`). The transits between regions are left to the pump's minimum off spell as before: the
+/// planner deposits each region alone and cannot see the transit's timing (blocking them left the
+/// region ends up to 25 mm short of the plan: 1.8 mm RMS planned vs executed on the default bay).
 std::vector<char> joint_move_samples(const TimedTrajectory& tr);
 
 /// Rest-to-rest joint quintics through `postures` in turn (at least two), each leg as time_plan
