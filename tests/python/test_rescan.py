@@ -121,7 +121,12 @@ def test_calibrated_factor_against_the_truth_and_numpy(loop):
         if new.sum() == keep.sum():
             break
         keep = new
-    assert cal["flow_factor"] == pytest.approx(f, rel=2e-5)
+    # cells.csv rounds to 0.01 mm: a cell's residual moves by about that and the limit (3 x 1.4826 x
+    # the median) by up to 0.045 mm, so a cell within 0.06 mm of the limit may fall either way in the core.
+    near = use & (np.abs(np.abs(res) - lim) < 0.06)
+    fits = [np.sum(m[k] * p[k]) / np.sum(p[k] ** 2) for k in (keep, keep | near, keep & ~near)]
+    assert min(fits) * (1 - 2e-5) <= cal["flow_factor"] <= max(fits) * (1 + 2e-5), (cal["flow_factor"], fits)
+    assert near.sum() <= 3
     assert abs(cal["cells"] - keep.sum()) <= 2  # rounding may move a cell at the limit
     # --write-config: the copy holds the calibrated rate; the job's config is untouched.
     written = shotcrete.load_config(loop / "calibrated.yaml")
