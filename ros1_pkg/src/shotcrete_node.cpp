@@ -72,6 +72,13 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
+// A job's problems on one line ("message [code]; ..."); empty when the plan is right.
+std::string problems_text(const shotcrete::JobSummary& job) {
+  std::string text;
+  for (const auto& p : job.problems) text += (text.empty() ? "" : "; ") + p.message + " [" + p.code + "]";
+  return text;
+}
+
 std::string levels_text(const std::map<int, int>& counts) {
   std::ostringstream s;
   s << "{";
@@ -289,8 +296,7 @@ class ShotcreteNode {
                                              : "no trajectory: " + job.ik.error;
     ROS_INFO("plan in %.1f s: %d rounds, %d passes, spray %.0f s, %s (summary on %s)", seconds_since(t0),
              job.rounds, job.passes, job.spray_time_s, timed.c_str(), summary_pub_.getTopic().c_str());
-    std::string problems;
-    for (const auto& p : job.problems) problems += (problems.empty() ? "" : "; ") + p.message + " [" + p.code + "]";
+    const std::string problems = problems_text(job);
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       plan_ = plan;
@@ -576,8 +582,7 @@ class ShotcreteNode {
       trajectory = std::make_shared<const shotcrete::TimedTrajectory>(std::move(*out.correction->trajectory));
     if (out.correction->executed)
       executed = std::make_shared<const shotcrete::ExecutedDeposit>(std::move(*out.correction->executed));
-    std::string problems;
-    for (const auto& p : summary.problems) problems += (problems.empty() ? "" : "; ") + p.message + " [" + p.code + "]";
+    const std::string problems = problems_text(summary);
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       surface_ = surface;

@@ -78,8 +78,9 @@ Windows free_windows(const std::vector<double>& t, const std::vector<char>& bloc
   return w;
 }
 
-// Spells clipped into the free window holding their middle (the flags' spells never hold a
-// blocked sample, but their ramps may reach one); spells left empty are dropped.
+// Spells clipped into the free window they overlap most (the flags' spells never hold a blocked
+// sample, but their ramps may reach one); spells left empty are dropped. Afterwards every spell
+// lies inside one window, so the later steps find it by its middle (Windows::at).
 void clip_to_windows(FlowSchedule& s, const Windows& w) {
   std::vector<double> on, off;
   for (std::size_t k = 0; k < s.on_s.size(); ++k) {
