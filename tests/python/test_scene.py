@@ -227,3 +227,30 @@ def test_obstructed_cells_by_the_face_match_a_brute_force_and_the_plane_distance
                 plane.append(row * g.n_d + col)
     assert sorted(ob.cells) == ref == plane
     assert len(ref) > 0 and len(ref) < valid.sum()
+
+
+def test_plan_of_a_bay_against_its_face_leaves_the_obstructed_cells_out(tmp_path, run_cli):
+    """The CLI on the face scene: exit 3 with obstructed_cells (and those cells not counted among
+    the cells the plan left short); no pass puts the nozzle over them, so every pass waypoint keeps
+    the nozzle's margin from the face (d <= d_face - margin - the nozzle's radius)."""
+    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    xyz = tmp_path / "scene.ply"
+    shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
+    conf = tmp_path / "c.yaml"
+    conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
+                    "planner:\n  max_rounds: 1\n")
+    r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
+    assert r.exit_code == 3, r.output
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    codes = [p["code"] for p in rep["problems"]]
+    assert "obstructed_cells" in codes
+    ob = rep["obstructed"]
+    n_t, n_d = rep["grid_shape"]
+    cols = {c % n_d for c in ob["cell_ids"]}
+    d0 = rep["bay"]["start_m"]
+    # The plane's reference: the columns whose centre lies past d_face - margin - 0.05 m.
+    face_d, margin = cfg.synth.length_m, cfg.clearance.nozzle_margin_m
+    assert cols == {c for c in range(n_d) if face_d - (d0 + (c + 0.5) * 0.05) - 0.05 < margin}
+    plan = json.loads((tmp_path / "o" / "plan.json").read_text())
+    ds = [w[0] for rnd in plan["rounds"] for reg in rnd["regions"] for p in reg["passes"] for w in p["positions_m"]]
+    assert ds and max(ds) <= face_d - margin - 0.05 + 1e-4
