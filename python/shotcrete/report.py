@@ -314,6 +314,12 @@ def summary_html(report: dict, facts: PageFacts) -> str:
         (f"Cells within ±{tol:.0f} mm after spraying",
          f"{_v('cells_within', str(n_within))} of {_v('cells', str(cells))} cells ({_v('cells_within_pct', fmt_pct(n_within, cells))})"),
         (f"Cells missing more than {tol:.0f} mm", _v("cells_missing", str(n_missing)) + _where(facts.missing_regions)),
+    ]
+    if report.get("holes"):
+        rows += [("Holes (grid cells no scan point fell in)",
+                  f"{_v('holes', str(report['holes']))} cells, neither graded nor sprayed (a scanner's shadow, "
+                  "a gap in the scan): not counted above")]
+    rows += [
         (f"Cells over-filled by more than {tol:.0f} mm", _v("cells_over", str(n_over)) + _where(facts.over_regions)),
         (f"Cells within the planner's finish tolerance ±{facts.finish_tolerance_mm:.0f} mm",
          f"{_v('cells_finish', str(facts.cells_within_finish))} of {cells} "

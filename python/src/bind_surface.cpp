@@ -228,7 +228,14 @@ void bind_surface(py::module_& m) {
            py::arg("noise_m"), py::arg("seed"),
            "The unsprayed surroundings (synth.context_*): lined previous bay, invert, face; empty when disabled.")
       .def("sample_scan", &SyntheticBay::sample_scan, py::arg("cell_size_m") = 0.05,
-           "What a scanner sees before spraying: the wall plus the context when synth.context_enabled.");
+           "What a scanner sees before spraying: the wall plus the context when synth.context_enabled, less the "
+           "scanner's shadow when synth.context_scanner_shadow.")
+      .def("muck_height_at", &SyntheticBay::muck_height_at, py::arg("d_m"), py::arg("y_m"),
+           "Height [m] of the muck pile above the invert at (d along the axis, y across); 0 off it.")
+      .def("scanner_sees", &SyntheticBay::scanner_sees, py::arg("point_m"),
+           "Whether the scanner at synth.context_scanner_position_m sees the point (world frame).")
+      .def("drop_shadowed", &SyntheticBay::drop_shadowed, py::arg("cloud"),
+           "The points of `cloud` the scanner sees (the cloud itself without synth.context_scanner_shadow).");
   m.def("make_synthetic_bay", &make_synthetic_bay, py::arg("config"));
 
   py::class_<Surface>(m, "Surface", "Preprocessed cloud with normals, axis, grid and levels.")
@@ -240,6 +247,16 @@ void bind_surface(py::module_& m) {
       .def_readonly("grid", &Surface::grid)
       .def_readonly("bay", &Surface::bay, "BaySelection: the chainage range of the bay the grid covers")
       .def_readonly("levels", &Surface::levels)
+      .def_property_readonly(
+          "in_grid",
+          [](const Surface& s) {
+            py::array_t<bool> a(static_cast<py::ssize_t>(s.in_grid.size()));
+            auto m = a.mutable_unchecked<1>();
+            for (std::size_t i = 0; i < s.in_grid.size(); ++i) m(static_cast<py::ssize_t>(i)) = s.in_grid[i] != 0;
+            return a;
+          },
+          "per point of `cloud`: True when gridded (wall, near the design line, in the bay); the rest are "
+          "obstacles and references (the clearance's wall holds every point)")
       .def_readonly("timings_s", &Surface::timings_s);
   m.def("build_surface", &build_surface, py::arg("cloud"), py::arg("config"),
         py::call_guard<py::gil_scoped_release>(),

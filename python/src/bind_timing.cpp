@@ -466,7 +466,21 @@ void bind_timing(py::module_& m) {
                              "ClearanceReport of the trajectory (clearance.enabled), or None")
       .def_property_readonly("transits",
                              [](const ArmPlan& a) -> py::object { return a.transits ? py::cast(*a.transits) : py::none(); },
-                             "TransitReport of its joint moves (clearance.enabled), or None");
+                             "TransitReport of its joint moves (clearance.enabled), or None")
+      .def_property_readonly("obstructed",
+                             [](const ArmPlan& a) -> py::object { return a.obstructed ? py::cast(*a.obstructed) : py::none(); },
+                             "ObstructedCells: cells no clear pose sprays (clearance.enabled), or None");
+  py::class_<ObstructedCells>(m, "ObstructedCells", "Cells of the bay no clear nozzle pose can spray.")
+      .def_readonly("cells", &ObstructedCells::cells)
+      .def_readonly("margin_m", &ObstructedCells::margin_m)
+      .def_readonly("least_distance_m", &ObstructedCells::least_distance_m)
+      .def_readonly("nearest_obstacle_m", &ObstructedCells::nearest_obstacle_m)
+      .def_readonly("links", &ObstructedCells::links)
+      .def_readonly("obstacle_points", &ObstructedCells::obstacle_points);
+  m.def("obstructed_cells", &obstructed_cells, py::arg("surface"), py::arg("robot"), py::arg("config"),
+        py::call_guard<py::gil_scoped_release>(),
+        "Cells whose spraying pose (nozzle tip at planner.standoff_m square to the design line) brings a nozzle link "
+        "rigid with the tip within clearance.nozzle_margin_m of a point of the scan outside the grid.");
   m.def("spraying_samples", &spraying_samples, py::arg("trajectory"),
         "The trajectory's spraying samples only (times, joints, poses; no derivatives): check_clearance of it "
         "gives the clearance while spraying.");

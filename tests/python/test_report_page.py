@@ -186,6 +186,8 @@ def test_summary_figures_are_report_json_figures(which, request):
         check(f"round{n}_passes", lambda t, r=r: int(t) == r["passes"])
         check(f"round{n}_spray_time", lambda t, r=r: abs(_seconds(t) - r["spray_time_s"]) <= 0.5)
         check(f"round{n}_above", lambda t, a=after: int(t) == sum(v for k, v in a.items() if k >= 1))
+    if rep.get("holes"):  # the row shows only when the grid has holes
+        check("holes", lambda t: int(t) == rep["holes"])
     assert set(shown) == checked, f"figures the test does not check: {set(shown) - checked}"
     # The summary comes first and the raw table is kept, collapsed.
     html = (out / "report.html").read_text()

@@ -135,6 +135,17 @@ struct SynthConfig {
   double context_rig_width_m = 2.4;
   double context_rig_height_m = 1.2;
   double context_rig_front_d_m = -0.4;
+  // Muck on the invert at the face (0 height = none; needs the invert): a mound context_muck_height_m
+  // high at the face, falling linearly to the invert context_muck_length_m back along the axis, and
+  // across as 1 - (2y/width)^2 (a parabola context_muck_width_m wide at its foot).
+  double context_muck_height_m = 0.0;
+  double context_muck_length_m = 2.0;
+  double context_muck_width_m = 4.0;
+  // The scanner's shadow: drop every point (bay and context) the scanner at context_scanner_position_m
+  // (d along the axis, y across, z up from the axis; the bay's frame) cannot see past the duct, the
+  // rig and the muck, as a site scan has it.
+  bool context_scanner_shadow = false;
+  Eigen::Vector3d context_scanner_position_m{-1.5, 0.0, 0.0};
   // After-spraying scan (synth --after JOBDIR): the job's executed deposit per cell, scaled and roughened.
   double after_flow_scale = 1.0;         // real / modelled concrete flow (the factor rescan calibrates)
   double after_rebound_fraction = 0.08;  // real rebound share; scales the layer by (1 - it) / (1 - deposition.rebound_fraction)

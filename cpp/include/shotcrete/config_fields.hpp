@@ -84,6 +84,11 @@ template <class F> void visit(SynthConfig*, F&& f) {
   f("context_rig_width_m", &SynthConfig::context_rig_width_m, 0.1, 20.0, "rig carrier's width, centred across the axis [m]");
   f("context_rig_height_m", &SynthConfig::context_rig_height_m, 0.1, 10.0, "rig carrier's height above the invert [m]");
   f("context_rig_front_d_m", &SynthConfig::context_rig_front_d_m, -100.0, 100.0, "chainage of the rig carrier's front end [m]");
+  f("context_muck_height_m", &SynthConfig::context_muck_height_m, 0.0, 10.0, "muck pile on the invert at the face: its height there [m]; 0 = none");
+  f("context_muck_length_m", &SynthConfig::context_muck_length_m, 0.01, 50.0, "how far back from the face the muck pile reaches [m]");
+  f("context_muck_width_m", &SynthConfig::context_muck_width_m, 0.01, 50.0, "the muck pile's width across at its foot [m]");
+  f("context_scanner_shadow", &SynthConfig::context_scanner_shadow, 0, 0, "drop the points the scanner cannot see (behind the duct, the rig, the muck)");
+  f("context_scanner_position_m", &SynthConfig::context_scanner_position_m, 0, 0, "the scanner (d along the axis, y across, z up) [m]");
   f("after_flow_scale", &SynthConfig::after_flow_scale, 0.1, 3.0, "after-scan: real / modelled flow");
   f("after_rebound_fraction", &SynthConfig::after_rebound_fraction, 0.0, 0.9, "after-scan: real rebound share");
   f("after_thickness_noise", &SynthConfig::after_thickness_noise, 0.0, 1.0, "after-scan: correlated layer noise, share of the layer (std dev)");

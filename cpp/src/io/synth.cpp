@@ -126,6 +126,78 @@ struct RandomField {
 
 }  // namespace
 
+double SyntheticBay::muck_height_at(double d_m, double y_m) const {
+  const auto& c = config;
+  if (!(c.context_enabled && c.context_muck_height_m > 0 && c.context_invert_depth_m > 0)) return 0.0;
+  const double u = (c.length_m - d_m) / c.context_muck_length_m, v = 2.0 * y_m / c.context_muck_width_m;
+  if (u < 0.0 || u > 1.0 || std::abs(v) > 1.0) return 0.0;
+  return c.context_muck_height_m * (1.0 - u) * (1.0 - v * v);
+}
+
+bool SyntheticBay::scanner_sees(const Eigen::Vector3d& p) const {
+  const auto& c = config;
+  if (!(c.context_enabled && c.context_scanner_shadow)) return true;
+  // Both ends in the bay's frame: (d, y, z).
+  const Eigen::Vector3d rel = p - axis.origin_m;
+  const Eigen::Vector3d q(rel.dot(axis.ex), rel.dot(axis.ey), rel.dot(axis.ez));
+  const Eigen::Vector3d& s = c.context_scanner_position_m;
+  const Eigen::Vector3d dir = q - s;
+  const double len = dir.norm();
+  if (!(len > 0)) return true;
+  // A surface point is its own first hit: anything the ray meets more than kTol short of it hides
+  // it (kTol: 6 sigma of the default 5 mm noise along the normal; a noisy point may lie inside).
+  constexpr double kTol = 0.03;
+  const double t_max = 1.0 - kTol / len;
+  if (t_max <= 0) return true;
+  const double d_lo = -c.context_previous_bay_m, d_hi = c.length_m;
+  if (c.context_duct_diameter_m > 0) {  // the duct: a cylinder along d over both bays
+    const double a = c.context_duct_diameter_m / 2, R = c.design_radius_m, yc = c.context_duct_y_m;
+    const double zc = std::sqrt(R * R - yc * yc) - c.context_duct_gap_m - a;
+    const double oy = s.y() - yc, oz = s.z() - zc, dy = dir.y(), dz = dir.z();
+    const double A = dy * dy + dz * dz, B = 2 * (oy * dy + oz * dz), C = oy * oy + oz * oz - a * a;
+    const double disc = B * B - 4 * A * C;
+    if (A > 0 && disc > 0) {
+      // The duct is a tube (its round, no ends): the ray is stopped where it crosses the round
+      // within the duct's chainage, going in or coming out.
+      for (const double t : {(-B - std::sqrt(disc)) / (2 * A), (-B + std::sqrt(disc)) / (2 * A)}) {
+        if (!(t > 0 && t < t_max)) continue;
+        const double d_hit = s.x() + t * dir.x();
+        if (d_hit >= d_lo && d_hit <= d_hi) return false;
+      }
+    }
+  }
+  if (c.context_rig_length_m > 0 && c.context_invert_depth_m > 0) {  // the carrier: slab test on its box
+    const Eigen::Vector3d lo(c.context_rig_front_d_m - c.context_rig_length_m, -c.context_rig_width_m / 2,
+                             -c.context_invert_depth_m);
+    const Eigen::Vector3d hi(c.context_rig_front_d_m, c.context_rig_width_m / 2,
+                             -c.context_invert_depth_m + c.context_rig_height_m);
+    double t_in = 0.0, t_out = t_max;
+    bool hit = true;
+    for (int k = 0; k < 3 && hit; ++k) {
+      if (std::abs(dir[k]) < 1e-15) {
+        if (s[k] < lo[k] || s[k] > hi[k]) hit = false;
+        continue;
+      }
+      double ta = (lo[k] - s[k]) / dir[k], tb = (hi[k] - s[k]) / dir[k];
+      if (ta > tb) std::swap(ta, tb);
+      t_in = std::max(t_in, ta);
+      t_out = std::min(t_out, tb);
+      if (t_in > t_out) hit = false;
+    }
+    if (hit) return false;
+  }
+  if (c.context_muck_height_m > 0 && c.context_invert_depth_m > 0) {  // the muck: march the ray at 2 cm
+    const double h = c.context_invert_depth_m;
+    const int n = std::max(2, static_cast<int>(std::ceil(len * t_max / 0.02)));
+    for (int i = 1; i < n; ++i) {
+      const double t = t_max * i / n;
+      const Eigen::Vector3d x = s + t * dir;
+      if (x.z() < -h + muck_height_at(x.x(), x.y())) return false;
+    }
+  }
+  return true;
+}
+
 Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, double noise_m,
                                    std::uint64_t seed) const {
   const auto& c = config;
@@ -151,7 +223,9 @@ Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, d
     const double d0 = -c.context_previous_bay_m, len = c.context_previous_bay_m + c.length_m;
     sample_surface(pts, std::lround(2 * R * len * density), noise_m, rng,
                    [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
-                     p = axis.origin_m + axis.ex * (d0 + u2 * len) + axis.ey * (-R + 2 * R * u1) - axis.ez * h;
+                     const double d = d0 + u2 * len, y = -R + 2 * R * u1;
+                     if (muck_height_at(d, y) > 0) return false;  // under the muck
+                     p = axis.origin_m + axis.ex * d + axis.ey * y - axis.ez * h;
                      n = axis.ez;
                      return true;
                    });
@@ -163,6 +237,7 @@ Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, d
                    [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
                      const double y = -R + 2 * R * u1, z = zmin + (R - zmin) * u2;
                      if (y * y + z * z > R * R) return false;  // rejection: only the disc's part
+                     if (h > 0 && z < -h + muck_height_at(c.length_m, y)) return false;  // behind the muck
                      p = axis.origin_m + axis.ex * c.length_m + axis.ey * y + axis.ez * z;
                      n = -axis.ex;
                      return true;
@@ -178,6 +253,25 @@ Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, d
                      const double phi = 2 * kPi * u1;
                      n = axis.ey * std::cos(phi) + axis.ez * std::sin(phi);
                      p = axis.origin_m + axis.ex * (d0 + u2 * len) + axis.ey * y + axis.ez * zc + a * n;
+                     return true;
+                   });
+  }
+  if (c.context_muck_height_m > 0) {  // the muck: z = -h + muck_height_at(d, y) over its footprint
+    if (!(h > 0)) throw std::invalid_argument("synth: the muck (context_muck_height_m) lies on the invert; set context_invert_depth_m > 0");
+    const double H = c.context_muck_height_m, L = c.context_muck_length_m, W = c.context_muck_width_m;
+    // Uniform on the surface: footprint samples kept with probability (area element) / (its maximum).
+    const double gmax = std::hypot(H / L, 2.0 * H / (W / 2)), smax = std::sqrt(1 + gmax * gmax);
+    std::uniform_real_distribution<double> keep(0.0, smax);
+    sample_surface(pts, std::lround(L * W * smax * density), noise_m, rng,
+                   [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
+                     const double d = c.length_m - L * u2, y = -W / 2 + W * u1;
+                     const double u = (c.length_m - d) / L, v = 2 * y / W;
+                     const double gd = H / L * (1 - v * v);             // dz/dd
+                     const double gy = -H * (1 - u) * 2 * v * 2 / W;    // dz/dy
+                     const double area = std::sqrt(1 + gd * gd + gy * gy);
+                     if (keep(rng) > area) return false;
+                     n = (-gd * axis.ex - gy * axis.ey + axis.ez).normalized();
+                     p = axis.origin_m + axis.ex * d + axis.ey * y + axis.ez * (-h + muck_height_at(d, y));
                      return true;
                    });
   }
@@ -210,7 +304,34 @@ Cloud SyntheticBay::sample_scan(double cell_size_m) const {
   Cloud out;
   out.xyz.resize(bay.size() + ctx.size(), 3);
   out.xyz << bay.xyz, ctx.xyz;
-  return out;
+  return drop_shadowed(out);
+}
+
+Cloud SyntheticBay::drop_shadowed(const Cloud& cloud) const {
+  if (!(config.context_enabled && config.context_scanner_shadow)) return cloud;
+  const auto& c = config;
+  const Eigen::Vector3d& sp = c.context_scanner_position_m;
+  const double R = c.design_radius_m, h = c.context_invert_depth_m;
+  if (!(std::hypot(sp.y(), sp.z()) < R) || (h > 0 && !(sp.z() > -h + muck_height_at(sp.x(), sp.y()))))
+    throw std::invalid_argument("synth: context_scanner_position_m lies outside the tunnel (beyond the design circle, "
+                                "under the invert or in the muck)");
+  if (c.context_duct_diameter_m > 0) {
+    const double a = c.context_duct_diameter_m / 2, zc = std::sqrt(R * R - c.context_duct_y_m * c.context_duct_y_m) -
+                                                         c.context_duct_gap_m - a;
+    if (std::hypot(sp.y() - c.context_duct_y_m, sp.z() - zc) <= a)
+      throw std::invalid_argument("synth: context_scanner_position_m lies inside the duct");
+  }
+  if (c.context_rig_length_m > 0 && h > 0 && sp.x() >= c.context_rig_front_d_m - c.context_rig_length_m &&
+      sp.x() <= c.context_rig_front_d_m && std::abs(sp.y()) <= c.context_rig_width_m / 2 &&
+      sp.z() <= -h + c.context_rig_height_m)
+    throw std::invalid_argument("synth: context_scanner_position_m lies inside the rig's carrier");
+  std::vector<Eigen::Vector3d> kept;
+  kept.reserve(static_cast<size_t>(cloud.size()));
+  for (Eigen::Index i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d p = cloud.xyz.row(i).transpose().cast<double>();
+    if (scanner_sees(p)) kept.push_back(p);
+  }
+  return to_cloud(kept);
 }
 
 Eigen::Matrix4d after_pose(const SynthConfig& c) {
@@ -289,6 +410,9 @@ AfterScan make_after_scan(const SyntheticBay& bay, const Grid& lattice, const Ei
   }
   const Cloud ctx = bay.sample_context(cs, c.after_points_per_cell, c.after_noise_m, c.after_seed);
   for (Eigen::Index i = 0; i < ctx.size(); ++i) pts.push_back(ctx.xyz.row(i).transpose());
+  if (c.context_enabled && c.context_scanner_shadow)
+    pts.erase(std::remove_if(pts.begin(), pts.end(), [&](const Eigen::Vector3d& p) { return !bay.scanner_sees(p); }),
+              pts.end());
   // Seen from the after-scan's pose: p_after = R^T (p_before - t).
   out.pose = after_pose(c);
   const Eigen::Matrix3d Rt = out.pose.topLeftCorner<3, 3>().transpose();

@@ -228,8 +228,78 @@ TransitReport arm_transits(const Surface& surface, TimedTrajectory& trajectory, 
   return clear_transits(robot, trajectory, octree, config, timing);
 }
 
+ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config) {
+  ObstructedCells out;
+  out.margin_m = config.clearance.nozzle_margin_m;
+  out.least_distance_m = std::numeric_limits<double>::infinity();
+  const Grid& grid = surface.grid;
+  // Obstacles: every point the grid left out (not wall, in front of the wall, outside the bay).
+  std::vector<Eigen::Index> rows;
+  for (Eigen::Index i = 0; i < surface.cloud.size(); ++i)
+    if (static_cast<std::size_t>(i) >= surface.in_grid.size() || !surface.in_grid[static_cast<std::size_t>(i)])
+      rows.push_back(i);
+  out.obstacle_points = static_cast<int>(rows.size());
+  if (rows.empty() || grid.size() == 0) return out;
+  Points obstacles(static_cast<Eigen::Index>(rows.size()), 3);
+  for (std::size_t k = 0; k < rows.size(); ++k) obstacles.row(static_cast<Eigen::Index>(k)) = surface.cloud.xyz.row(rows[k]);
+  // The nozzle links rigid with the tip (their pose relative to it the same in two postures):
+  // their place at a spraying pose follows from the tip's alone. Links named nozzle*, as the
+  // clearance check's nozzle margin.
+  // (The stow and the neutral postures may share the wrist's angles: the second posture turns
+  // every joint 0.1 off the neutral one.)
+  const Eigen::VectorXd q0 = robot.neutral(), q1 = (q0.array() + 0.1).matrix();
+  const auto f0 = robot.link_frames(q0), f1 = robot.link_frames(q1);
+  const Eigen::Isometry3d t0 = robot.fk(q0), t1 = robot.fk(q1);
+  std::vector<std::pair<CollisionShape, Eigen::Isometry3d>> rigid;  // shape, its link's pose in the tip frame
+  for (const auto& sh : robot.collision_shapes()) {
+    if (sh.link.rfind("nozzle", 0) != 0) continue;
+    const Eigen::Isometry3d r0 = t0.inverse() * f0[static_cast<std::size_t>(sh.frame)];
+    const Eigen::Isometry3d r1 = t1.inverse() * f1[static_cast<std::size_t>(sh.frame)];
+    if (!r0.matrix().isApprox(r1.matrix(), 1e-9)) continue;
+    rigid.emplace_back(sh, r0);
+    out.links.push_back(sh.link);
+  }
+  if (rigid.empty()) return out;
+  const WallOctree wall(obstacles, config.clearance.octree_resolution_m);
+  const auto& axis = surface.axis;
+  const auto& prof = surface.profile;
+  for (int c = 0; c < grid.size(); ++c) {
+    if (!grid.valid[static_cast<std::size_t>(c)] || !std::isfinite(grid.td_m[c])) continue;
+    const double th = grid.theta_center(grid.row_of(c)), d = grid.d_center(grid.col_of(c));
+    Eigen::Vector3d n = axis.radial(th);
+    if (!prof.is_circle()) {
+      const Eigen::Vector3d dn = design_normal(axis, prof, th);
+      if (dn.allFinite()) n = dn;
+    }
+    const Eigen::Vector3d wall_point = axis.to_cartesian(prof.radius_at(th) + prof.radial_offset_m(grid.td_m[c], th), th, d);
+    // The tip at the standoff, its z axis (the spray) toward the wall; x, y any: the roll about the
+    // spray is free, and the bundled nozzle link is round about it.
+    Eigen::Isometry3d tip = Eigen::Isometry3d::Identity();
+    const Eigen::Vector3d z = n;
+    const Eigen::Vector3d x = (std::abs(z.dot(axis.ex)) < 0.9 ? axis.ex : axis.ey).cross(z).normalized();
+    tip.linear().col(0) = x;
+    tip.linear().col(1) = z.cross(x);
+    tip.linear().col(2) = z;
+    tip.translation() = wall_point - config.planner.standoff_m * n;
+    double least = std::numeric_limits<double>::infinity();
+    Eigen::Vector3d nearest = Eigen::Vector3d::Zero();
+    for (const auto& [sh, rel] : rigid) {
+      Eigen::Vector3d p;
+      const double dist = wall.exact_distance(sh, tip * rel, &p, out.margin_m + 1.0);
+      if (dist < least) least = dist, nearest = p;
+    }
+    if (least < out.margin_m) {
+      out.cells.push_back(c);
+      if (least < out.least_distance_m) out.least_distance_m = least, out.nearest_obstacle_m = nearest;
+    }
+  }
+  if (out.cells.empty()) out.least_distance_m = 0.0;
+  return out;
+}
+
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
   ArmPlan out;
+  if (config.clearance.enabled) out.obstructed = obstructed_cells(surface, robot, config);
   // The arm's caps depend on a pass's geometry only: the lines of a round repeat across re-plans,
   // so they are computed once per distinct pass, keyed by every waypoint's position and axis.
   auto cache = std::make_shared<std::map<std::vector<double>, std::vector<double>>>();
@@ -257,7 +327,8 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   std::vector<std::vector<Pass>> regions;
   for (int attempt = 0;; ++attempt) {
     const std::string prefix = attempt == 0 ? "" : "re-plan " + std::to_string(attempt) + ": ";
-    out.plan = plan_bay(surface, config, progress ? ProgressFn([&](const std::string& s, double f) { progress(prefix + s, f); }) : ProgressFn{}, cap);
+    out.plan = plan_bay(surface, config, progress ? ProgressFn([&](const std::string& s, double f) { progress(prefix + s, f); }) : ProgressFn{}, cap,
+                        out.obstructed ? out.obstructed->cells : std::vector<int>{});
     out.replans = attempt;
     if (progress) progress(prefix + "trajectory", 0.0);
     regions.clear();

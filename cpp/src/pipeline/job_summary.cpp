@@ -417,6 +417,13 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
   }
   if (arm_plan.clearance) s.clearance = arm_plan.clearance;
   if (arm_plan.transits) s.transits = arm_plan.transits;
+  if (arm_plan.obstructed) {
+    s.obstructed = arm_plan.obstructed;
+    // Those left above level 0 are counted as obstructed, not among the cells the plan left short.
+    const Eigen::VectorXd& td = arm_plan.executed ? arm_plan.executed->td_after_m : plan.td_after_m;
+    for (int c : s.obstructed->cells)
+      if (std::isfinite(td[c]) && level_of_td_mm(td[c] * 1000.0) > 0) ++s.obstructed_above_level_0;
+  }
   s.self_margin_m = config.clearance.self_margin_m;
   s.problems = plan_problems(s);
   s.status = s.problems.empty() ? "ok" : "not_executable";
@@ -445,9 +452,19 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
   int above = 0;
   for (const auto& [level, n] : s.levels_after)
     if (level > 0) above += n;
+  if (s.obstructed && !s.obstructed->cells.empty()) {
+    const auto& o = *s.obstructed;
+    out.push_back({"obstructed_cells",
+                   std::to_string(o.cells.size()) + " cells cannot be sprayed from a clear pose: with the nozzle at its standoff " +
+                       "over them, " + (o.links.empty() ? std::string("the nozzle") : o.links.front()) + " comes within " +
+                       fmt(o.least_distance_m, 2) + " m of a point of the scan outside the grid (margin " + fmt(o.margin_m, 2) +
+                       " m; nearest at " + fmt(o.nearest_obstacle_m.x(), 2) + ", " + fmt(o.nearest_obstacle_m.y(), 2) + ", " +
+                       fmt(o.nearest_obstacle_m.z(), 2) + " m): the deposit the plan models there is not achievable"});
+  }
   if (s.unreachable_cells > 0)
     out.push_back({"unreachable_cells", std::to_string(s.unreachable_cells) +
                                             " cells above level 0 that no pass can fill (beyond the arm's reach or the bay's passes)"});
+  above -= s.obstructed_above_level_0;
   if (above > s.unreachable_cells)
     out.push_back({"cells_above_level_0", std::to_string(above - std::max(0, s.unreachable_cells)) +
                                               " more cells are left above level 0 by the " + s.deposit_source +
@@ -496,6 +513,8 @@ std::string JobSummary::to_json() const {
   w.end_array().field("cells", cells);
   w.field("grid_cell_size_m", grid_cell_size_m).field("spot_diameter_m", spot_diameter_m);
   w.key("grid_shape").begin_array().value(grid_n_theta).value(grid_n_d).end_array();
+  // Grid cells no scan point fell in (a scanner's shadow, a gap): neither graded nor sprayed.
+  w.field("holes", grid_n_theta * grid_n_d - cells);
   w.field("points_in", points_in).field("points_used", points_used);
   w.field("design_radius_m", design_radius_m).field("axis_fit_rms_m", axis_fit_rms_m);
   w.key("design_profile").begin_object().field("shape", design_shape).field("section_path", design_section_path);
@@ -565,6 +584,19 @@ std::string JobSummary::to_json() const {
   if (clearance) {
     w.key("clearance");
     write(w, *clearance, self_margin_m, transits);
+  }
+  if (obstructed) {
+    const auto& o = *obstructed;
+    w.key("obstructed").begin_object().field("cells", static_cast<int>(o.cells.size())).field("margin_m", o.margin_m);
+    w.field("least_distance_m", o.least_distance_m).field("obstacle_points", o.obstacle_points);
+    w.field("above_level_0", obstructed_above_level_0);
+    w.key("nearest_obstacle_m").begin_array().value(o.nearest_obstacle_m.x()).value(o.nearest_obstacle_m.y())
+        .value(o.nearest_obstacle_m.z()).end_array();
+    w.key("links").begin_array();
+    for (const auto& l : o.links) w.value(l);
+    w.end_array().key("cell_ids").begin_array();
+    for (int c : o.cells) w.value(c);
+    w.end_array().end_object();
   }
   w.end_object();
   return w.str();

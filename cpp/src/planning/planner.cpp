@@ -75,10 +75,11 @@ StopReason stop_after_loop(const SprayedWall& wall, const RoundStages& stages) {
 }
 
 // The plan's summary of the sprayed wall and the physical limit of the spraying time.
-void finish_plan(Plan& plan, const SprayedWall& wall, const Surface& surface, const SpotModel& model, double rebound) {
+void finish_plan(Plan& plan, const SprayedWall& wall, const Surface& surface, const SpotModel& model, double rebound,
+                 const RoundStages& stages) {
   const Grid& grid = wall.surface.grid;
   for (int c = 0; c < grid.size(); ++c)
-    if (grid.valid[c] && wall.surface.levels[c] > 0) plan.unreachable_cells.push_back(c);
+    if (grid.valid[c] && wall.surface.levels[c] > 0 && !stages.excluded(c)) plan.unreachable_cells.push_back(c);
   plan.td_after_m = grid.td_m;
   plan.sprayed_cloud = wall.surface.cloud;
   plan.required_volume_m3 = missing_volume_m3(surface.grid);
@@ -88,7 +89,8 @@ void finish_plan(Plan& plan, const SprayedWall& wall, const Surface& surface, co
 
 }  // namespace
 
-Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress, const SpeedCapFn& speed_cap) {
+Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress, const SpeedCapFn& speed_cap,
+              const std::vector<int>& excluded_cells) {
   validate(config);
   const auto t_start = Clock::now();
   const PlannerConfig& pc = config.planner;
@@ -106,11 +108,18 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   RoundContext ctx{config, model, spacing, caps, plan, progress};
   const std::unique_ptr<RoundStages> stages =
       pc.mode == PlannerMode::graded ? graded_rounds() : levelling_rounds(pc.finish_tolerance_m);
+  if (!excluded_cells.empty()) {
+    std::vector<char> mask(static_cast<std::size_t>(surface.grid.size()), 0);
+    for (int c : excluded_cells)
+      if (c >= 0 && c < surface.grid.size()) mask[static_cast<std::size_t>(c)] = 1;
+    stages->exclude(std::move(mask));
+  }
   std::optional<Eigen::Vector3d> nozzle_at;
   std::optional<StopReason> stop;
   for (int number = 1; number <= pc.max_rounds && !stop; ++number) {
     // Grade.
-    const RoundInput in{number, {top_level(stages->active_levels(wall)), max_td_m(wall.surface.grid)}, wall};
+    const RoundInput in{number, {top_level(stages->active_levels(wall)), max_td_m(stages->worked_grid(wall.surface.grid))},
+                        wall};
     if (stages->finished(in.grade)) break;  // the reason is settled after the loop
     // A round is never cut short (its deposit would be half a pattern); the budget only keeps the
     // next one from starting, and the plan says so.
@@ -126,7 +135,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     round.level = in.grade.top_level;
     round.levels_before = level_counts(wall.surface.levels);
     // Plan the round.
-    round.regions = stages->plan_regions(in, CellSurface(wall.surface.grid), ctx);
+    round.regions = stages->plan_regions(in, CellSurface(stages->worked_grid(wall.surface.grid)), ctx);
     if (round.regions.empty()) {
       stop = stages->nothing_to_spray(in.grade);
       break;
@@ -145,7 +154,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   if (plan.stop_reason.kind == StopKind::time_budget)
     plan.warnings.push_back("planning stopped before it finished: planner.time_budget_s (" +
                             std::to_string(std::lround(pc.time_budget_s)) + " s) spent, " + plan.stop_reason.detail);
-  finish_plan(plan, wall, surface, model, rebound);
+  finish_plan(plan, wall, surface, model, rebound, *stages);
   if (caps.active()) plan.timings_s["speed_caps"] = caps.seconds();
   plan.timings_s["total"] = seconds_since(t_start);
   return plan;

@@ -23,6 +23,13 @@ double max_td_m(const Grid& grid) {
   return max_td;
 }
 
+Grid RoundStages::worked_grid(const Grid& grid) const {
+  Grid g = grid;
+  for (int c = 0; c < g.size(); ++c)
+    if (excluded(c)) g.valid[static_cast<std::size_t>(c)] = 0;
+  return g;
+}
+
 void RoundContext::report(int round_number, double fraction) const {
   if (progress) progress("round " + std::to_string(round_number), fraction);
 }
@@ -198,6 +205,7 @@ class GradedRounds : public RoundStages {
     std::vector<int> lv = wall.surface.levels;
     for (std::size_t c = 0; c < set_aside_.size(); ++c)
       if (set_aside_[c]) lv[c] = kNoDataLevel;
+    mask(lv);
     return lv;
   }
 
@@ -383,7 +391,11 @@ class LevellingRounds : public RoundStages {
  public:
   RoundKind kind() const override { return RoundKind::levelling; }
 
-  std::vector<int> active_levels(const SprayedWall& wall) const override { return wall.surface.levels; }
+  std::vector<int> active_levels(const SprayedWall& wall) const override {
+    std::vector<int> lv = wall.surface.levels;
+    mask(lv);
+    return lv;
+  }
 
   bool finished(const Grade& grade) const override {
     return grade.top_level <= 0 && grade.max_td_m <= tolerance_m_;
@@ -427,9 +439,9 @@ class LevellingRounds : public RoundStages {
 
   // With the time weight, the last cells off flush are not worth another round.
   std::optional<StopReason> stop_test(const RoundInput& in, const Round&, RoundContext&) override {
-    const bool stalled = in.grade.max_td_m - max_td_m(in.wall.surface.grid) <= 0.001;
+    const bool stalled = in.grade.max_td_m - max_td_m(worked_grid(in.wall.surface.grid)) <= 0.001;
     if (!stalled) return std::nullopt;
-    if (top_level(in.wall.surface.levels) <= 0)
+    if (top_level(active_levels(in.wall)) <= 0)
       return StopReason{StopKind::levelled, "another round would lower the largest TD by less than 1 mm"};
     return StopReason{StopKind::no_progress, "a levelling round lowered the largest TD by less than 1 mm"};
   }

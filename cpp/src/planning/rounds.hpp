@@ -52,6 +52,12 @@ struct RoundInput {
 class RoundStages {
  public:
   virtual ~RoundStages() = default;
+  /// Cells no round plans (per grid cell, 1 = left out: cells no clear pose can spray): they hold
+  /// no level the rounds work on and no TD they grade.
+  void exclude(std::vector<char> cells) { excluded_ = std::move(cells); }
+  bool excluded(int cell) const { return static_cast<std::size_t>(cell) < excluded_.size() && excluded_[cell]; }
+  /// The grid with the excluded cells invalid (the cells the rounds see).
+  Grid worked_grid(const Grid& grid) const;
   virtual RoundKind kind() const = 0;
   /// The levels the rounds still work on (the graded rounds leave out the cells set aside).
   virtual std::vector<int> active_levels(const SprayedWall& wall) const = 0;
@@ -64,6 +70,15 @@ class RoundStages {
   virtual StopReason nothing_to_spray(const Grade& grade) const = 0;
   /// After the round's deposit (in.wall is sprayed): a reason to stop, or none to go on.
   virtual std::optional<StopReason> stop_test(const RoundInput& in, const Round& round, RoundContext& ctx) = 0;
+
+ protected:
+  void mask(std::vector<int>& levels) const {
+    for (std::size_t c = 0; c < excluded_.size() && c < levels.size(); ++c)
+      if (excluded_[c]) levels[c] = kNoDataLevel;
+  }
+
+ private:
+  std::vector<char> excluded_;
 };
 
 std::unique_ptr<RoundStages> graded_rounds();

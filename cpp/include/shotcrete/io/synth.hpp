@@ -36,12 +36,23 @@ struct SyntheticBay {
   /// line), the invert (plane z = -context_invert_depth_m, |y| <= r_design, under both bays) and the
   /// face (plane d = length_m inside the design circle, above the invert), and when set the
   /// ventilation duct (a cylinder along the axis under the crown, its whole round, over both bays)
-  /// and the rig's carrier (a box on the invert, its top and four sides). Every surface is sampled
-  /// whole: the generator models no occlusion (the wall behind the duct is there too). Empty when
+  /// and the rig's carrier (a box on the invert, its top and four sides), and the muck pile
+  /// (muck_height_at; the invert and the face under it are left out). Every surface is sampled
+  /// whole here: the scanner's shadow is sample_scan's (context_scanner_shadow). Empty when
   /// disabled. Circle only (std::invalid_argument on a section).
   Cloud sample_context(double cell_size_m, double points_per_cell, double noise_m, std::uint64_t seed) const;
-  /// What a scanner sees before spraying: sample() plus sample_context() when context_enabled.
+  /// What a scanner sees before spraying: sample() plus sample_context() when context_enabled, less
+  /// the points in the scanner's shadow (drop_shadowed) when context_scanner_shadow.
   Cloud sample_scan(double cell_size_m = 0.05) const;
+  /// Height (m) of the muck pile above the invert at (d along the axis, y across); 0 off it or
+  /// when there is none (context_muck_height_m = 0 or no invert).
+  double muck_height_at(double d_m, double y_m) const;
+  /// Whether the scanner at context_scanner_position_m sees p (world frame): false when the straight
+  /// line to it meets the duct, the rig's box or the muck more than 3 cm short of p. Always true
+  /// without context_scanner_shadow. The wall, the invert and the face hide nothing from inside.
+  bool scanner_sees(const Eigen::Vector3d& p) const;
+  /// The points of `cloud` the scanner sees (the cloud itself without context_scanner_shadow).
+  Cloud drop_shadowed(const Cloud& cloud) const;
 };
 
 SyntheticBay make_synthetic_bay(const SynthConfig& config);

@@ -36,6 +36,21 @@ struct SpeedCapMap {
             double limit_share);
 };
 
+/// Cells of the bay that cannot be sprayed from a clear pose: with the nozzle at the planner's
+/// standoff square to the design line (the pose every pass puts it in over that cell), a nozzle
+/// link rigid with the tip comes within clearance.nozzle_margin_m of a point of the scan that is
+/// not gridded wall (a duct under the crown, the face at the bay's end, a rig, muck). No pass can
+/// lay their concrete without that: they are reported (problem obstructed_cells), not claimed.
+struct ObstructedCells {
+  std::vector<int> cells;          // grid cell indices (row * n_d + col), ascending
+  double margin_m = 0.0;           // the nozzle margin they were checked with
+  double least_distance_m = 0.0;   // nearest obstacle point to any of their poses' nozzle links
+  Eigen::Vector3d nearest_obstacle_m = Eigen::Vector3d::Zero();  // that point (tunnel frame)
+  std::vector<std::string> links;  // the nozzle links checked
+  int obstacle_points = 0;         // points of the scan left out of the grid (the obstacles)
+};
+ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config);
+
 struct ArmPlan {
   Plan plan;
   std::optional<TimedTrajectory> trajectory;  // empty when the timing failed: timing_error says why
@@ -59,6 +74,8 @@ struct ArmPlan {
   // With clearance.enabled and a trajectory: its joint moves checked, and those closer than the
   // margins re-routed (clear_transits, before the clearance check of the whole trajectory).
   std::optional<TransitReport> transits;
+  // With clearance.enabled: the grid cells no clear pose can spray (obstructed_cells).
+  std::optional<ObstructedCells> obstructed;
 };
 
 /// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the

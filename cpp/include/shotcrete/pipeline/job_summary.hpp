@@ -97,7 +97,7 @@ ExecutedSummary summarise_executed(const ExecutedDeposit& executed);
 
 /// Why a plan is not one the machine can execute as reported (report.json `problems`; the CLI
 /// exits with code 3). code: unreachable_cells | cells_above_level_0 | arm_cannot_follow |
-/// untracked_regions | joint_limits | nozzle_limits | sparse_grid | clearance.
+/// untracked_regions | joint_limits | nozzle_limits | sparse_grid | clearance | obstructed_cells.
 struct PlanProblem {
   std::string code;
   std::string message;  // one line, with the figures
@@ -154,6 +154,8 @@ struct JobSummary {
   std::optional<SwarmSummary> swarm;             // with a trajectory, when the swarm ran or failed
   std::optional<ClearanceReport> clearance;      // with a trajectory and clearance.enabled
   std::optional<TransitReport> transits;         // its joint moves checked and re-routed (ArmPlan::transits)
+  std::optional<ObstructedCells> obstructed;     // with clearance.enabled: cells no clear pose sprays
+  int obstructed_above_level_0 = 0;              // of those, left above level 0 by the deposit (deposit_source)
   double self_margin_m = 0.0;                    // clearance.self_margin_m
   // "ok", or "not_executable" when problems is not empty (plan_problems).
   std::string status = "ok";

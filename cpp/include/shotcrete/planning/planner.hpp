@@ -93,7 +93,10 @@ using SpeedCapFn = std::function<std::vector<double>(const std::vector<NozzlePos
 /// speed_cap (optional) lowers the speed bound of every pass (graded mode: its slowest waypoint) or
 /// segment (optimal mode; a spray-off gap also bounds the segments on either side, since the nozzle
 /// crosses it at their speeds), so the simulated deposit is the one the arm can actually spray.
+/// excluded_cells (grid cell indices): cells no round plans, grades or counts as unreachable (cells
+/// no clear pose can spray, obstructed_cells): no pass is laid for them, so the nozzle is not put
+/// where only they would need it; the deposit of their neighbours' passes still lands on them.
 Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress = {},
-              const SpeedCapFn& speed_cap = {});
+              const SpeedCapFn& speed_cap = {}, const std::vector<int>& excluded_cells = {});
 
 }  // namespace shotcrete
