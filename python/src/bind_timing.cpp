@@ -288,6 +288,25 @@ void bind_timing(py::module_& m) {
         "Shortest rest-to-rest joint quintic within the joint limits and the nozzle's speed / acceleration limits [s].");
 
   py::class_<TimedTrajectory>(m, "TimedTrajectory", "Timed joint trajectory with nozzle poses and spraying flags.")
+      .def_static(
+          "from_joints",
+          [](const std::vector<double>& t_s, const Eigen::MatrixXd& q) {
+            if (static_cast<Eigen::Index>(t_s.size()) != q.rows())
+              throw std::invalid_argument("TimedTrajectory.from_joints: " + std::to_string(t_s.size()) + " times but " +
+                                          std::to_string(q.rows()) + " rows of joints");
+            if (!q.allFinite()) throw std::invalid_argument("TimedTrajectory.from_joints: joints contain NaN or inf");
+            for (std::size_t k = 1; k < t_s.size(); ++k)
+              if (!(t_s[k] >= t_s[k - 1]))
+                throw std::invalid_argument("TimedTrajectory.from_joints: times must be finite and non-decreasing (sample " +
+                                            std::to_string(k) + ")");
+            TimedTrajectory t;
+            t.t_s = t_s;
+            for (Eigen::Index i = 0; i < q.rows(); ++i) t.q.push_back(q.row(i).transpose());
+            t.duration_s = t_s.empty() ? 0.0 : t_s.back() - t_s.front();
+            return t;
+          },
+          py::arg("t_s"), py::arg("q"),
+          "Times and joints only (no derivatives, poses or flags), e.g. a saved trajectory for check_clearance.")
       .def_property_readonly("t_s", [](const TimedTrajectory& t) { return to_array(t.t_s); })
       .def_property_readonly("q", [](const TimedTrajectory& t) { return rows(t.q); })
       .def_property_readonly("qd", [](const TimedTrajectory& t) { return rows(t.qd); })

@@ -112,6 +112,64 @@ TEST(Clearance, OctreeDistanceAgainstBruteForce) {
   EXPECT_THROW(WallOctree(bad, 0.05), std::invalid_argument);
 }
 
+// exact_distance against the brute force over every point, on every shape kind, on two walls (a
+// half cylinder and a random cloud with a dense clump, whose blocks and cells hold very different
+// counts), for poses inside, around and far from them: the same value to the last bit, the first
+// row at it (shapes inside the wall hold many points at 0), and `at_most_m`: a distance of at
+// least it comes back as it, with the closest point left alone.
+TEST(Clearance, ExactDistanceEqualsBruteForceOnEveryShapeKind) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  Points cloud(6000, 3);
+  for (Eigen::Index i = 0; i < cloud.rows(); ++i) {
+    const bool clump = i % 3 == 0;
+    cloud.row(i) << (clump ? 0.3 : 3.0) * U(rng) - (clump ? -0.5 : 1.0), (clump ? 0.3 : 6.0) * U(rng) - 3.0,
+        (clump ? 0.3 : 4.0) * U(rng);
+  }
+  int inside = 0, capped = 0;
+  for (const Points& wall : {half_cylinder(5.6, 1.2, 400, 24), cloud}) {
+    const WallOctree tree(wall, 0.05);
+    for (int k = 0; k < 300; ++k) {
+      CollisionShape s;
+      const int kind = k % 3;
+      if (kind == 0) s = cylinder(0.05 + 0.3 * U(rng), 0.1 + 2.5 * U(rng));
+      else if (kind == 1) s.kind = CollisionShape::Kind::sphere, s.radius_m = 0.05 + 0.6 * U(rng);
+      else s.kind = CollisionShape::Kind::box, s.size_m = Eigen::Vector3d(0.1 + U(rng), 0.1 + U(rng), 0.1 + 2.0 * U(rng));
+      s.origin.translation() = Eigen::Vector3d(0.2 * U(rng), 0.0, 0.3 * U(rng));
+      Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+      pose.linear() = Eigen::Quaterniond::FromTwoVectors(
+                          Eigen::Vector3d::UnitZ(), Eigen::Vector3d(U(rng) - 0.5, U(rng) - 0.5, U(rng) - 0.5).normalized())
+                          .toRotationMatrix();
+      pose.translation() = Eigen::Vector3d(-3.0 + 7.0 * U(rng), -8.0 + 16.0 * U(rng), -2.0 + 9.0 * U(rng));
+      double exact = std::numeric_limits<double>::infinity();
+      Eigen::Index first = -1;
+      for (Eigen::Index i = 0; i < wall.rows(); ++i) {
+        const double d = point_shape_distance(wall.row(i).transpose(), s, pose);
+        if (d < exact) exact = d, first = i;
+      }
+      inside += exact == 0.0 ? 1 : 0;
+      Eigen::Vector3d point;
+      EXPECT_EQ(tree.exact_distance(s, pose, &point), exact) << "pose " << k;
+      EXPECT_EQ(point, wall.row(first).transpose()) << "pose " << k;
+      // Asked up to a bound below, at or above the distance.
+      for (const double at_most : {0.5 * exact, exact, exact + 0.01, exact + 1.0}) {
+        Eigen::Vector3d p2 = Eigen::Vector3d::Constant(-99.0);
+        const double d = tree.exact_distance(s, pose, &p2, at_most);
+        if (exact >= at_most) {
+          ++capped;
+          EXPECT_EQ(d, at_most) << "pose " << k;
+          EXPECT_EQ(p2, Eigen::Vector3d::Constant(-99.0)) << "pose " << k;
+        } else {
+          EXPECT_EQ(d, exact) << "pose " << k;
+          EXPECT_EQ(p2, wall.row(first).transpose()) << "pose " << k;
+        }
+      }
+    }
+  }
+  EXPECT_GT(inside, 10);  // ties at 0 exercised
+  EXPECT_GT(capped, 300);
+}
+
 // The distance field's bounds against the brute force: for random balls (in, around and far
 // outside the wall's bounding box) no point of the ball is nearer to a wall point than `lower`,
 // some wall point is within `upper` of the centre; for random cylinders the shape's lower bound

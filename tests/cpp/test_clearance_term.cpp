@@ -11,6 +11,7 @@
 #include "shotcrete/robot/joint_tracking.hpp"
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/timing/trajectory.hpp"
+#include "shotcrete/timing/tuning.hpp"
 #include "timing_fixtures.hpp"
 
 using namespace shotcrete;
@@ -81,4 +82,40 @@ TEST(ClearanceTerm, KeepsTheLinksFartherFromTheWallWhileSpraying) {
   EXPECT_LE(on.max_acceleration_ratio, 1.0 + 1e-9);
   // The same region, the same sprayed time: the term changes the joints only.
   EXPECT_NEAR(on.spray_time_s, off.spray_time_s, 1e-9);
+}
+
+// The timing swarm's model of a region (RegionJointModel, tune_timing) tracks with the term as
+// time_plan does: on the same region its end posture keeps the links as far from the wall as
+// time_plan's with the term (within 2 cm), farther than without it; an inactive objective
+// changes nothing.
+TEST(ClearanceTerm, TheSwarmsRegionModelTracksWithTheTerm) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const WallOctree wall(narrow_wall(-1.5, 3.5), 0.05);
+  const TimingConfig timing;
+  const RobotConfig rc;
+  const std::vector<Pass> region = test::axial_region(6, 1.2, 0.2, 0.2, 2.6, {0.4}, kR - 1.0, kR);
+  const NullSpaceObjective term = clearance_objective(robot, wall, ClearanceConfig{});
+  ASSERT_TRUE(term.active());
+  const auto links_clearance = [&](const Eigen::VectorXd& q) {
+    const auto frames = robot.link_frames(q);
+    double least = std::numeric_limits<double>::infinity();
+    for (const auto& s : robot.collision_shapes())
+      if (s.link.rfind("nozzle", 0) != 0) least = std::min(least, wall.exact_distance(s, frames[s.frame]));
+    return least;
+  };
+  const TimingParams params = TimingParams::from_config(timing);
+  const NozzleLimits limits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2};
+  const double lead = timing.max_lead_length_m;
+  const auto off = RegionJointModel(robot, region, lead, timing, robot.stow(), rc).evaluate(params, limits);
+  const auto on = RegionJointModel(robot, region, lead, timing, robot.stow(), rc, 0.005, term).evaluate(params, limits);
+  const auto inactive = RegionJointModel(robot, region, lead, timing, robot.stow(), rc, 0.005, NullSpaceObjective{}).evaluate(params, limits);
+  EXPECT_EQ(inactive.q_last, off.q_last);
+  const TimedTrajectory planned = time_plan(robot, {region}, robot.stow(), timing, rc, {}, term);
+  std::size_t last = 0;
+  for (std::size_t k = 0; k < planned.size(); ++k)
+    if (planned.spraying[k]) last = k;
+  const double c_off = links_clearance(off.q_last), c_on = links_clearance(on.q_last), c_plan = links_clearance(planned.q[last]);
+  std::printf("region end: links' clearance model without %.4f, with %.4f, time_plan with %.4f m\n", c_off, c_on, c_plan);
+  EXPECT_GT(c_on, c_off + 0.05);
+  EXPECT_NEAR(c_on, c_plan, 0.02);
 }

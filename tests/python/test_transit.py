@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import shotcrete
 from shotcrete import _core
@@ -93,3 +94,28 @@ def test_report_json_has_the_transits_of_every_job(tmp_path):
     assert t["checked"] >= 1  # at least the move from the stow posture
     assert (t["rerouted"], t["failed"], t["detours"], t["detour_time_s"]) == (0, 0, [], 0.0)
     assert report["clearance"]["samples_below_margin"] == 0 and r.returncode == 0, r.stderr
+
+
+def test_timed_trajectory_from_joints_checks_as_the_timed_one():
+    """TimedTrajectory.from_joints (a saved trajectory's times and joints): check_clearance reads the
+    same as on the timed trajectory itself; mismatched or bad input is a clear error."""
+    cfg = shotcrete.load_config()
+    robot = shotcrete.load_robot(cfg)
+    tr = _core.time_plan(robot, [_region(0.55), _region(2.45)], robot.stow(), cfg.timing, cfg.robot, None)
+    saved = _core.TimedTrajectory.from_joints(np.asarray(tr.t_s).tolist(), np.asarray(tr.q))
+    assert len(saved.t_s) == len(tr.t_s) and np.array_equal(np.asarray(saved.q), np.asarray(tr.q))
+    wall = _core.WallOctree(_wall(0.6, 1.2, 0.3), 0.05)
+    a = _core.check_clearance(robot, tr, wall, cfg.clearance)
+    b = _core.check_clearance(robot, saved, wall, cfg.clearance)
+    assert [(l.link, l.min_m, l.at_time_s, l.samples_below_margin) for l in a.links] == \
+        [(l.link, l.min_m, l.at_time_s, l.samples_below_margin) for l in b.links]
+    assert (a.field_queries, a.exact_queries, a.self_queries) == (b.field_queries, b.exact_queries, b.self_queries)
+    q = np.asarray(tr.q)
+    with pytest.raises(ValueError, match="times but"):
+        _core.TimedTrajectory.from_joints([0.0, 1.0], q[:3])
+    with pytest.raises(ValueError, match="non-decreasing"):
+        _core.TimedTrajectory.from_joints([0.0, 2.0, 1.0], q[:3])
+    bad = q[:3].copy()
+    bad[1, 2] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        _core.TimedTrajectory.from_joints([0.0, 1.0, 2.0], bad)

@@ -40,7 +40,7 @@ void widen(NozzleCheck& c, double v, double a) {
 
 RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m,
                                    const TimingConfig& timing, const Eigen::VectorXd& seed,
-                                   const RobotConfig& robot_config, double step_m)
+                                   const RobotConfig& robot_config, double step_m, const NullSpaceObjective& objective)
     : path_(timing_region_path(passes, max_lead_m, max_lead_m, timing)),
       max_lead_m_(max_lead_m),
       vel_limit_(robot.velocity_limits()),
@@ -58,7 +58,7 @@ RegionJointModel::RegionJointModel(const Robot& robot, const std::vector<Pass>& 
       poses.push_back(path_.pose_at(st.s.back()));
     }
     bool tracked = false;
-    st.q = timing_joint_path(robot, poses, q_prev, robot_config, &tracked);
+    st.q = timing_joint_path(robot, poses, q_prev, robot_config, &tracked, objective);
     tracked_ = tracked_ && tracked;
     finite_differences(st.s, st.q, st.dq, st.ddq, true);
     if (c > 0)
@@ -179,6 +179,7 @@ struct TuningContext {
   // The swarm keeps a margin on the joint limits: its arc-length model and the final sampled
   // trajectory differ slightly (start configuration, discretisation).
   double joint_share;
+  const NullSpaceObjective& objective;  // the regions' tracking (plan_for_arm's clearance term)
 };
 
 // The joint model of region r from q_prev. The longest lead-ins / lead-outs may leave the reach:
@@ -187,7 +188,7 @@ RegionJointModel region_model(const TuningContext& ctx, const std::vector<Pass>&
                               const Eigen::VectorXd& q_prev, double& max_lead) {
   for (;;) {
     try {
-      return RegionJointModel(*ctx.robot, passes, max_lead, ctx.timing, q_prev, ctx.robot_config);
+      return RegionJointModel(*ctx.robot, passes, max_lead, ctx.timing, q_prev, ctx.robot_config, 0.005, ctx.objective);
     } catch (const std::exception& e) {
       if (max_lead <= 0.05)
         throw std::runtime_error("tune_timing: region " + std::to_string(r) + " (with " + num(max_lead) +
@@ -253,12 +254,13 @@ SearchBox search_box(const std::vector<Pass>& passes, const TimingConfig& timing
 }  // namespace
 
 TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions, const Eigen::VectorXd& q_start,
-                         const TimingConfig& timing, const RobotConfig& robot_config, const ProgressFn& progress) {
+                         const TimingConfig& timing, const RobotConfig& robot_config, const ProgressFn& progress,
+                         const NullSpaceObjective& objective) {
   const auto t_start = std::chrono::steady_clock::now();
   if (regions.empty()) throw std::invalid_argument("tune_timing: no regions");
   if (robot && q_start.size() != robot->dof()) throw std::invalid_argument("tune_timing: q_start does not match the robot");
   const TuningContext ctx{robot, timing, robot_config, NozzleLimits{timing.nozzle_max_speed_mps, timing.nozzle_max_accel_mps2},
-                          1.0 - timing.joint_limit_margin};
+                          1.0 - timing.joint_limit_margin, objective};
   const TimingParams p0 = TimingParams::from_config(timing);
   TimingTuning out;
   out.initial_feasible = true;

@@ -2,7 +2,7 @@
 // Space allowance of the arm (seed method: key points and optimal space allowance): the distance of
 // every link's collision shape to the wall and to the other links, at every trajectory sample.
 // The wall is an octomap octree queried through FCL (the transit router's screen), a Euclidean
-// distance field (check_clearance's bounds) and a KD-tree of its points (exact distances); shapes
+// distance field (check_clearance's bounds) and its points grouped in blocks (exact distances); shapes
 // are the URDF's <collision> geometry.
 #include <limits>
 #include <memory>
@@ -22,8 +22,8 @@ struct TimedTrajectory;
 
 /// The wall as an obstacle: an octree of points (leaf edge `resolution_m`). Each occupied leaf is a
 /// box, so a distance reads at most a leaf diagonal (sqrt(3) x resolution) short of the
-/// distance to the points themselves, never long. The distance field and the KD-tree are built
-/// on first use (thread-safe).
+/// distance to the points themselves, never long. The distance field and the point groups are
+/// built on first use (thread-safe).
 class WallOctree {
  public:
   WallOctree(const Points& xyz_m, double resolution_m);
@@ -36,15 +36,14 @@ class WallOctree {
   /// the bound prunes the search.
   double distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m = nullptr,
                   double at_most_m = std::numeric_limits<double>::max()) const;
-  /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside):
-  /// a sphere cover of the shape (balls at most 10 cm past it, KD-tree of the points built on first
-  /// use) is bounded ball by ball from the distance field (field_bounds); then, in the order of
-  /// those bounds, only the balls whose lower bound is below
-  /// the least distance found gather points (KD-tree radius search: a point nearer than d to the shape lies
-  /// within d + r of the centre of a ball of radius r that holds the shape's nearest point), each
-  /// measured exactly (point_shape_distance). `closest_m`: the point (the first of equal ones).
-  /// With `at_most_m`: a distance of at least at_most_m comes back as at_most_m (closest_m unset);
-  /// only points nearer than it are gathered.
+  /// Exact distance [m] of `shape` to the wall's points (the minimum over every point, 0 inside).
+  /// The points are grouped in blocks of 0.2 m and cells of 5 cm (built on first use), each with
+  /// the bounding sphere of its points; the blocks that can hold a nearer point than the best so
+  /// far (the shape's distance to the sphere's centre less its radius is below it), in the order of
+  /// those bounds, then their cells likewise, then every point of those cells, measured as
+  /// point_shape_distance does (the same value to the last bit). `closest_m`: the point (the first
+  /// row of equal ones). With `at_most_m`: a distance of at least at_most_m comes back as at_most_m
+  /// (closest_m unset); only groups that can hold a point nearer than it are visited.
   double exact_distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose,
                         Eigen::Vector3d* closest_m = nullptr,
                         double at_most_m = std::numeric_limits<double>::infinity()) const;

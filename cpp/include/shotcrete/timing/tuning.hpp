@@ -6,6 +6,7 @@
 
 #include "shotcrete/config.hpp"
 #include "shotcrete/planning/planner.hpp"  // Pass
+#include "shotcrete/robot/joint_tracking.hpp"  // NullSpaceObjective
 #include "shotcrete/timing/cartesian_path.hpp"
 #include "shotcrete/timing/pso.hpp"
 #include "shotcrete/timing/region_path.hpp"  // TimingParams
@@ -23,8 +24,11 @@ class Robot;
 /// one is tracked anew from where the move ends.
 class RegionJointModel {
  public:
+  /// `objective`: the tracking's second null-space objective (plan_for_arm's clearance term), as
+  /// time_plan tracks the region with it.
   RegionJointModel(const Robot& robot, const std::vector<Pass>& passes, double max_lead_m, const TimingConfig& timing,
-                   const Eigen::VectorXd& seed, const RobotConfig& robot_config, double step_m = 0.005);
+                   const Eigen::VectorXd& seed, const RobotConfig& robot_config, double step_m = 0.005,
+                   const NullSpaceObjective& objective = {});
   struct Evaluation {
     double duration_s = 0.0;
     double velocity_ratio = 0.0, acceleration_ratio = 0.0;  // worst |qd| / limit, |qdd| / limit
@@ -82,9 +86,10 @@ struct TimingTuning {
   int regions_cut_by_budget = 0;     // swarms stopped early by timing.pso_time_budget_s
 };
 /// The budget timing.pso_time_budget_s is shared out over the regions in order; progress gets
-/// stage "tuning timing" with the share of regions done.
+/// stage "tuning timing" with the share of regions done. `objective`: the regions' models track
+/// with it (RegionJointModel), as time_plan does with the same objective.
 TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>>& regions_in_order,
                          const Eigen::VectorXd& q_start, const TimingConfig& timing, const RobotConfig& robot_config,
-                         const ProgressFn& progress = {});
+                         const ProgressFn& progress = {}, const NullSpaceObjective& objective = {});
 
 }  // namespace shotcrete
