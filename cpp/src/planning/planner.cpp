@@ -117,9 +117,9 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   std::optional<Eigen::Vector3d> nozzle_at;
   std::optional<StopReason> stop;
   for (int number = 1; number <= pc.max_rounds && !stop; ++number) {
-    // Grade.
-    const RoundInput in{number, {top_level(stages->active_levels(wall)), max_td_m(stages->worked_grid(wall.surface.grid))},
-                        wall};
+    // Grade (the grid without the excluded cells, the same for grading and planning the round).
+    const Grid worked = stages->worked_grid(wall.surface.grid);
+    const RoundInput in{number, {top_level(stages->active_levels(wall)), max_td_m(worked)}, wall};
     if (stages->finished(in.grade)) break;  // the reason is settled after the loop
     // A round is never cut short (its deposit would be half a pattern); the budget only keeps the
     // next one from starting, and the plan says so.
@@ -135,7 +135,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     round.level = in.grade.top_level;
     round.levels_before = level_counts(wall.surface.levels);
     // Plan the round.
-    round.regions = stages->plan_regions(in, CellSurface(stages->worked_grid(wall.surface.grid)), ctx);
+    round.regions = stages->plan_regions(in, CellSurface(worked), ctx);
     if (round.regions.empty()) {
       stop = stages->nothing_to_spray(in.grade);
       break;
