@@ -205,6 +205,41 @@ TEST(FlowSchedule, JointMovesKeepTheMinimumsAndStayDry) {
   }
 }
 
+// Seed 1 of bench_axis (the bay turned 135 deg on an 8 % grade, direction estimated): a region's
+// first spell ends its off-ramp 64 ns after a sample's share begins. The running integral read
+// that share as -3.6e-15 s, which accumulate_dwells refused ("dwell time 1337 must be finite and
+// >= 0") and plan_bay with it. The times and spell are the region's own.
+TEST(FlowSchedule, ShareAtTheEndOfARampIsNotNegative) {
+  FlowSchedule s;
+  s.ramp_s = 2.0;
+  s.on_s = {2.3299998515467397};
+  s.off_s = {25.72999836064275};
+  const std::vector<double> t = {25.0, 26.719998297566043, 26.739998296291766, 26.759998295017486};
+  const std::vector<double> d = flow_dwells(s, t);
+  const KinkFlow ref({{s.on_s[0], s.off_s[0]}}, s.ramp_s);
+  const std::vector<double> dr = ref.dwells(t);
+  double sum = 0.0;
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    EXPECT_GE(d[i], 0.0) << i;
+    EXPECT_NEAR(d[i], dr[i], 1e-12) << i;
+    sum += d[i];
+  }
+  EXPECT_NEAR(sum, s.on_time_s(), 1e-12);
+  EXPECT_DOUBLE_EQ(d[3], 0.0);  // its share lies wholly after the ramp
+  // The same spell against samples every 20 ms, a share's edge swept in 1 ns steps over the last
+  // 200 ns of the ramp: no dwell below 0, each the reference's within 1e-12.
+  const double ramp_end = s.off_s[0] + 0.5 * s.ramp_s;
+  for (int shift = 0; shift < 200; ++shift) {
+    std::vector<double> ts;
+    for (int k = 0; k < 100; ++k) ts.push_back(ramp_end - 0.01 + 0.02 * (k - 50) - 1e-9 * shift);
+    const std::vector<double> dd = flow_dwells(s, ts), rr = ref.dwells(ts);
+    for (std::size_t i = 0; i < ts.size(); ++i) {
+      ASSERT_GE(dd[i], 0.0) << "shift " << shift << " sample " << i;
+      EXPECT_NEAR(dd[i], rr[i], 1e-12) << "shift " << shift << " sample " << i;
+    }
+  }
+}
+
 TEST(FlowSchedule, BadInputIsAnError) {
   const std::vector<double> t = times(10, 0.1);
   const std::vector<char> on(10, 1);
