@@ -49,8 +49,8 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
 
 /// Full-flow dwell of every sample: the schedule's flow integrated over the sample's share of
 /// time (midpoints with its neighbours; the first and last samples take everything before / after),
-/// each share integrated on its own (so every dwell is >= 0, 0 where the flow is off); the dwells
-/// add up to the schedule's on_time_s (to rounding).
+/// every dwell >= 0 (rounding below 0 is cut); the dwells add up to the schedule's on_time_s (to
+/// rounding).
 std::vector<double> flow_dwells(const FlowSchedule& schedule, const std::vector<double>& t_s);
 
 }  // namespace shotcrete
