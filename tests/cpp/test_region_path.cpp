@@ -287,6 +287,60 @@ TEST(Region, TurnRunsCarryTheSpeedChange) {
   EXPECT_EQ(runs, 4);
 }
 
+// Turn-arounds at their own speed last at least min_turn_s (the pump's shortest off spell: a
+// shorter turn is sprayed through): the arc slows until runs + arc take that long, measured on
+// the sampled path against the unfloored profile and the closed form of the turn's duration.
+TEST(Region, TurnsAtTheirOwnSpeedLastTheMinimumTurnTime) {
+  const auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.0, {0.3, 0.2});
+  TimingParams prm;
+  prm.turn_speed_mps = 0.5;
+  prm.turn_accel_mps2 = 10.0;  // the centripetal cap sqrt(a r) = 1 m/s above the turn speed
+  const CartesianPath path = region_path(passes, leads(0.1, 0.1, 0.15));
+  // Off time between passes: from the last sample of pass i to the first of pass i + 1.
+  auto turn_times = [&](const TimingParams& p, double* arc_speed) {
+    const CartesianSamples cs = sample_path(path, region_profile(path, p), 1000.0);
+    std::vector<double> out;
+    double last_end = -1.0;
+    int last_pass = -1;
+    *arc_speed = 0.0;
+    for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+      if (cs.kind[i] == static_cast<char>(SegmentKind::Turn)) *arc_speed = std::max(*arc_speed, cs.speed_mps[i]);
+      if (cs.kind[i] != static_cast<char>(SegmentKind::Pass)) continue;
+      if (last_pass >= 0 && cs.pass_index[i] != last_pass) out.push_back(cs.t_s[i] - last_end);
+      last_pass = cs.pass_index[i];
+      last_end = cs.t_s[i];
+    }
+    return out;
+  };
+  double v_free = 0.0, v_floor = 0.0;
+  const auto free = turn_times(prm, &v_free);
+  ASSERT_EQ(free.size(), 2u);
+  EXPECT_NEAR(v_free, 0.5, 1e-3);
+  // Closed form at arc speed u: each run (0.15 m) at its mean speed, the arc (pi r; r = half the
+  // passes' spacing at the nozzle) at u.
+  double arc_m = 0.0;
+  for (const auto& p : path.pieces())
+    if (p.kind == SegmentKind::Turn) arc_m = p.length_m();
+  ASSERT_NEAR(arc_m, kPi * 0.5 * 0.2 * 4.6 / 5.6, 1e-3);
+  auto duration = [&](double u, double va, double vb) { return 0.15 / (0.5 * (va + u)) + arc_m / u + 0.15 / (0.5 * (u + vb)); };
+  for (std::size_t k = 0; k < 2; ++k) EXPECT_NEAR(free[k], duration(0.5, k == 0 ? 0.3 : 0.2, k == 0 ? 0.2 : 0.3), 2e-3);
+  prm.min_turn_s = 2.1;
+  const auto floored = turn_times(prm, &v_floor);
+  ASSERT_EQ(floored.size(), 2u);
+  for (std::size_t k = 0; k < 2; ++k) {
+    EXPECT_LT(free[k], 2.1);
+    EXPECT_NEAR(floored[k], 2.1, 2e-3);
+  }
+  // Both turns join a 0.3 and a 0.2 m/s pass: the same arc speed solves the closed form.
+  EXPECT_LT(v_floor, 0.5);
+  EXPECT_NEAR(duration(v_floor, 0.3, 0.2), 2.1, 1e-3);
+  // A turn already longer than the minimum keeps its speed.
+  prm.min_turn_s = 0.5;
+  double v_kept = 0.0;
+  turn_times(prm, &v_kept);
+  EXPECT_NEAR(v_kept, 0.5, 1e-3);
+}
+
 TEST(Region, PassSpeedProfileKeptWithSmoothChanges) {
   // One pass of 1 m: waypoints 0..50 at 0.2 m/s, 51..100 at 0.4 m/s (optimal-mode speed profile).
   auto passes = axial_region(1, 1.0, 0.2, 0.0, 1.0, {0.3});

@@ -249,6 +249,10 @@ struct TimingConfig {
   double turn_run_m = 0.1;           // straight run before / after each turn-around arc (speed change room)
   double speed_change_accel_mps2 = 0.5;  // peak nozzle acceleration of speed changes inside a pass
   double turn_accel_mps2 = 0.0;  // centripetal acceleration on turn arcs and speed changes on turn runs; 0 = speed_change_accel_mps2
+  // Least duration of a turn-around that runs at its own speed (turn_speed_mps, or the arc's
+  // centripetal cap), s: the pump (flow.min_off_s, 2 s) switches off over a turn only if it lasts
+  // that long; a shorter turn is sprayed through, concrete the dwell solve does not plan for.
+  double min_turn_s = 2.1;
   bool spray_on_turns = false;       // spray on the turn-arounds (the planner's deposit assumes not)
   double nozzle_max_speed_mps = 1.0; // nozzle speed limit (also the swarm bound of the turn speed)
   double nozzle_max_accel_mps2 = 2.0;  // nozzle acceleration limit, tangential + centripetal

@@ -180,6 +180,7 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("turn_run_m", &TimingConfig::turn_run_m, 0.0, 2.0, "straight run before/after each turn arc [m]");
   f("speed_change_accel_mps2", &TimingConfig::speed_change_accel_mps2, 0.01, 100.0, "peak acceleration of speed changes inside a pass [m/s^2]");
   f("turn_accel_mps2", &TimingConfig::turn_accel_mps2, 0.0, 100.0, "centripetal acceleration on turn arcs and speed changes on their runs [m/s^2]; 0 = speed_change_accel_mps2");
+  f("min_turn_s", &TimingConfig::min_turn_s, 0.0, 60.0, "least duration of a turn-around at its own speed, so the pump can switch off over it (flow.min_off_s) [s]; 0 = none");
   f("spray_on_turns", &TimingConfig::spray_on_turns, 0, 0, "spray on the turn-arounds");
   f("nozzle_max_speed_mps", &TimingConfig::nozzle_max_speed_mps, 0.01, 10.0, "nozzle speed limit [m/s]");
   f("nozzle_max_accel_mps2", &TimingConfig::nozzle_max_accel_mps2, 0.01, 100.0, "nozzle acceleration limit [m/s^2]");

@@ -53,6 +53,42 @@ SpeedPiece change_over(double v0, double v1, double length_m) {
   return SpeedPiece{v0, v1, length_m / (0.5 * (v0 + v1)), SpeedShape::Cycloid};
 }
 
+// Duration [s] of turn j (its runs, if any, and the arc) at arc speed u, as append_turn_run and
+// append_turn_arc profile it: every change is a cycloid over its piece at the mean speed.
+double turn_duration_s(const std::vector<PieceSpec>& specs, std::size_t j, double u) {
+  const auto& t = specs[j];
+  const bool run_before = specs[j - 1].kind == SegmentKind::Link, run_after = specs[j + 1].kind == SegmentKind::Link;
+  const double v0 = run_before ? u : t.v_in, v1 = run_after ? u : t.v_out, half = 0.5 * t.length_m;
+  double d = half / (0.5 * (v0 + u)) + half / (0.5 * (u + v1));
+  if (run_before) d += specs[j - 1].length_m / (0.5 * (specs[j - 1].v_in + u));
+  if (run_after) d += specs[j + 1].length_m / (0.5 * (u + specs[j + 1].v_in));
+  return d;
+}
+
+// Arc speed of turn j lowered from v so that the turn lasts min_s (the pump's shortest off spell:
+// a shorter turn is sprayed through), no lower than its speed changes at accel_mps2 allow
+// (|v_pass^2 - u^2| / length of the piece they change over). A turn that cannot last min_s within
+// that keeps v: slowing it would cost time and still be sprayed through.
+double turn_speed_for_duration(const std::vector<PieceSpec>& specs, std::size_t j, double v, double min_s,
+                               double accel_mps2) {
+  if (turn_duration_s(specs, j, v) >= min_s) return v;
+  const auto& t = specs[j];
+  const bool run_before = specs[j - 1].kind == SegmentKind::Link, run_after = specs[j + 1].kind == SegmentKind::Link;
+  auto floor_of = [&](double v_pass, double length_m) {
+    return std::sqrt(std::max(0.0, v_pass * v_pass - accel_mps2 * length_m));
+  };
+  double lo = 1e-3;
+  lo = std::max(lo, run_before ? floor_of(specs[j - 1].v_in, specs[j - 1].length_m) : floor_of(t.v_in, 0.5 * t.length_m));
+  lo = std::max(lo, run_after ? floor_of(specs[j + 1].v_in, specs[j + 1].length_m) : floor_of(t.v_out, 0.5 * t.length_m));
+  if (lo >= v || turn_duration_s(specs, j, lo) < min_s) return v;
+  double hi = v;  // duration(lo) >= min_s > duration(hi); the duration falls as u grows
+  for (int it = 0; it < 60 && hi - lo > 1e-9 * v; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (turn_duration_s(specs, j, mid) >= min_s ? lo : hi) = mid;
+  }
+  return lo;
+}
+
 // Speed on turn arc j: the turn speed (or the pass speeds when it is 0), capped so that the
 // centripetal acceleration v^2 / r stays at the params' turn acceleration (scaled by the arc's
 // accel_scale); 0 = no own turn speed (the arc changes from one pass speed to the next).
@@ -63,6 +99,8 @@ double turn_speed_of(const std::vector<PieceSpec>& specs, std::size_t j, const T
   // An eased gap (accel_scale < 1, time_region_within_limits) whose arc would run at the pass
   // speeds under the cap: slow the arc too, so its centripetal part eases with the scale.
   if (!(v > 0.0) && t.accel_scale < 1.0) return std::sqrt(t.accel_scale) * std::max(t.v_in, t.v_out);
+  // Not on an eased turn (accel_scale < 1): its duration would stay pinned at min_s, uneased.
+  if (v > 0.0 && params.min_turn_s > 0.0 && t.accel_scale >= 1.0) return turn_speed_for_duration(specs, j, v, params.min_turn_s, t.accel_scale * turn_accel);
   return v;
 }
 bool turn_with_own_speed(const std::vector<PieceSpec>& specs, std::size_t j, const TimingParams& params) {
@@ -165,6 +203,7 @@ TimingParams TimingParams::from_config(const TimingConfig& c) {
   p.turn_speed_mps = c.turn_speed_mps;
   p.speed_change_accel_mps2 = c.speed_change_accel_mps2;
   p.turn_accel_mps2 = c.turn_accel_mps2;
+  p.min_turn_s = c.spray_on_turns ? 0.0 : c.min_turn_s;  // sprayed through anyway
   return p;
 }
 

@@ -70,6 +70,8 @@ struct TimingParams {
                                          // centripetal acceleration on turn arcs (not tuned)
   double turn_accel_mps2 = 0.0;  // centripetal acceleration capping the turn arc speed when > 0
                                  // (tuned); 0 = speed_change_accel_mps2
+  double min_turn_s = 0.0;       // a turn at its own speed is slowed to last at least this (runs +
+                                 // arc), within the turn acceleration; 0 = none (not tuned)
   static TimingParams from_config(const TimingConfig& config);
 };
 
