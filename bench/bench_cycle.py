@@ -23,6 +23,7 @@ from shotcrete.robot import load_robot
 ALTERNATIVES = {
     "default": {},
     "turn speed 0.5 m/s": {"timing.turn_speed_mps": 0.5},
+    "turn speed 0.5 m/s at 1.0 m/s^2": {"timing.turn_speed_mps": 0.5, "timing.turn_accel_mps2": 1.0},
     "turn acceleration 1.0 m/s^2": {"timing.turn_accel_mps2": 1.0},
     "spray on turns": {"timing.spray_on_turns": True},
     "circumferential passes": {"planner.pass_direction": "circumferential"},

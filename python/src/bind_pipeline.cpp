@@ -1,4 +1,5 @@
 #include "bindings.hpp"
+#include "shotcrete/timing/region_spray.hpp"
 #include "shotcrete/pipeline/arm_plan.hpp"
 #include "shotcrete/pipeline/job_summary.hpp"
 #include "shotcrete/robot/robot.hpp"
@@ -36,6 +37,22 @@ void bind_executed(py::module_& m) {
       py::arg("t_s"), py::arg("spraying"), py::arg("flow"), py::arg("blocked") = py::none(),
         "The pump's schedule for the spraying flags of samples at t_s (FlowConfig); `blocked`: samples where the flow "
         "must be off, ramps included (joint moves); ValueError on bad input.");
+  m.def(
+      "region_spray",
+      [](const std::vector<Pass>& passes, const Config& config) {
+        const RegionSpray rs = region_spray(passes, config);
+        py::dict d;
+        d["t_s"] = rs.t_s;
+        std::vector<Eigen::Vector3d> pos;
+        for (const auto& n : rs.nozzle) pos.push_back(n.position_m);
+        d["positions_m"] = pos;
+        d["dwell_s"] = rs.dwell_s;
+        d["flow"] = rs.flow;
+        return d;
+      },
+      py::arg("passes"), py::arg("config"),
+      "What the planner deposits one region with: its timed Cartesian path (no joint re-timing) and the "
+      "pump's flow; a dict of t_s, positions_m, dwell_s (full-flow dwell per sample) and flow (FlowSchedule).");
   m.def("flow_dwells", &flow_dwells, py::arg("schedule"), py::arg("t_s"),
         "Full-flow dwell of every sample: the schedule's flow over the sample's share of time.");
   py::class_<DepositVolumes>(m, "DepositVolumes", "Volumes of the executed deposit [m^3].")

@@ -140,6 +140,33 @@ TEST(FlowSchedule, NoSpellShorterThanTheMinimums) {
   }
 }
 
+// A short spell between two turns of the pump's minimum off time: extending it brings both gaps
+// under the minimum, and the pump runs through them (bridged), whether or not the trajectory has a
+// joint move somewhere else. It used to be switched off when it had (the joint move's check took
+// every short gap for its own), so a region's schedule and the whole trajectory's disagreed.
+TEST(FlowSchedule, AJointMoveElsewhereDoesNotChangeTheSpells) {
+  const std::vector<double> t = times(301, 0.1);  // 0 .. 30 s
+  std::vector<char> spraying(t.size(), 0), blocked(t.size(), 0);
+  for (int i = 10; i <= 44; ++i) spraying[static_cast<std::size_t>(i)] = 1;   // [0.95, 4.45]
+  for (int i = 66; i <= 80; ++i) spraying[static_cast<std::size_t>(i)] = 1;   // [6.55, 8.05]: 1.5 s
+  for (int i = 102; i <= 130; ++i) spraying[static_cast<std::size_t>(i)] = 1; // [10.15, 13.05]
+  for (int i = 230; i <= 260; ++i) spraying[static_cast<std::size_t>(i)] = 1; // [22.95, 26.05]
+  const FlowConfig f = flow(2.0, 2.0, 2.0);
+  const FlowSchedule alone = flow_schedule(t, spraying, f);
+  for (int i = 200; i <= 210; ++i) blocked[static_cast<std::size_t>(i)] = 1;  // joint move [19.95, 21.05]
+  const FlowSchedule with_move = flow_schedule(t, spraying, f, blocked);
+  // By hand: the 1.5 s spell grows to 2 s, [6.3, 8.3], leaving gaps of 1.85 s: both bridged.
+  for (const FlowSchedule* s : {&alone, &with_move}) {
+    ASSERT_EQ(s->on_s.size(), 2u);
+    EXPECT_NEAR(s->on_s[0], 0.95, 1e-12);
+    EXPECT_NEAR(s->off_s[0], 13.05, 1e-12);
+    EXPECT_NEAR(s->bridged_s, 1.85 + 1.85, 1e-9);
+    EXPECT_NEAR(s->dropped_s, 0.0, 1e-12);
+  }
+  EXPECT_NEAR(with_move.on_s[1], alone.on_s[1], 1e-12);
+  EXPECT_NEAR(with_move.off_s[1], alone.off_s[1], 1e-12);
+}
+
 TEST(FlowSchedule, NoFlowThroughAJointMove) {
   const std::vector<double> t = times(101, 0.1);  // 0 .. 10 s
   std::vector<char> spraying(t.size(), 0), blocked(t.size(), 0);

@@ -341,6 +341,52 @@ TEST(Region, TurnsAtTheirOwnSpeedLastTheMinimumTurnTime) {
   EXPECT_NEAR(v_kept, 0.5, 1e-3);
 }
 
+// Between passes faster than the turn the arc can only slow if the runs leave room to brake:
+// region_path sizes them for the arc speed at which the turn lasts min_turn_s, and the profile
+// then takes that speed (turn acceleration kept on the runs and the arc).
+TEST(Region, TurnRunsLeaveRoomForTheMinimumTurnTime) {
+  // Arc radius 0.082 m: the centripetal cap sqrt(2 r) = 0.405 m/s under the 0.45 m/s passes; runs
+  // of 0.02 m are all the change needs, and the turn takes 0.73 s.
+  const auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.0, {0.45, 0.45});
+  RegionPathOptions o = leads(0.3, 0.3, 0.02);
+  o.turn_speed_mps = 0.5;
+  o.turn_accel_mps2 = 2.0;
+  TimingParams prm;
+  prm.turn_speed_mps = 0.5;
+  prm.turn_accel_mps2 = 2.0;
+  prm.start_length_m = prm.end_length_m = 0.3;
+  auto off_times = [&](const CartesianPath& path, double* peak_accel) {
+    const CartesianSamples cs = sample_path(path, region_profile(path, prm), 1000.0);
+    std::vector<double> out;
+    int last = -1;
+    double end = 0.0;
+    *peak_accel = 0.0;
+    for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+      const char k = cs.kind[i];
+      if (k == static_cast<char>(SegmentKind::Turn) || (k == static_cast<char>(SegmentKind::Link) && i > 0)) {
+        const double dv = std::abs(cs.speed_mps[i] - cs.speed_mps[i - 1]) / (cs.t_s[i] - cs.t_s[i - 1]);
+        *peak_accel = std::max({*peak_accel, dv, cs.normal_accel_mps2[i]});
+      }
+      if (k != static_cast<char>(SegmentKind::Pass)) continue;
+      if (last >= 0 && cs.pass_index[i] != last) out.push_back(cs.t_s[i] - end);
+      last = cs.pass_index[i];
+      end = cs.t_s[i];
+    }
+    return out;
+  };
+  double a_free = 0.0, a_floor = 0.0;
+  const auto free = off_times(region_path(passes, o), &a_free);
+  o.min_turn_s = prm.min_turn_s = 2.1;
+  const auto floored = off_times(region_path(passes, o), &a_floor);
+  ASSERT_EQ(free.size(), 2u);
+  ASSERT_EQ(floored.size(), 2u);
+  for (std::size_t k = 0; k < 2; ++k) {
+    EXPECT_NEAR(free[k], 2 * 0.02 / 0.4276 + kPi * 0.0821 / 0.4053, 0.01);
+    EXPECT_NEAR(floored[k], 2.1, 5e-3);
+  }
+  EXPECT_LE(a_floor, 2.0 + 0.02);  // cycloid peaks sampled at 1 kHz
+}
+
 TEST(Region, PassSpeedProfileKeptWithSmoothChanges) {
   // One pass of 1 m: waypoints 0..50 at 0.2 m/s, 51..100 at 0.4 m/s (optimal-mode speed profile).
   auto passes = axial_region(1, 1.0, 0.2, 0.0, 1.0, {0.3});

@@ -97,3 +97,36 @@ def test_first_round_against_numpy_integration(job):
     got = np.asarray(arm.executed.round_deposited_m[0])[probe]
     assert expect.max() > 1e-3
     assert np.allclose(got, expect, rtol=1e-9, atol=1e-9 * expect.max())
+
+
+def test_planner_region_spray_matches_the_trajectory(job):
+    """The planner deposits each region with region_spray (its timed Cartesian path and the pump's
+    schedule); where the arm kept that timing (no eased join or lead), the trajectory's own pump
+    schedule over the region's samples has the same spells."""
+    cfg, surface, robot, arm = job
+    tr = arm.trajectory
+    t = np.asarray(tr.t_s)
+    kind, region = np.asarray(tr.kind), np.asarray(tr.region_index)
+    regions = [g for rd in arm.plan.rounds for g in rd.regions]
+    compared = 0
+    for r, g in enumerate(regions):
+        rs = _core.region_spray(g.passes, cfg)
+        flow = rs["flow"]
+        assert sum(rs["dwell_s"]) == pytest.approx(flow.on_time_s(), abs=1e-9)
+        assert np.all(np.diff(rs["t_s"]) > 0) and np.asarray(rs["positions_m"]).shape == (len(rs["t_s"]), 3)
+        # The region's samples from the transit's last (the lead-in's start, at rest) to its lead-out.
+        idx = np.flatnonzero(region == r)
+        body = idx[kind[idx] != 4]
+        if body.size == 0:
+            continue
+        idx = np.arange(body.min() - 1, body.max() + 1)
+        tt = t[idx] - t[idx[0]]
+        if abs(tt[-1] - rs["t_s"][-1]) > 1e-6:
+            continue  # re-timed by the arm (eased): not the planner's timing
+        moving = kind[idx] == 4  # stop-and-go joint moves inside the region
+        moving[0] = False
+        own = _core.flow_schedule(tt, np.asarray(tr.spraying)[idx], cfg.flow, moving)
+        assert len(own.on_s) == len(flow.on_s)
+        assert np.allclose(own.on_s, flow.on_s, atol=1e-6) and np.allclose(own.off_s, flow.off_s, atol=1e-6)
+        compared += 1
+    assert compared >= 1

@@ -160,10 +160,14 @@ bool extend_spells(FlowSchedule& s, double min_on, double t0, double t1, const W
 }
 
 // Across a joint move the flow is off for the move and its ramps; if that gap is still shorter
-// than min_off, the shorter of the two spells is switched off. Returns whether one was.
-bool drop_short_blocked_gaps(FlowSchedule& s, double min_off) {
+// than min_off, the shorter of the two spells is switched off. Returns whether one was. A short
+// gap inside one free window is bridge_gaps' (it was dropping a spell that an extension had
+// brought within min_off of its neighbours, or bridging it, by the order the gaps came in: a
+// region's schedule and the whole trajectory's disagreed, 39 mm on a cell).
+bool drop_short_blocked_gaps(FlowSchedule& s, double min_off, const Windows& w) {
   for (std::size_t k = 1; k < s.on_s.size(); ++k) {
     if (s.on_s[k] - s.off_s[k - 1] >= min_off) continue;
+    if (w.at(s.off_s[k - 1]) == w.at(s.on_s[k])) continue;
     const std::size_t drop = s.off_s[k - 1] - s.on_s[k - 1] <= s.off_s[k] - s.on_s[k] ? k - 1 : k;
     s.dropped_s += s.off_s[drop] - s.on_s[drop];
     s.on_s.erase(s.on_s.begin() + static_cast<std::ptrdiff_t>(drop));
@@ -243,7 +247,7 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
   for (int pass = 0; pass < 1000; ++pass) {
     const bool merged = bridge_gaps(s, flow.min_off_s, w);
     const bool grown = extend_spells(s, flow.min_on_s, t_s.front(), t_s.back(), w);
-    const bool dropped = w != nullptr && drop_short_blocked_gaps(s, flow.min_off_s);
+    const bool dropped = w != nullptr && drop_short_blocked_gaps(s, flow.min_off_s, *w);
     if (!merged && !grown && !dropped) break;
   }
   s.extended_s = s.on_time_s() - s.commanded_on_s - s.bridged_s + s.dropped_s;

@@ -113,10 +113,29 @@ void append_turn(CartesianPath& path, const Join& j, const RegionPathOptions& o)
   // turn_accel_mps2 (cycloid peak |v1^2 - v0^2| / length): fast passes need metres, not 0.1 m.
   double run_out = o.turn_run_m, run_in = o.turn_run_m;
   if (o.turn_run_m > 0.0 && turn_accel > 0.0) {
-    const double vt = turn_arc_speed(0.5 * j.across_m(), v_out, v_in, o.turn_speed_mps, turn_accel);
+    double vt = turn_arc_speed(0.5 * j.across_m(), v_out, v_in, o.turn_speed_mps, turn_accel);
+    auto run_for = [&](double v_pass, double u, double accel) {
+      return std::max(o.turn_run_m, std::abs(v_pass * v_pass - u * u) / accel);
+    };
+    // A turn too short for the pump to switch off over it: runs with room for the slower arc that
+    // region_profile then gives it (between passes about as fast as the turn there is none). The
+    // uneased turn's arc speed, sized so; an eased one is sqrt(scale) slower still.
+    const double a1 = o.turn_accel_mps2, v1 = turn_arc_speed(0.5 * j.across_m(), v_out, v_in, o.turn_speed_mps, a1);
+    auto duration = [&](double u) {  // runs + arc at arc speed u, the runs sized for u
+      return run_for(v_out, u, a1) / (0.5 * (v_out + u)) + kPi * 0.5 * j.across_m() / u +
+             run_for(v_in, u, a1) / (0.5 * (u + v_in));
+    };
+    if (vt > 0.0 && v1 > 0.0 && o.min_turn_s > 0.0 && duration(v1) < o.min_turn_s) {
+      double lo = 1e-3, hi = v1;
+      for (int it = 0; it < 60 && hi - lo > 1e-9 * v1; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        (duration(mid) >= o.min_turn_s ? lo : hi) = mid;
+      }
+      vt = std::min(vt, std::sqrt(j.gap_scale) * lo);
+    }
     if (vt > 0.0) {
-      run_out = std::max(run_out, std::abs(v_out * v_out - vt * vt) / turn_accel);
-      run_in = std::max(run_in, std::abs(v_in * v_in - vt * vt) / turn_accel);
+      run_out = run_for(v_out, vt, turn_accel);
+      run_in = run_for(v_in, vt, turn_accel);
     }
   }
   TurnAroundOptions turn;
@@ -204,6 +223,7 @@ CartesianPath timing_region_path(const std::vector<Pass>& passes, double lead_in
   o.stop_accel_mps2 = timing.nozzle_max_accel_mps2;
   o.turn_speed_mps = timing.turn_speed_mps;
   o.turn_accel_mps2 = timing.turn_accel_mps2 > 0.0 ? timing.turn_accel_mps2 : timing.speed_change_accel_mps2;
+  o.min_turn_s = timing.spray_on_turns ? 0.0 : timing.min_turn_s;
   o.gap_accel_scale = gap_accel_scale;
   return region_path(passes, o);
 }

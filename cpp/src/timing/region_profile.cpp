@@ -99,8 +99,13 @@ double turn_speed_of(const std::vector<PieceSpec>& specs, std::size_t j, const T
   // An eased gap (accel_scale < 1, time_region_within_limits) whose arc would run at the pass
   // speeds under the cap: slow the arc too, so its centripetal part eases with the scale.
   if (!(v > 0.0) && t.accel_scale < 1.0) return std::sqrt(t.accel_scale) * std::max(t.v_in, t.v_out);
-  // Not on an eased turn (accel_scale < 1): its duration would stay pinned at min_s, uneased.
-  if (v > 0.0 && params.min_turn_s > 0.0 && t.accel_scale >= 1.0) return turn_speed_for_duration(specs, j, v, params.min_turn_s, t.accel_scale * turn_accel);
+  // Slowed to last the pump's off spell; an eased turn (accel_scale < 1) sqrt(scale) slower than
+  // that still (pinned at min_s, its easing would not ease it), never faster than its eased cap.
+  const double v1 = turn_arc_speed(t.length_m / kPi, t.v_in, t.v_out, params.turn_speed_mps, turn_accel);
+  if (v > 0.0 && v1 > 0.0 && params.min_turn_s > 0.0) {
+    const double u = turn_speed_for_duration(specs, j, v1, params.min_turn_s, turn_accel);
+    if (u < v1) return std::min(v, std::sqrt(t.accel_scale) * u);
+  }
   return v;
 }
 bool turn_with_own_speed(const std::vector<PieceSpec>& specs, std::size_t j, const TimingParams& params) {

@@ -32,6 +32,10 @@ struct RegionPathOptions {
   /// change between the pass speed and the arc speed (region_profile's, from turn_speed_mps and the
   /// centripetal cap at turn_accel_mps2) peaks at turn_accel_mps2.
   double turn_accel_mps2 = 0.0;
+  /// > 0: a turn whose arc runs at its own speed and would be shorter gets runs long enough for
+  /// an arc speed at which runs + arc last this long (region_profile slows it so; the pump's off
+  /// spell, timing.min_turn_s).
+  double min_turn_s = 0.0;
   /// Empty, or one value in (0, 1] per gap between consecutive passes: scales stop_accel_mps2 and
   /// turn_accel_mps2 for that gap alone, and the turn arc's accel_scale (the profile's arc speed):
   /// time_plan eases only the joins where the arm needs it.
