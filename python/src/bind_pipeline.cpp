@@ -43,9 +43,7 @@ void bind_executed(py::module_& m) {
         const RegionSpray rs = region_spray(passes, config);
         py::dict d;
         d["t_s"] = rs.t_s;
-        std::vector<Eigen::Vector3d> pos;
-        for (const auto& n : rs.nozzle) pos.push_back(n.position_m);
-        d["positions_m"] = pos;
+        d["positions_m"] = pose_positions(rs.nozzle);
         d["dwell_s"] = rs.dwell_s;
         d["flow"] = rs.flow;
         return d;

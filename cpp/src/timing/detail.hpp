@@ -41,6 +41,18 @@ std::vector<NozzlePose> tangent_curve(const NozzlePose& a, const Eigen::Vector3d
 /// pass speeds when it is 0), capped so that the centripetal acceleration v^2 / r stays at accel;
 /// 0 = no own turn speed (the arc changes from one pass speed to the next).
 double turn_arc_speed(double radius_m, double v_in, double v_out, double turn_speed_mps, double accel_mps2);
+/// The highest arc speed in [lo, hi] at which a turn lasts min_s, by bisection (duration(u) falls
+/// as u grows; duration(lo) >= min_s > duration(hi)): region_path sizes the turn runs for it,
+/// region_profile slows the arc to it (timing.min_turn_s).
+template <class Duration>
+double speed_lasting(const Duration& duration, double lo, double hi, double min_s) {
+  const double tol = 1e-9 * hi;
+  for (int it = 0; it < 60 && hi - lo > tol; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (duration(mid) >= min_s ? lo : hi) = mid;
+  }
+  return lo;
+}
 /// Piece data needed by the speed profile: kind, length and the planned speeds.
 struct PieceSpec {
   SegmentKind kind;

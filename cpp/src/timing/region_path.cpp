@@ -125,14 +125,8 @@ void append_turn(CartesianPath& path, const Join& j, const RegionPathOptions& o)
       return run_for(v_out, u, a1) / (0.5 * (v_out + u)) + kPi * 0.5 * j.across_m() / u +
              run_for(v_in, u, a1) / (0.5 * (u + v_in));
     };
-    if (vt > 0.0 && v1 > 0.0 && o.min_turn_s > 0.0 && duration(v1) < o.min_turn_s) {
-      double lo = 1e-3, hi = v1;
-      for (int it = 0; it < 60 && hi - lo > 1e-9 * v1; ++it) {
-        const double mid = 0.5 * (lo + hi);
-        (duration(mid) >= o.min_turn_s ? lo : hi) = mid;
-      }
-      vt = std::min(vt, std::sqrt(j.gap_scale) * lo);
-    }
+    if (vt > 0.0 && v1 > 0.0 && o.min_turn_s > 0.0 && duration(v1) < o.min_turn_s)
+      vt = std::min(vt, std::sqrt(j.gap_scale) * speed_lasting(duration, 1e-3, v1, o.min_turn_s));
     if (vt > 0.0) {
       run_out = run_for(v_out, vt, turn_accel);
       run_in = run_for(v_in, vt, turn_accel);

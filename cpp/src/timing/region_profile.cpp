@@ -81,12 +81,7 @@ double turn_speed_for_duration(const std::vector<PieceSpec>& specs, std::size_t 
   lo = std::max(lo, run_before ? floor_of(specs[j - 1].v_in, specs[j - 1].length_m) : floor_of(t.v_in, 0.5 * t.length_m));
   lo = std::max(lo, run_after ? floor_of(specs[j + 1].v_in, specs[j + 1].length_m) : floor_of(t.v_out, 0.5 * t.length_m));
   if (lo >= v || turn_duration_s(specs, j, lo) < min_s) return v;
-  double hi = v;  // duration(lo) >= min_s > duration(hi); the duration falls as u grows
-  for (int it = 0; it < 60 && hi - lo > 1e-9 * v; ++it) {
-    const double mid = 0.5 * (lo + hi);
-    (turn_duration_s(specs, j, mid) >= min_s ? lo : hi) = mid;
-  }
-  return lo;
+  return speed_lasting([&](double u) { return turn_duration_s(specs, j, u); }, lo, v, min_s);
 }
 
 // Speed on turn arc j: the turn speed (or the pass speeds when it is 0), capped so that the
