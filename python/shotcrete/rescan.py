@@ -271,6 +271,8 @@ def correction_summary(surface, arm_plan, config) -> dict:
     out = {k: s[k] for k in keys if k in s}
     out["deposition_peak_rate_mps"] = config.deposition.peak_rate_mps
     out["time_weight_mm2_per_s"] = config.planner.time_weight_mm2_per_s  # rescan.correction_time_weight_mm2_per_s
+    out["levelling_spacing_ratio"] = config.planner.levelling_spacing_ratio  # rescan.correction_spacing_ratio
+    out["edge_overrun_m"] = config.planner.edge_overrun_m  # rescan.correction_edge_overrun_m
     return out
 
 

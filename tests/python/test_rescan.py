@@ -148,6 +148,9 @@ def test_corrective_round_planned_on_the_measured_residual(loop):
     # Planned with the finishing layer's time weight, not the job's.
     cfg = shotcrete.load_config(loop / "cfg.yaml")
     assert corr["time_weight_mm2_per_s"] == cfg.rescan.correction_time_weight_mm2_per_s != cfg.planner.time_weight_mm2_per_s
+    # ... on lines at the two-pass spacing, not the job's close ones.
+    assert corr["levelling_spacing_ratio"] == cfg.rescan.correction_spacing_ratio != cfg.planner.levelling_spacing_ratio
+    assert corr["edge_overrun_m"] == cfg.rescan.correction_edge_overrun_m != cfg.planner.edge_overrun_m
     assert (loop / "out" / "plan.json").is_file()
     html = (loop / "out" / "report.html").read_text()
     for f in rep["files"]["figures"]:

@@ -221,6 +221,10 @@ template <class F> void visit(RescanConfig*, F&& f) {
   f("calibration_min_deposit_m", &RescanConfig::calibration_min_deposit_m, 0.0, 1.0, "least predicted deposit of a calibration cell [m]");
   f("correction_time_weight_mm2_per_s", &RescanConfig::correction_time_weight_mm2_per_s, 0.0, 1e6,
     "the corrective round's planner.time_weight_mm2_per_s (optimal mode)");
+  f("correction_spacing_ratio", &RescanConfig::correction_spacing_ratio, 0.2, 1.0,
+    "the corrective round's planner.levelling_spacing_ratio (optimal mode)");
+  f("correction_edge_overrun_m", &RescanConfig::correction_edge_overrun_m, 0.0, 0.5,
+    "the corrective round's planner.edge_overrun_m [m]");
 }
 
 template <class G> void visit_sections(G&& g) {

@@ -119,6 +119,11 @@ RescanOutcome rescan_job(const Grid& grid, const Eigen::VectorXd& predicted_depo
   out.correction_config->grid.bay = BaySelection::whole;
   // A thin finishing layer: the last cells off flush are worth more seconds than in a first round.
   out.correction_config->planner.time_weight_mm2_per_s = config.rescan.correction_time_weight_mm2_per_s;
+  // ... and laid on lines at the two-pass spacing: one pump spell on the job's close lines lays
+  // more than its thin cells need.
+  out.correction_config->planner.levelling_spacing_ratio = config.rescan.correction_spacing_ratio;
+  // Its end cells need too little for a spell of their own: the lines run on further past the ends.
+  out.correction_config->planner.edge_overrun_m = config.rescan.correction_edge_overrun_m;
   const Cloud wall = wall_points(grid, after_reg, out.thickness.residual_td_m, kRescanWallBand_m);
   out.correction_surface = build_surface(wall, *out.correction_config);
   out.correction = plan_for_arm(*out.correction_surface, *out.correction_config, *robot, progress);
