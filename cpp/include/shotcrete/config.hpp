@@ -296,7 +296,7 @@ struct RescanConfig {
   Eigen::Vector3d reference_box_min_m{-1e3, -1e3, -1e3};  // box: reference corners in the before frame [m]
   Eigen::Vector3d reference_box_max_m{1e3, 1e3, 1e3};
   double mask_radius_m = 0.1;        // mask: before points within this of a mask point are reference [m]
-  double voxel_size_m = 0.05;        // downsampling of both reference clouds for GICP [m]
+  double voxel_size_m = 0.06;        // downsampling of both reference clouds for GICP [m]
   double coarse_correspondence_m = 0.3;  // GICP max correspondence distance, first stage [m]
   double fine_correspondence_m = 0.05;   // second stage, and the overlap test [m]
   int max_iterations = 60;           // GICP iterations per stage

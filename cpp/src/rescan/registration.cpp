@@ -1,31 +1,98 @@
 // Registration of the after-scan on the reference areas (docs/architecture.md §12).
 #include <pcl/filters/random_sample.h>
-#include <pcl/filters/voxel_grid.h>
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/registration/gicp.h>
+#include <pcl/search/kdtree.h>
 
 #include <Eigen/Eigenvalues>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <unordered_set>
 
 #include "shotcrete/rescan/rescan.hpp"
+#include "gicp_parts.hpp"
 
 namespace shotcrete {
 
+namespace detail {
+
+// PCL computes the covariances on one thread (they were a third of the fine stage), squaring the
+// coordinates in float; here on every thread and in double.
+GicpBase::MatricesVectorPtr gicp_covariances(const PclCloud& cloud, const Tree& tree, int k, double epsilon) {
+  auto out = std::make_shared<GicpBase::MatricesVector>(cloud.size());
+  const long n = static_cast<long>(cloud.size());
+#pragma omp parallel
+  {
+    std::vector<int> nn(static_cast<size_t>(k));
+    std::vector<float> d2(static_cast<size_t>(k));
+#pragma omp for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const int found = tree.nearestKSearch(cloud[static_cast<size_t>(i)], k, nn, d2);
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+      for (int j = 0; j < found; ++j) {
+        const Eigen::Vector3d p = cloud[static_cast<size_t>(nn[static_cast<size_t>(j)])].getVector3fMap().cast<double>();
+        mean += p;
+        cov += p * p.transpose();
+      }
+      mean /= static_cast<double>(found);
+      cov = cov / static_cast<double>(found) - mean * mean.transpose();
+      const Eigen::JacobiSVD<Eigen::Matrix3d> svd(cov, Eigen::ComputeFullU);
+      const Eigen::Matrix3d& U = svd.matrixU();
+      (*out)[static_cast<size_t>(i)] = U * Eigen::Vector3d(1.0, 1.0, epsilon).asDiagonal() * U.transpose();
+    }
+  }
+  return out;
+}
+
+size_t occupied_voxels(const PclCloud& pc, double voxel_m) {
+  struct Key {
+    std::int64_t i, j, k;
+    bool operator==(const Key& o) const { return i == o.i && j == o.j && k == o.k; }
+  };
+  struct Hash {
+    size_t operator()(const Key& a) const {
+      return static_cast<size_t>(a.i * 73856093LL ^ a.j * 19349663LL ^ a.k * 83492791LL);
+    }
+  };
+  const float inv = 1.0f / static_cast<float>(voxel_m);
+  std::unordered_set<Key, Hash> keys;
+  keys.reserve(pc.size() / 4);
+  const auto key = [inv](float x) { return static_cast<std::int64_t>(std::floor(x * inv)); };
+  for (const auto& p : pc.points) keys.insert(Key{key(p.x), key(p.y), key(p.z)});
+  return keys.size();
+}
+
+}  // namespace detail
+
 namespace {
 
-using PclCloud = pcl::PointCloud<pcl::PointXYZ>;
+using detail::gicp_covariances;
+using detail::occupied_voxels;
+using detail::PclCloud;
+using detail::Tree;
+
+// One kd-tree per cloud, shared by the covariances, GICP and the overlap (each built its own).
+Tree::Ptr make_tree(const PclCloud::Ptr& cloud) {
+  auto tree = std::make_shared<Tree>();
+  tree->setInputCloud(cloud);
+  return tree;
+}
 
 // PCL's GICP with its iteration count readable (nr_iterations_ is protected).
-class Gicp : public pcl::GeneralizedIterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> {
+class Gicp : public detail::GicpBase {
  public:
   int iterations() const { return nr_iterations_; }
+  double epsilon() const { return gicp_epsilon_; }
 };
+
+constexpr int kCovarianceNeighbours = 20;  // points per GICP covariance (PCL's default)
 
 // Points (already in the before frame) shifted by -centre into float (float keeps 0.1 mm within a
 // few hundred metres of the centre, so survey coordinates never reach PCL), then thinned to as
@@ -39,14 +106,9 @@ PclCloud::Ptr to_pcl_voxel(const std::vector<Eigen::Vector3d>& pts, const Eigen:
     pc->push_back(pcl::PointXYZ(q.x(), q.y(), q.z()));
   }
   if (!(voxel_m > 0) || pc->empty()) return pc;
-  pcl::VoxelGrid<pcl::PointXYZ> grid;
-  grid.setInputCloud(pc);
-  grid.setLeafSize(static_cast<float>(voxel_m), static_cast<float>(voxel_m), static_cast<float>(voxel_m));
-  PclCloud voxels;
-  grid.filter(voxels);
   pcl::RandomSample<pcl::PointXYZ> sample;
   sample.setInputCloud(pc);
-  sample.setSample(static_cast<unsigned int>(voxels.size()));
+  sample.setSample(static_cast<unsigned int>(occupied_voxels(*pc, voxel_m)));
   sample.setSeed(1);
   PclCloud::Ptr out(new PclCloud);
   sample.filter(*out);
@@ -62,6 +124,19 @@ std::string pct(double x) {
 
 Eigen::Vector3d apply(const Eigen::Matrix4d& T, const Eigen::Vector3d& p) {
   return T.topLeftCorner<3, 3>() * p + T.topRightCorner<3, 1>();
+}
+
+// The points of `cloud` (moved by T) that pass the reference test, in the cloud's order; the
+// test runs on every thread (it is read-only) over a million-point scan.
+std::vector<Eigen::Vector3d> reference_points(const Cloud& cloud, const Eigen::Matrix4d& T, const ReferenceTest& reference) {
+  const Eigen::Index n = cloud.size();
+  std::vector<char> keep(static_cast<size_t>(n), 0);
+#pragma omp parallel for schedule(static)
+  for (Eigen::Index i = 0; i < n; ++i) keep[static_cast<size_t>(i)] = reference(apply(T, cloud.xyz.row(i).transpose())) ? 1 : 0;
+  std::vector<Eigen::Vector3d> out;
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (keep[static_cast<size_t>(i)]) out.push_back(apply(T, cloud.xyz.row(i).transpose()));
+  return out;
 }
 
 }  // namespace
@@ -139,11 +214,7 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
                                   "-scan has NaN or infinite coordinates");
   }
   if (!initial.allFinite()) throw std::invalid_argument("rescan: the initial pose is not finite");
-  std::vector<Eigen::Vector3d> target_pts;
-  for (Eigen::Index i = 0; i < before.size(); ++i) {
-    const Eigen::Vector3d p = before.xyz.row(i).transpose();
-    if (reference(p)) target_pts.push_back(p);
-  }
+  const std::vector<Eigen::Vector3d> target_pts = reference_points(before, Eigen::Matrix4d::Identity(), reference);
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
   for (const auto& p : target_pts) centre += p;
   if (!target_pts.empty()) centre /= static_cast<double>(target_pts.size());
@@ -158,35 +229,46 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
                                 enum_name(c.reference) + ")");
   Registration out;
   out.target_points = static_cast<long>(target->size());
-  pcl::KdTreeFLANN<pcl::PointXYZ> tree;
-  tree.setInputCloud(target);
-  std::vector<int> idx(1);
-  std::vector<float> d2(1);
+  const Tree::Ptr target_tree = make_tree(target), coarse_tree = make_tree(coarse_target);
   // The share of `pts` whose nearest target point lies within `dist`, and (rms) the RMS distance
   // of those points to the plane of their 8 nearest target points: the thinned clouds' spacing
-  // would dominate a point-to-point distance.
+  // would dominate a point-to-point distance. Per point on every thread, summed in order.
   auto matched_share = [&](const PclCloud& pts, double dist, double* rms) {
+    const long n = static_cast<long>(pts.size());
+    std::vector<double> e2(static_cast<size_t>(n), -1.0);  // squared plane distance; -1: unmatched
+#pragma omp parallel
+    {
+      std::vector<int> nn(8);
+      std::vector<float> nd2(8);
+#pragma omp for schedule(static)
+      for (long i = 0; i < n; ++i) {
+        const auto& q = pts[static_cast<size_t>(i)];
+        const int k = target_tree->nearestKSearch(q, rms ? 8 : 1, nn, nd2);  // nearest first
+        if (k <= 0 || nd2[0] > dist * dist) continue;
+        if (!rms) {
+          e2[static_cast<size_t>(i)] = 0.0;
+          continue;
+        }
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (int j = 0; j < k; ++j) mean += target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>();
+        mean /= k;
+        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+        for (int j = 0; j < k; ++j) {
+          const Eigen::Vector3d v = target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>() - mean;
+          cov += v * v.transpose();
+        }
+        const Eigen::Vector3d normal = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+        const double e = (q.getVector3fMap().cast<double>() - mean).dot(normal);
+        e2[static_cast<size_t>(i)] = e * e;
+      }
+    }
     long matched = 0;
     double sum2 = 0.0;
-    std::vector<int> nn(8);
-    std::vector<float> nd2(8);
-    for (const auto& q : pts.points) {
-      if (tree.nearestKSearch(q, 1, idx, d2) <= 0 || d2[0] > dist * dist) continue;
-      ++matched;
-      if (!rms) continue;
-      const int k = tree.nearestKSearch(q, 8, nn, nd2);
-      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-      for (int j = 0; j < k; ++j) mean += target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>();
-      mean /= k;
-      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-      for (int j = 0; j < k; ++j) {
-        const Eigen::Vector3d v = target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>() - mean;
-        cov += v * v.transpose();
+    for (const double v : e2)
+      if (v >= 0.0) {
+        ++matched;
+        sum2 += v;
       }
-      const Eigen::Vector3d normal = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
-      const double e = (q.getVector3fMap().cast<double>() - mean).dot(normal);
-      sum2 += e * e;
-    }
     if (rms) *rms = matched ? std::sqrt(sum2 / static_cast<double>(matched)) : std::numeric_limits<double>::quiet_NaN();
     return pts.empty() ? 0.0 : static_cast<double>(matched) / static_cast<double>(pts.size());
   };
@@ -197,11 +279,7 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
   Sinv.topRightCorner<3, 1>() = -centre;
   for (const bool coarse : {true, false}) {
     const double dist = coarse ? c.coarse_correspondence_m : c.fine_correspondence_m;
-    std::vector<Eigen::Vector3d> src;
-    for (Eigen::Index i = 0; i < after.size(); ++i) {
-      const Eigen::Vector3d p = apply(T, after.xyz.row(i).transpose());
-      if (reference(p)) src.push_back(p);
-    }
+    const std::vector<Eigen::Vector3d> src = reference_points(after, T, reference);
     source = to_pcl_voxel(src, centre, coarse ? 2.0 * c.voxel_size_m : c.voxel_size_m);
     if (static_cast<long>(source->size()) < c.min_reference_points)
       throw std::invalid_argument("rescan: no reference area in the after-scan: " + std::to_string(source->size()) +
@@ -217,11 +295,17 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
     Gicp gicp;
     gicp.setInputSource(source);
     gicp.setInputTarget(coarse ? coarse_target : target);
+    const Tree::Ptr source_tree = make_tree(source);
+    gicp.setSearchMethodSource(source_tree, true);
+    gicp.setSearchMethodTarget(coarse ? coarse_tree : target_tree, true);
+    gicp.setSourceCovariances(gicp_covariances(*source, *source_tree, kCovarianceNeighbours, gicp.epsilon()));
+    gicp.setTargetCovariances(
+        gicp_covariances(coarse ? *coarse_target : *target, coarse ? *coarse_tree : *target_tree, kCovarianceNeighbours, gicp.epsilon()));
     gicp.setMaxCorrespondenceDistance(dist);
     gicp.setMaximumIterations(c.max_iterations);
     gicp.setTransformationEpsilon(1e-6);  // m: stop when the translation changes by less
     gicp.setRotationEpsilon(1e-7);        // rotation matrix entries
-    gicp.setCorrespondenceRandomness(20);
+    gicp.setCorrespondenceRandomness(kCovarianceNeighbours);
     PclCloud aligned;
     gicp.align(aligned);
     out.iterations += gicp.iterations();
