@@ -284,6 +284,12 @@ TEST(Registration, RefusesNoReferenceAreaAnotherBayAndBadClouds) {
   nan.xyz(3, 1) = std::nan("");
   EXPECT_THROW(register_scans(p.before, nan, ref, p.config.rescan), std::invalid_argument);
   EXPECT_THROW(mask_reference(Cloud{}, p.config.rescan), std::invalid_argument);
+  // A reference test that throws (it runs on every thread): its exception reaches the caller.
+  const ReferenceTest throwing = [](const Eigen::Vector3d& q) -> bool {
+    if (q.x() > 1.0) throw std::domain_error("reference test failed");
+    return true;
+  };
+  EXPECT_THROW(register_scans(p.before, p.after.cloud, throwing, p.config.rescan), std::domain_error);
 }
 
 TEST(Thickness, M3C2OnNoisyPlanesMatchesTheLayerAndItsOwnUncertainty) {

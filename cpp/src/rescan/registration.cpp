@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <exception>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -131,8 +132,17 @@ Eigen::Vector3d apply(const Eigen::Matrix4d& T, const Eigen::Vector3d& p) {
 std::vector<Eigen::Vector3d> reference_points(const Cloud& cloud, const Eigen::Matrix4d& T, const ReferenceTest& reference) {
   const Eigen::Index n = cloud.size();
   std::vector<char> keep(static_cast<size_t>(n), 0);
+  std::exception_ptr error;  // an exception may not leave an OpenMP region: the first is rethrown after it
 #pragma omp parallel for schedule(static)
-  for (Eigen::Index i = 0; i < n; ++i) keep[static_cast<size_t>(i)] = reference(apply(T, cloud.xyz.row(i).transpose())) ? 1 : 0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    try {
+      keep[static_cast<size_t>(i)] = reference(apply(T, cloud.xyz.row(i).transpose())) ? 1 : 0;
+    } catch (...) {
+#pragma omp critical(shotcrete_reference_error)
+      if (!error) error = std::current_exception();
+    }
+  }
+  if (error) std::rethrow_exception(error);
   std::vector<Eigen::Vector3d> out;
   for (Eigen::Index i = 0; i < n; ++i)
     if (keep[static_cast<size_t>(i)]) out.push_back(apply(T, cloud.xyz.row(i).transpose()));

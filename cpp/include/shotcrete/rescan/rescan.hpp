@@ -23,6 +23,7 @@ Grid grid_from_cells(const TunnelAxis& axis, const DesignProfile& profile, doubl
                      const std::vector<double>& td_before_m);
 
 /// Which points (in the before frame) are reference areas: unsprayed and unchanged between scans.
+/// Called from several threads at once (register_scans): it must only read its state.
 using ReferenceTest = std::function<bool(const Eigen::Vector3d& p_m)>;
 
 /// rescan.reference dry: a point is reference unless it lies within profile band max_deviation_m of
