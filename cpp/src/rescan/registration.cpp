@@ -23,8 +23,26 @@ namespace shotcrete {
 
 namespace detail {
 
+namespace {
+
+// The covariance of the points of `cloud` at nn[0, k), about their mean (centred: no cancellation).
+Eigen::Matrix3d neighbour_covariance(const PclCloud& cloud, const std::vector<int>& nn, int k, Eigen::Vector3d* mean_out = nullptr) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (int j = 0; j < k; ++j) mean += cloud[static_cast<size_t>(nn[static_cast<size_t>(j)])].getVector3fMap().cast<double>();
+  mean /= static_cast<double>(k);
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (int j = 0; j < k; ++j) {
+    const Eigen::Vector3d v = cloud[static_cast<size_t>(nn[static_cast<size_t>(j)])].getVector3fMap().cast<double>() - mean;
+    cov += v * v.transpose();
+  }
+  if (mean_out) *mean_out = mean;
+  return cov / static_cast<double>(k);
+}
+
+}  // namespace
+
 // PCL computes the covariances on one thread (they were a third of the fine stage), squaring the
-// coordinates in float; here on every thread and in double.
+// coordinates in float; here on every thread, in double, about the neighbours' mean.
 GicpBase::MatricesVectorPtr gicp_covariances(const PclCloud& cloud, const Tree& tree, int k, double epsilon) {
   auto out = std::make_shared<GicpBase::MatricesVector>(cloud.size());
   const long n = static_cast<long>(cloud.size());
@@ -35,16 +53,7 @@ GicpBase::MatricesVectorPtr gicp_covariances(const PclCloud& cloud, const Tree& 
 #pragma omp for schedule(static)
     for (long i = 0; i < n; ++i) {
       const int found = tree.nearestKSearch(cloud[static_cast<size_t>(i)], k, nn, d2);
-      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-      for (int j = 0; j < found; ++j) {
-        const Eigen::Vector3d p = cloud[static_cast<size_t>(nn[static_cast<size_t>(j)])].getVector3fMap().cast<double>();
-        mean += p;
-        cov += p * p.transpose();
-      }
-      mean /= static_cast<double>(found);
-      cov = cov / static_cast<double>(found) - mean * mean.transpose();
-      const Eigen::JacobiSVD<Eigen::Matrix3d> svd(cov, Eigen::ComputeFullU);
+      const Eigen::JacobiSVD<Eigen::Matrix3d> svd(neighbour_covariance(cloud, nn, found), Eigen::ComputeFullU);
       const Eigen::Matrix3d& U = svd.matrixU();
       (*out)[static_cast<size_t>(i)] = U * Eigen::Vector3d(1.0, 1.0, epsilon).asDiagonal() * U.transpose();
     }
@@ -259,14 +268,8 @@ Registration register_scans(const Cloud& before, const Cloud& after, const Refer
           e2[static_cast<size_t>(i)] = 0.0;
           continue;
         }
-        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (int j = 0; j < k; ++j) mean += target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>();
-        mean /= k;
-        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-        for (int j = 0; j < k; ++j) {
-          const Eigen::Vector3d v = target->points[static_cast<size_t>(nn[j])].getVector3fMap().cast<double>() - mean;
-          cov += v * v.transpose();
-        }
+        Eigen::Vector3d mean;
+        const Eigen::Matrix3d cov = detail::neighbour_covariance(*target, nn, k, &mean);
         const Eigen::Vector3d normal = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
         const double e = (q.getVector3fMap().cast<double>() - mean).dot(normal);
         e2[static_cast<size_t>(i)] = e * e;
