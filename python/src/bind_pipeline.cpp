@@ -15,6 +15,7 @@ void bind_executed(py::module_& m) {
       .def_readonly("commanded_on_s", &FlowSchedule::commanded_on_s)
       .def_readonly("bridged_s", &FlowSchedule::bridged_s)
       .def_readonly("extended_s", &FlowSchedule::extended_s)
+      .def_readonly("trimmed_s", &FlowSchedule::trimmed_s)
       .def_readonly("dropped_s", &FlowSchedule::dropped_s)
       .def_readonly("commanded_switches", &FlowSchedule::commanded_switches)
       .def("switches", &FlowSchedule::switches)

@@ -69,6 +69,17 @@ struct KinkFlow {
 
 }  // namespace
 
+namespace {
+// The schedule's spells are these [on, off] pairs (by hand).
+void expect_spells(const FlowSchedule& s, const std::vector<std::pair<double, double>>& spells) {
+  ASSERT_EQ(s.on_s.size(), spells.size());
+  for (std::size_t k = 0; k < spells.size(); ++k) {
+    EXPECT_NEAR(s.on_s[k], spells[k].first, 1e-9) << "spell " << k;
+    EXPECT_NEAR(s.off_s[k], spells[k].second, 1e-9) << "spell " << k;
+  }
+}
+}  // namespace
+
 TEST(FlowSchedule, IdealPumpGivesTheSprayDwells) {
   std::mt19937 rng(3);
   std::vector<double> t = times(400, 0.02);
@@ -127,23 +138,28 @@ TEST(FlowSchedule, NoSpellShorterThanTheMinimums) {
     if (s.on_s.empty()) continue;
     EXPECT_GE(s.shortest_on_s(), f.min_on_s - 1e-9);
     if (s.on_s.size() > 1) EXPECT_GE(s.shortest_off_s(), f.min_off_s - 1e-9);
-    // Whatever the flags ask for is sprayed: every flagged sample lies in a spell.
+    // Whatever the flags ask for is sprayed, but for the ends trimmed off spells to widen short
+    // gaps: the flagged samples outside every spell add up to the trimmed time (to a sample's
+    // share at each end of a spell).
+    double outside_s = 0.0;
     for (std::size_t i = 0; i < t.size(); ++i) {
       if (!spraying[i]) continue;
       bool inside = false;
       for (std::size_t k = 0; k < s.on_s.size(); ++k) inside = inside || (t[i] >= s.on_s[k] && t[i] <= s.off_s[k]);
-      EXPECT_TRUE(inside) << t[i];
+      if (!inside) outside_s += 0.02;
     }
-    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s, 1e-9);
+    EXPECT_LE(outside_s, s.trimmed_s + 0.02 * 2.0 * static_cast<double>(s.on_s.size()) + 1e-9);
+    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s - s.trimmed_s, 1e-9);
     EXPECT_GE(s.bridged_s, 0.0);
     EXPECT_GE(s.extended_s, -1e-9);
   }
 }
 
 // A short spell between two turns of the pump's minimum off time: extending it brings both gaps
-// under the minimum, and the pump runs through them (bridged), whether or not the trajectory has a
-// joint move somewhere else. It used to be switched off when it had (the joint move's check took
-// every short gap for its own), so a region's schedule and the whole trajectory's disagreed.
+// under the minimum, and the pump widens them by switching off earlier and on later around it
+// (the spell itself, at its minimum, keeps its length), whether or not the trajectory has a joint
+// move somewhere else. It used to be switched off when it had (the joint move's check took every
+// short gap for its own), so a region's schedule and the whole trajectory's disagreed.
 TEST(FlowSchedule, AJointMoveElsewhereDoesNotChangeTheSpells) {
   const std::vector<double> t = times(301, 0.1);  // 0 .. 30 s
   std::vector<char> spraying(t.size(), 0), blocked(t.size(), 0);
@@ -155,16 +171,43 @@ TEST(FlowSchedule, AJointMoveElsewhereDoesNotChangeTheSpells) {
   const FlowSchedule alone = flow_schedule(t, spraying, f);
   for (int i = 200; i <= 210; ++i) blocked[static_cast<std::size_t>(i)] = 1;  // joint move [19.95, 21.05]
   const FlowSchedule with_move = flow_schedule(t, spraying, f, blocked);
-  // By hand: the 1.5 s spell grows to 2 s, [6.3, 8.3], leaving gaps of 1.85 s: both bridged.
+  // By hand: the 1.5 s spell grows to 2 s, [6.3, 8.3], leaving gaps of 1.85 s; each is widened
+  // to 2 s by 0.15 s off the longer spell beside it (the 2 s spell has none to spare).
   for (const FlowSchedule* s : {&alone, &with_move}) {
-    ASSERT_EQ(s->on_s.size(), 2u);
-    EXPECT_NEAR(s->on_s[0], 0.95, 1e-12);
-    EXPECT_NEAR(s->off_s[0], 13.05, 1e-12);
-    EXPECT_NEAR(s->bridged_s, 1.85 + 1.85, 1e-9);
+    expect_spells(*s, {{0.95, 4.3}, {6.3, 8.3}, {10.3, 13.05}, {22.95, 26.05}});
+    EXPECT_NEAR(s->bridged_s, 0.0, 1e-12);
+    EXPECT_NEAR(s->trimmed_s, 0.3, 1e-9);
     EXPECT_NEAR(s->dropped_s, 0.0, 1e-12);
+    EXPECT_NEAR(s->on_time_s(), s->commanded_on_s + s->extended_s - s->trimmed_s, 1e-9);
   }
-  EXPECT_NEAR(with_move.on_s[1], alone.on_s[1], 1e-12);
-  EXPECT_NEAR(with_move.off_s[1], alone.off_s[1], 1e-12);
+}
+
+// A gap a little under min_off is widened (the spells' ends cut: less commanded flow lost than a
+// bridge would add, at the turn where the nozzle slows); a gap well under it, or one between
+// spells with nothing to spare above min_on, is bridged.
+TEST(FlowSchedule, TrimsAShortGapWhenThatCostsLessThanBridgingIt) {
+  const std::vector<double> t = times(201, 0.1);  // 0 .. 20 s
+  std::vector<char> spraying(t.size(), 0);
+  auto spray = [&](int a, int b) {
+    for (int i = a; i <= b; ++i) spraying[static_cast<std::size_t>(i)] = 1;
+  };
+  spray(10, 44);    // [0.95, 4.45]
+  spray(61, 90);    // [6.05, 9.05]: a 1.6 s gap before it
+  spray(99, 130);   // [9.85, 13.05]: a 0.8 s gap before it
+  spray(152, 161);  // [15.15, 16.15]: 1 s, at min_on
+  spray(178, 187);  // [17.75, 18.75]: 1 s, 1.6 s after the last
+  const FlowConfig f = flow(0.5, 1.0, 2.0);
+  const FlowSchedule s = flow_schedule(t, spraying, f);
+  // The 1.6 s gap: 0.4 s to cut < 1.6 s to bridge, 0.2 s off each end. The 0.8 s gap: 1.2 s to
+  // cut > 0.8 s: bridged. The last gap: both spells at min_on, nothing to cut: bridged.
+  expect_spells(s, {{0.95, 4.25}, {6.25, 13.05}, {15.15, 18.75}});
+  EXPECT_NEAR(s.trimmed_s, 0.4, 1e-9);
+  EXPECT_NEAR(s.bridged_s, 0.8 + 1.6, 1e-9);
+  EXPECT_GE(s.shortest_off_s(), f.min_off_s - 1e-9);
+  EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.trimmed_s, 1e-9);
+  double sum = 0.0;
+  for (double d : flow_dwells(s, t)) sum += d;
+  EXPECT_NEAR(sum, s.on_time_s(), 1e-9);
 }
 
 TEST(FlowSchedule, NoFlowThroughAJointMove) {
@@ -178,11 +221,11 @@ TEST(FlowSchedule, NoFlowThroughAJointMove) {
   for (int i = 70; i <= 74; ++i) blocked[static_cast<std::size_t>(i)] = 1;   // joint move [6.95, 7.45]
   for (int i = 76; i <= 90; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [7.55, 9.05]
   const FlowConfig f = flow(0.5, 1.0, 1.0);
-  // Without the joint moves the pump sprays through the first two and the third.
+  // Without the joint moves the pump sprays through the first two; the 0.3 s spell grows to 1 s,
+  // [5.6, 6.6], 0.95 s before the last, which starts 0.05 s late to keep the 1 s off.
   const FlowSchedule wet = flow_schedule(t, spraying, f);
-  ASSERT_EQ(wet.on_s.size(), 2u);
-  EXPECT_NEAR(wet.off_s[0], 3.95, 1e-12);
-  EXPECT_NEAR(wet.on_s[1], 5.6, 1e-12);
+  expect_spells(wet, {{0.95, 3.95}, {5.6, 6.6}, {7.6, 9.05}});
+  EXPECT_NEAR(wet.trimmed_s, 0.05, 1e-12);
   const FlowSchedule s = flow_schedule(t, spraying, f, blocked);
   // The spell between the first two joint moves has 0.4 - 0.5 s of free time: dropped. The
   // first spell ends half a ramp before the first move (2.95 -> 2.9); the 0.3 s spell grows to
@@ -196,7 +239,7 @@ TEST(FlowSchedule, NoFlowThroughAJointMove) {
   EXPECT_NEAR(s.on_s[2], 7.7, 1e-12);
   EXPECT_NEAR(s.off_s[2], 9.05, 1e-12);
   EXPECT_NEAR(s.dropped_s, 0.05 + 0.2 + 0.15, 1e-12);
-  EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s, 1e-12);
+  EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s - s.trimmed_s, 1e-12);
   for (std::size_t i = 0; i < t.size(); ++i)
     if (blocked[i]) {
       EXPECT_NEAR(s.flow_at(t[i]), 0.0, 1e-12) << t[i];
@@ -221,7 +264,7 @@ TEST(FlowSchedule, JointMovesKeepTheMinimumsAndStayDry) {
       if (blocked[i]) spraying[i] = 0;
     const FlowConfig f = flow(0.3, 1.5, 0.8);
     const FlowSchedule s = flow_schedule(t, spraying, f, blocked);
-    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s, 1e-9);
+    EXPECT_NEAR(s.on_time_s(), s.commanded_on_s + s.bridged_s + s.extended_s - s.dropped_s - s.trimmed_s, 1e-9);
     EXPECT_GE(s.dropped_s, 0.0);
     if (s.on_s.empty()) continue;
     EXPECT_GE(s.shortest_on_s(), f.min_on_s - 1e-9);
@@ -331,7 +374,7 @@ Eigen::VectorXd brute_force(const SpotModel& model, const Cloud& cloud, const Ti
 
 TEST(ExecutedDeposit, MatchesABruteForceIntegrationRoundByRound) {
   Config cfg;
-  cfg.flow = flow(0.4, 0.6, 0.5);
+  cfg.flow = flow(0.4, 0.6, 0.7);  // the 0.3 s gap: 0.4 s to cut off the spells, more than it lasts
   const Surface surface = test::analytic_bay([](double d, double th) { return 0.04 * std::sin(6 * d) * std::cos(4 * th); },
                                              cfg, 0.9, 1.5, 0.8, 3);
   // Round 1: region 0, a pass with a 0.3 s gap (bridged) and a transit; round 2: region 1.

@@ -602,7 +602,7 @@ TEST(RegionSpray, PumpSpellsAndRampsKeepTheVolume) {
   dwell += spray.dwell_s.back();
   // Ramps lay what steps lay: the flow-on time is what the flags ask for plus what the pump adds.
   EXPECT_NEAR(dwell, spray.flow.on_time_s(), 1e-9);
-  EXPECT_NEAR(spray.flow.on_time_s(), spray.flow.commanded_on_s + spray.flow.bridged_s + spray.flow.extended_s - spray.flow.dropped_s, 1e-9);
+  EXPECT_NEAR(spray.flow.on_time_s(), spray.flow.commanded_on_s + spray.flow.bridged_s + spray.flow.extended_s - spray.flow.dropped_s - spray.flow.trimmed_s, 1e-9);
   // Each switch ramps over ramp_s: about ramp_s * rate samples at part flow per switch.
   EXPECT_GE(ramping, spray.flow.switches() * static_cast<int>(0.9 * cfg.flow.ramp_s / dt));
 }

@@ -44,7 +44,7 @@ def test_summary_reports_the_executed_deposit(job):
     # The pump's schedule: no spell shorter than the minimums, the added time accounted for.
     assert f["shortest_on_s"] >= cfg.flow.min_on_s - 1e-9
     assert f["switches"] <= 2 or f["shortest_off_s"] >= cfg.flow.min_off_s - 1e-9
-    assert f["flow_on_s"] == pytest.approx(f["commanded_on_s"] + f["bridged_s"] + f["extended_s"] - f["dropped_s"])
+    assert f["flow_on_s"] == pytest.approx(f["commanded_on_s"] + f["bridged_s"] + f["extended_s"] - f["dropped_s"] - f["trimmed_s"])
     assert f["commanded_on_s"] == pytest.approx(arm.trajectory.dwell_s.sum())
     rate = _core.spot_model_from_config(cfg.deposition).volume_rate_m3ps()
     assert f["bridged_volume_m3"] == pytest.approx(rate * f["bridged_s"])

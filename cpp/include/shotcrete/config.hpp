@@ -196,6 +196,7 @@ struct PlannerConfig {
   double levelling_guard_band_m = 0.02;  // optimal mode: residual band (+-) past which the guard counts
   double levelling_guard_weight = 100.0;  // optimal mode: cost of a mm past the band per mm off target, squared (0: no guard)
   int levelling_lookahead_rounds = 3;  // optimal mode: rounds a round's dwells are solved for (it sprays one)
+  int levelling_executed_corrections = 2;  // optimal mode: re-solves of a round against its own executed deposit (0: none)
   bool graded_thesis_objective = false;  // graded mode: the thesis's objective as written (one target per region)
   double graded_overfill_allowance_m = 0.025;  // graded mode: fill past flush a reached cell may take
   double graded_guard_weight = 1000.0;  // graded mode: cost of over-fill past the allowance per unit off target

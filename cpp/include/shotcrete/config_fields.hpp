@@ -130,6 +130,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("levelling_guard_band_m", &PlannerConfig::levelling_guard_band_m, 0.0, 0.1, "optimal mode: residual band (+-) past which a cell's error costs levelling_guard_weight more [m]");
   f("levelling_guard_weight", &PlannerConfig::levelling_guard_weight, 0.0, 1e6, "optimal mode: squared error past the guard band per squared error off target (0: least squares only)");
   f("levelling_lookahead_rounds", &PlannerConfig::levelling_lookahead_rounds, 1, 10, "optimal mode: a round's dwells are solved as if this many rounds could spray them, then clipped to one round's (1: no look-ahead)");
+  f("levelling_executed_corrections", &PlannerConfig::levelling_executed_corrections, 0, 10, "optimal mode: re-solves of a round's dwells with what its timed passes lay beyond the solve (turns sprayed through, pump spells, speed ramps) as a fixed deposit (0: none)");
   f("graded_thesis_objective", &PlannerConfig::graded_thesis_objective, 0, 0, "graded mode: the thesis's speed objective as written (one target per region, no over-fill guard)");
   f("graded_overfill_allowance_m", &PlannerConfig::graded_overfill_allowance_m, 0.0, 0.05, "graded mode: fill past flush a cell may take before it counts as over-filled [m]");
   f("graded_guard_weight", &PlannerConfig::graded_guard_weight, 0.0, 1e4, "graded mode: cost of over-fill past the allowance per unit off target (0: no guard)");

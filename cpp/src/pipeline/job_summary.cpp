@@ -130,7 +130,7 @@ void write(JsonWriter& w, const ExecutedSummary& e) {
   w.field("shortest_off_s", e.shortest_off_s).field("flow_on_s", e.flow_on_s).field("commanded_on_s", e.commanded_on_s);
   w.field("bridged_s", e.bridged_s).field("bridged_volume_m3", e.bridged_volume_m3);
   w.field("extended_s", e.extended_s).field("extended_volume_m3", e.extended_volume_m3);
-  w.field("dropped_s", e.dropped_s);
+  w.field("trimmed_s", e.trimmed_s).field("dropped_s", e.dropped_s);
   w.end_object().end_object();
 }
 
@@ -290,6 +290,7 @@ ExecutedSummary summarise_executed(const ExecutedDeposit& ex) {
   e.bridged_volume_m3 = ex.bridged_volume_m3;
   e.extended_s = ex.flow.extended_s;
   e.extended_volume_m3 = ex.extended_volume_m3;
+  e.trimmed_s = ex.flow.trimmed_s;
   e.dropped_s = ex.flow.dropped_s;
   e.ramp_s = ex.flow.ramp_s;
   return e;

@@ -8,6 +8,8 @@
 #include <string>
 #include <utility>
 
+#include "shotcrete/timing/region_spray.hpp"
+
 namespace shotcrete {
 
 int top_level(const std::vector<int>& levels) {
@@ -170,8 +172,13 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
       unit.back() += part.unit;
       parts.push_back(std::move(part));
     }
-    // The pass's own speed may reach the fastest cap along it (slower where the others bind).
-    v_max.push_back(std::max(*std::max_element(cap.begin(), cap.end()), pc.min_speed_mps * (1.0 + 1e-6)));
+    // The pass's own speed may reach the fastest cap along it (slower where the others bind),
+    // and no faster than lasts the pump's shortest spell: a shorter pass is sprayed for
+    // flow.min_on_s anyway, the rest on its leads where the nozzle slows (a 0.2 m pass at 1 m/s
+    // laid 10x its deposit there, and four straggler rounds piled 3 mm a round on a cell beside
+    // it to level -1); along the pass the speeds see it.
+    const double v_spell = ctx.config.flow.min_on_s > 0 ? p.length_m / ctx.config.flow.min_on_s : pc.max_speed_mps;
+    v_max.push_back(std::max(std::min(*std::max_element(cap.begin(), cap.end()), v_spell), pc.min_speed_mps * (1.0 + 1e-6)));
   }
   const SpeedTargets targets = region_targets(in, cells, ctx, rp, unit);
   PassSpeeds speeds;
@@ -295,13 +302,17 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
       const std::size_t nw = pass.waypoints.size();
       const auto cap = ctx.caps(pass, round_name(in.number) + ", side " + std::to_string(s) + ", line " +
                                           std::to_string(pass.line));
+      // Segments of equal length, about segment_length_m: a short last piece would bound the
+      // speed change into it (limit_speed_changes) and starve the cells at the pass's end.
       const std::size_t per = std::max<std::size_t>(1, std::llround(pc.segment_length_m / pc.sample_step_m));
-      for (std::size_t a = 0; a + 1 < nw; a += per) {
+      const std::size_t n_seg = std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(static_cast<double>(nw - 1) / static_cast<double>(per))));
+      for (std::size_t k = 0; k < n_seg && nw >= 2; ++k) {
         Segment seg;
         seg.side = s;
         seg.pass = p;
-        seg.first = a;
-        seg.last = std::min(nw - 1, a + per);
+        seg.first = k * (nw - 1) / n_seg;
+        seg.last = (k + 1) * (nw - 1) / n_seg;
+        if (seg.last <= seg.first) continue;
         std::vector<NozzlePose> poses(pass.waypoints.begin() + seg.first, pass.waypoints.begin() + seg.last + 1);
         Pass piece;
         piece.waypoints = poses;
@@ -387,6 +398,33 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
   return out;
 }
 
+// What a round's regions lay on the cells [mm per slot] when their passes are timed and the pump
+// drives them (region_spray: speed ramps, turns sprayed through, spells lengthened, flow ramps),
+// and the pump's on-time [s]. The order the round is later sprayed in may reverse a region: the
+// same passes and turns backwards, about the same deposit.
+struct SprayedRound {
+  Eigen::VectorXd deposit_mm;
+  double on_time_s = 0;
+};
+SprayedRound sprayed_round(const std::vector<RegionPlan>& regions, const CellSurface& cells, const RoundContext& ctx) {
+  SprayedRound out;
+  out.deposit_mm = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(cells.cell_ids.size()));
+  for (const auto& r : regions) {
+    const RegionSpray spray = region_spray(r.passes, ctx.config);
+    out.deposit_mm += unit_deposit(ctx.model, cells, spray.nozzle, spray.dwell_s, ctx.config.deposition.rebound_fraction) * 1000.0;
+    out.on_time_s += spray.flow.on_time_s();
+  }
+  return out;
+}
+
+// The deposit the solve meant: sum_j w_j U_j [mm per slot].
+Eigen::VectorXd solved_deposit_mm(const DwellProblem& problem, const std::vector<double>& w) {
+  Eigen::VectorXd dep = Eigen::VectorXd::Zero(problem.target_mm.size());
+  for (std::size_t j = 0; j < w.size(); ++j)
+    for (std::size_t k = 0; k < problem.unit_mm[j].idx.size(); ++k) dep[problem.unit_mm[j].idx[k]] += w[j] * problem.unit_mm[j].val[k];
+  return dep;
+}
+
 class LevellingRounds : public RoundStages {
  public:
   RoundKind kind() const override { return RoundKind::levelling; }
@@ -422,11 +460,41 @@ class LevellingRounds : public RoundStages {
     Eigen::VectorXd td_mm(static_cast<Eigen::Index>(cells.cell_ids.size()));
     for (std::size_t k = 0; k < cells.cell_ids.size(); ++k) td_mm[k] = grid.td_m[cells.cell_ids[k]] * 1000.0;
     set_guard(problem, td_mm, pc.levelling_guard_band_m * 1000.0, pc.levelling_guard_weight);
-    const std::vector<double> w = solve_dwells(problem, ctx.config.timing.speed_change_accel_mps2, ctx.config.flow);
-    std::vector<RegionPlan> out;
-    for (std::size_t s = 0; s < sides.size(); ++s) {
-      RegionPlan rp = sprayed_runs(sides[s], s, problem.segments, w);
-      if (!rp.passes.empty()) out.push_back(std::move(rp));
+    const double accel = ctx.config.timing.speed_change_accel_mps2;
+    auto runs_of = [&](const std::vector<double>& w) {
+      std::vector<RegionPlan> out;
+      for (std::size_t s = 0; s < sides.size(); ++s) {
+        RegionPlan rp = sprayed_runs(sides[s], s, problem.segments, w);
+        if (!rp.passes.empty()) out.push_back(std::move(rp));
+      }
+      return out;
+    };
+    std::vector<double> w = solve_dwells(problem, accel, ctx.config.flow);
+    std::vector<RegionPlan> out = runs_of(w);
+    if (pc.levelling_executed_corrections <= 0 || out.empty()) return out;
+    // The solve's segments are not what the arm and the pump do with them: the timed passes
+    // change speed over ramps, turns too short for the pump's off spell are sprayed through,
+    // short spells are lengthened. Re-solve with that difference as a fixed deposit (plan ->
+    // time -> simulate -> correct) and keep the pattern whose own simulated deposit, with its
+    // pump time at the time weight, costs least.
+    SprayedRound sprayed = sprayed_round(out, cells, ctx);
+    auto cost = [&](const SprayedRound& sr) {
+      return deposit_cost(problem, sr.deposit_mm) + problem.lambda_mm2_per_s * sr.on_time_s;
+    };
+    double best = cost(sprayed);
+    for (int it = 0; it < pc.levelling_executed_corrections; ++it) {
+      DwellProblem corrected = problem;
+      corrected.background_mm = sprayed.deposit_mm - solved_deposit_mm(problem, w);
+      std::vector<double> w_next = solve_dwells(corrected, accel, ctx.config.flow);
+      std::vector<RegionPlan> out_next = runs_of(w_next);
+      if (out_next.empty()) break;
+      SprayedRound sprayed_next = sprayed_round(out_next, cells, ctx);
+      const double c = cost(sprayed_next);
+      if (!(c < best)) break;
+      best = c;
+      w = std::move(w_next);
+      out = std::move(out_next);
+      sprayed = std::move(sprayed_next);
     }
     return out;
   }

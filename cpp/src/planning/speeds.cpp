@@ -334,6 +334,7 @@ struct DwellSolver {
       : p(problem), w(problem.unit_mm.size(), 0.0), dep(Eigen::VectorXd::Zero(problem.target_mm.size())),
         guarded(problem.guard_weight > 0 && problem.guard_hi_mm.size() == problem.target_mm.size() &&
                 problem.guard_lo_mm.size() == problem.target_mm.size()) {
+    if (problem.background_mm.size() == dep.size()) dep = problem.background_mm;
     for (std::size_t j = 0; j < w.size(); ++j) w_min.push_back(1.0 / p.segments[j].cap_mps);
   }
   CellCost cell(int k) const {
@@ -406,6 +407,15 @@ double dwell_objective(const DwellProblem& problem, const std::vector<double>& w
   double f = 0.0;
   for (Eigen::Index c = 0; c < s.dep.size(); ++c) f += s.cell(static_cast<int>(c)).value(s.dep[c]);
   for (std::size_t j = 0; j < w.size(); ++j) f += problem.lambda_mm2_per_s * problem.segments[j].length_m * w[j];
+  return f;
+}
+
+double deposit_cost(const DwellProblem& problem, const Eigen::VectorXd& deposit_mm) {
+  if (deposit_mm.size() != problem.target_mm.size())
+    throw std::invalid_argument("deposit_cost: one deposit per cell slot of the problem");
+  const DwellSolver s(problem);
+  double f = 0.0;
+  for (Eigen::Index c = 0; c < deposit_mm.size(); ++c) f += s.cell(static_cast<int>(c)).value(deposit_mm[c]);
   return f;
 }
 

@@ -78,6 +78,7 @@ struct DwellProblem {
   std::vector<Segment> segments;
   std::vector<Sparse> unit_mm;   // per segment: thickness [mm] on the cell slots per s/m of dwell
   Eigen::VectorXd target_mm;     // per cell slot
+  Eigen::VectorXd background_mm; // per cell slot: deposit the dwells do not control, laid anyway (empty: none)
   Eigen::VectorXd guard_hi_mm;   // per cell slot: deposit beyond which a cell counts as over-filled (empty: no guard)
   Eigen::VectorXd guard_lo_mm;   // per cell slot: deposit below which it counts as under-filled (empty: no guard)
   double guard_weight = 0;       // cost of a mm past a guard limit, relative to a mm off target (squared)
@@ -100,6 +101,10 @@ std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vecto
 
 /// The objective of DwellProblem at dwells w (for tests and reports).
 double dwell_objective(const DwellProblem& problem, const std::vector<double>& w);
+
+/// The objective's cell terms (no time term) at a deposit given per cell slot [mm], background
+/// included: how good a deposit, however laid, is for the problem.
+double deposit_cost(const DwellProblem& problem, const Eigen::VectorXd& deposit_mm);
 
 /// The arm cannot change the nozzle speed at will: caps the dwells so that speed changes along
 /// every pass line stay within accel_mps2 (see speeds.cpp).

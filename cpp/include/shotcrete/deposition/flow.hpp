@@ -16,6 +16,8 @@ struct FlowSchedule {
   double commanded_on_s = 0.0;  // flow-on time the trajectory's spraying flags ask for
   double bridged_s = 0.0;       // off-gaps shorter than min_off_s the flow stayed on through
   double extended_s = 0.0;      // flow-on time added to spells shorter than min_on_s
+  double trimmed_s = 0.0;       // commanded flow-on time cut off the ends of two spells to widen a gap
+                                // to min_off_s (cheaper than bridging it)
   double dropped_s = 0.0;       // commanded flow-on time switched off: spells or their ends the pump
                                 // could not serve without spraying into a joint move
   int commanded_switches = 0;   // on and off switches the flags ask for
@@ -35,8 +37,10 @@ struct FlowSchedule {
 /// The schedule the pump runs for the spraying flags of samples at t_s (strictly increasing): the
 /// flags ask for the flow over each flagged sample's share of time (from the midpoint with its
 /// previous sample to the midpoint with its next; the first and last samples reach the ends), as
-/// spray_dwells does; off-gaps shorter than min_off_s are bridged, spells shorter than min_on_s
-/// are extended about their middle (within [t_s.front(), t_s.back()]), until both hold.
+/// spray_dwells does; an off-gap shorter than min_off_s is widened to it by cutting the ends of the
+/// spells around it (trimmed_s) when that cuts less than the gap and both keep min_on_s, else
+/// bridged; spells shorter than min_on_s are extended about their middle (within [t_s.front(),
+/// t_s.back()]), until both hold.
 /// `blocked` (empty, or one flag per sample): samples where the flow must be off, ramps included:
 /// the joint moves, where the arm swings the nozzle from rest to rest (spraying there piles concrete
 /// where it stands and streaks it across the wall). Spells are clipped to end and start half a ramp

@@ -90,6 +90,7 @@ struct ExecutedSummary {
   double flow_on_s = 0.0, commanded_on_s = 0.0;       // flow-on time: pump, flags
   double bridged_s = 0.0, bridged_volume_m3 = 0.0;    // off-gaps the flow stayed on through
   double extended_s = 0.0, extended_volume_m3 = 0.0;  // short spells extended to min_on_s
+  double trimmed_s = 0.0;  // commanded flow-on time cut off spell ends to widen short gaps to min_off_s
   double dropped_s = 0.0;  // commanded flow-on time switched off (no spraying into a joint move)
   double ramp_s = 0.0;
 };
