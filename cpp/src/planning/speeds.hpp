@@ -69,8 +69,8 @@ struct Segment {
 };
 
 /// The least-squares problem of the levelling round:
-///   min 1/2 |U w - t|^2 + guard_weight/2 sum_c [(U w - hi)_c+^2 + (lo - U w)_c+^2] + lambda L.w,
-///   w in {0} u [w_min, w_max] (w: dwell per unit length [s/m]).
+///   min 1/2 |x - t|^2 + guard_weight/2 sum_c [(x - hi)_c+^2 + (lo - x)_c+^2] + lambda L.w,
+///   x = U w + background, w in {0} u [w_min, w_max] (w: dwell per unit length [s/m]).
 /// The guard (planner.levelling_guard_*) holds every cell's final residual within a band: least
 /// squares alone trades a few big errors for many small ones (a pit filled at the cost of its
 /// shoulders over-filled 40 mm). Both terms are convex in w, so is the objective.
