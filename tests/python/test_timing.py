@@ -195,9 +195,10 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     # The kept trajectory is time_plan's with the reported parameters.
     again = _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot, tun.params)
     assert again.duration_s == pytest.approx(tr.duration_s, rel=1e-12)
-    # Regions without a feasible particle (one here) keep the config's parameters.
+    # Regions without a feasible particle keep the config's parameters (one here before the
+    # levelling rounds were corrected against their simulated deposit; every region now has one).
     default = _core.TimingParams.from_config(cfg.timing).to_dict()
-    assert 0 < sum(tun.feasible) < len(regions)
+    assert 0 < sum(tun.feasible) <= len(regions)
     for ok, p in zip(tun.feasible, tun.params):
         if not ok:
             assert p.to_dict() == pytest.approx(default)
