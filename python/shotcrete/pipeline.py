@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+import zipfile
 from pathlib import Path
 from typing import Callable
 
@@ -201,7 +202,7 @@ def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, ro
     (out / "plan.json").write_text(json.dumps(plan_to_dict(plan, frame.origin_m)) + "\n")
     files = {"plan": "plan.json", "surface_cloud": "surface.ply", "sprayed_cloud": "sprayed.ply"}
     if trajectory is not None:
-        np.savez_compressed(out / "trajectory.npz", t_s=trajectory.t_s, q=trajectory.q, qd=trajectory.qd,
+        _save_npz(out / "trajectory.npz", t_s=trajectory.t_s, q=trajectory.q, qd=trajectory.qd,
                             qdd=trajectory.qdd, nozzle_position_m=frame.points_to_input(trajectory.positions),
                             nozzle_axis=trajectory.axes, base_position_m=_base_position(robot, frame),
                             spraying=trajectory.spraying, pass_index=trajectory.pass_index,
@@ -216,6 +217,15 @@ def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, ro
     sprayed = arm_plan.executed.sprayed_cloud if arm_plan.executed is not None else plan.sprayed_cloud
     write_cloud(out / "sprayed.ply", frame.cloud_to_input(sprayed), _core.point_td(sprayed, surface.axis, surface.profile))
     return files
+
+
+def _save_npz(path: Path, **arrays) -> None:
+    """np.savez_compressed at zlib level 1: the same file format (np.load reads it), half the time
+    (float64 samples barely compress at any level: 42.8 MB against 43.1 at the default level 6)."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for name, value in arrays.items():
+            with z.open(name + ".npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
 
 
 def _base_position(robot, frame: LocalFrame) -> np.ndarray:

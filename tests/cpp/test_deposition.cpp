@@ -1,6 +1,9 @@
 // Deposition model: stroke fit vs the measured CSV and an exhaustive grid, eq. 2-13 on planes and a
 // cylinder vs independent quadrature, mass balance, spatial index vs brute force, pass spacing vs
 // an exhaustive scan, bad inputs.
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -507,6 +510,52 @@ TEST(Pass, DwellsEqualResampledPass) {
   EXPECT_THROW(accumulate_pass(m, idx, line, 0.2, 0.01, 1.0, a), std::invalid_argument);
   Eigen::VectorXd wrong = Eigen::VectorXd::Zero(3);
   EXPECT_THROW(accumulate_pass(m, idx, line, 0.2, 0.01, 0.1, wrong), std::invalid_argument);
+}
+
+TEST(Pass, ManyDwellsAreSummedInChunksIndependentOfThreads) {
+  // Over 256 dwells accumulate_dwells splits them into chunks run in parallel: the sums equal the
+  // brute force over the whole cloud, and are the same bits on one thread as on several.
+  const SpotModel m = default_model();
+  const Cloud c = plane_lattice(Eigen::Vector3d(0, 0, 1.0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0), 1.2,
+                                0.4, 0.02, -Eigen::Vector3d::UnitZ());
+  const SurfaceIndex idx(c);
+  const std::vector<NozzlePose> line{{Eigen::Vector3d(-0.5, -0.05, 0), Eigen::Vector3d(0, 0.1, 1)},
+                                     {Eigen::Vector3d(0.5, 0.05, 0), Eigen::Vector3d(0, -0.1, 1)}};
+  const PassSamples s = resample_pass(line, 0.2, 0.0005);
+  ASSERT_EQ(s.poses.size(), 2010u);  // 8 chunks
+  Eigen::VectorXd brute = Eigen::VectorXd::Zero(c.size());
+  for (size_t k = 0; k < s.poses.size(); ++k)
+    for (Eigen::Index i = 0; i < c.size(); ++i)
+      brute[i] += point_rate_mps(m, s.poses[k], c.xyz.row(i).transpose(), c.normals.row(i).transpose()) * s.dwell_s[k] * 0.9;
+  Eigen::VectorXd a = Eigen::VectorXd::Zero(c.size());
+  accumulate_dwells(m, idx, s.poses, s.dwell_s, 0.1, a);
+  ASSERT_GT(brute.maxCoeff(), 1e-3);
+  EXPECT_LT((brute - a).cwiseAbs().maxCoeff(), 1e-12 * brute.maxCoeff());
+#ifdef _OPENMP
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  Eigen::VectorXd one = Eigen::VectorXd::Zero(c.size());
+  accumulate_dwells(m, idx, s.poses, s.dwell_s, 0.1, one);
+  omp_set_num_threads(3);
+  Eigen::VectorXd three = Eigen::VectorXd::Zero(c.size());
+  accumulate_dwells(m, idx, s.poses, s.dwell_s, 0.1, three);
+  omp_set_num_threads(threads);
+  EXPECT_EQ(one, a);
+  EXPECT_EQ(three, a);
+#endif
+  // A bad dwell or pose among many is still refused before anything is added.
+  std::vector<double> dwell = s.dwell_s;
+  dwell[1500] = std::nan("");
+  Eigen::VectorXd untouched = Eigen::VectorXd::Zero(c.size());
+  EXPECT_THROW(accumulate_dwells(m, idx, s.poses, dwell, 0.1, untouched), std::invalid_argument);
+  EXPECT_EQ(untouched, Eigen::VectorXd::Zero(c.size()));
+  std::vector<NozzlePose> poses = s.poses;
+  poses[1700].axis = Eigen::Vector3d::Zero();
+  EXPECT_THROW(accumulate_dwells(m, idx, poses, s.dwell_s, 0.1, untouched), std::invalid_argument);
+  poses[1700] = s.poses[1700];
+  poses[900].position_m.x() = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(accumulate_dwells(m, idx, poses, s.dwell_s, 0.1, untouched), std::invalid_argument);
+  EXPECT_EQ(untouched, Eigen::VectorXd::Zero(c.size()));
 }
 
 namespace {

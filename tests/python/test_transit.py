@@ -119,3 +119,8 @@ def test_timed_trajectory_from_joints_checks_as_the_timed_one():
     bad[1, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         _core.TimedTrajectory.from_joints([0.0, 1.0, 2.0], bad)
+    # Times and joints carry no sample kinds: finding the joint moves is refused, not read past the end.
+    with pytest.raises(ValueError, match="sample kinds"):
+        _core.clear_transits(robot, saved, wall, cfg.clearance, cfg.timing)
+    with pytest.raises(ValueError, match="sample kinds"):
+        _core.joint_moves(saved)

@@ -362,15 +362,15 @@ struct SurfaceIndex::Impl {
         const double y0 = lo.y() + j * cell;
         const double dy = std::max({y0 - c.y(), 0.0, c.y() - y0 - cell});
         if (dy * dy + dz * dz > r2) continue;
+        // The voxels of a row that meet the ball are a run, and so are their points (sorted by
+        // voxel, x fastest): one call per row.
+        const double half = std::sqrt(r2 - dy * dy - dz * dz);
+        const long a = std::max(i0, static_cast<long>(std::floor((c.x() - half - lo.x()) / cell)));
+        const long z = std::min(i1, static_cast<long>(std::floor((c.x() + half - lo.x()) / cell)));
+        if (a > z) continue;
         const long row = voxel(0, j, k);
-        for (long i = i0; i <= i1; ++i) {
-          const int b = start[row + i], e = start[row + i + 1];
-          if (b == e) continue;
-          const double x0 = lo.x() + i * cell;
-          const double dx = std::max({x0 - c.x(), 0.0, c.x() - x0 - cell});
-          if (dx * dx + dy * dy + dz * dz > r2) continue;
-          f(b, e);
-        }
+        const int b = start[row + a], e = start[row + z + 1];
+        if (b < e) f(b, e);
       }
     }
   }
@@ -496,22 +496,25 @@ std::pair<Eigen::Vector3d, double> SurfaceIndex::reach_ball(const SpotModel& mod
   return {c + tc * a, tc * (1.0 + 1e-9) + 1e-9};
 }
 
-void SurfaceIndex::add_rates(const SpotModel& model, const NozzlePose& nozzle, double weight, Eigen::VectorXd& out) const {
+// Into a buffer in the index's voxel order: the visited points are contiguous there, so the
+// writes stream instead of scattering over the whole cloud.
+void SurfaceIndex::add_rates_sorted(const SpotModel& model, const NozzlePose& nozzle, double weight, double* sorted) const {
   const Impl& m = *impl_;
-  if (out.size() != m.cloud.size())
-    throw std::invalid_argument("thickness vector has " + std::to_string(out.size()) + " entries, the cloud " +
-                                std::to_string(m.cloud.size()));
   const auto [center, radius] = reach_ball(model, nozzle);
   const RateKernel k(model, nozzle);
-  double* o = out.data();
   m.visit_ball(center, radius, [&](int b, int e) {
     for (int s = b; s < e; ++s) {
       const double* p = &m.xyz[3 * s];
       const double* n = &m.nrm[3 * s];
       const double q = k(p[0], p[1], p[2], n[0], n[1], n[2]);
-      if (q > 0) o[m.order[s]] += q * weight;
+      if (q > 0) sorted[s] += q * weight;
     }
   });
+}
+
+void SurfaceIndex::add_sorted(const std::vector<double>& sorted, Eigen::VectorXd& out) const {
+  const Impl& m = *impl_;
+  for (std::size_t s = 0; s < sorted.size(); ++s) out[m.order[s]] += sorted[s];
 }
 
 // ---------------------------------------------------------------- accumulation
@@ -524,13 +527,37 @@ void accumulate_dwells(const SpotModel& model, const SurfaceIndex& surface, cons
                                 std::to_string(dwell_s.size()) + " dwell times");
   if (!(rebound_fraction >= 0 && rebound_fraction < 1))
     throw std::invalid_argument("rebound_fraction must be in [0, 1), got " + std::to_string(rebound_fraction));
-  if (thickness_m.size() == 0) thickness_m = Eigen::VectorXd::Zero(surface.cloud().size());
+  const Eigen::Index n = surface.cloud().size();
+  if (thickness_m.size() == 0) thickness_m = Eigen::VectorXd::Zero(n);
+  if (thickness_m.size() != n)
+    throw std::invalid_argument("thickness vector has " + std::to_string(thickness_m.size()) + " entries, the cloud " +
+                                std::to_string(n));
+  std::vector<std::size_t> todo;  // checked here so the parallel loop below cannot throw
   for (size_t i = 0; i < poses.size(); ++i) {
     if (!(dwell_s[i] >= 0) || !std::isfinite(dwell_s[i]))
       throw std::invalid_argument("dwell time " + std::to_string(i) + " must be finite and >= 0");
     if (dwell_s[i] == 0) continue;
-    surface.add_rates(model, poses[i], dwell_s[i] * (1.0 - rebound_fraction), thickness_m);
+    if (!poses[i].position_m.allFinite()) throw std::invalid_argument("nozzle position is not finite");
+    unit_axis(poses[i].axis);
+    todo.push_back(i);
   }
+  // A fixed number of contiguous chunks, each with its own buffer, summed in chunk order: the
+  // result does not depend on how many threads ran them. Fewer chunks on huge clouds (memory).
+  const long per_chunk_min = 256;
+  long chunks = std::min<long>(8, (static_cast<long>(todo.size()) + per_chunk_min - 1) / per_chunk_min);
+  if (n > 2'000'000) chunks = std::min<long>(chunks, 2);
+  chunks = std::max<long>(chunks, 1);
+  std::vector<std::vector<double>> buffers(static_cast<std::size_t>(chunks));
+  const double keep = 1.0 - rebound_fraction;
+#pragma omp parallel for schedule(dynamic, 1) if (chunks > 1)
+  for (long c = 0; c < chunks; ++c) {
+    std::vector<double>& buf = buffers[static_cast<std::size_t>(c)];
+    buf.assign(static_cast<std::size_t>(n), 0.0);
+    const std::size_t b = todo.size() * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks);
+    const std::size_t e = todo.size() * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks);
+    for (std::size_t j = b; j < e; ++j) surface.add_rates_sorted(model, poses[todo[j]], dwell_s[todo[j]] * keep, buf.data());
+  }
+  for (const auto& buf : buffers) surface.add_sorted(buf, thickness_m);
 }
 
 PassSamples resample_pass(const std::vector<NozzlePose>& polyline, double speed_mps, double step_m) {

@@ -141,8 +141,11 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
     for (std::size_t i = 0; i < tr.size(); ++i)
       if (round_of[i] == static_cast<int>(k) && dwell[i] > 0.0) poses.push_back(tr.nozzle[i]), dwells.push_back(dwell[i]);
     Eigen::VectorXd deposit = Eigen::VectorXd::Zero(out.wall.surface.cloud.size());
-    for (std::size_t j = 0; j < poses.size(); ++j)
-      missed += dwells[j] * miss_fraction(model, out.wall.surface.grid, poses[j]);
+    std::vector<double> miss(poses.size());  // per pose, summed in order below: the same sum on any thread count
+#pragma omp parallel for schedule(static)
+    for (long j = 0; j < static_cast<long>(poses.size()); ++j)
+      miss[static_cast<std::size_t>(j)] = miss_fraction(model, out.wall.surface.grid, poses[static_cast<std::size_t>(j)]);
+    for (std::size_t j = 0; j < poses.size(); ++j) missed += dwells[j] * miss[j];
     if (!poses.empty()) {
       const SurfaceIndex index(out.wall.surface.cloud, 0.05);  // the wall as moved so far, as plan_bay
       accumulate_dwells(model, index, poses, dwells, rebound, deposit);

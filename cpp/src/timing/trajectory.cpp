@@ -586,6 +586,11 @@ TimedTrajectory spraying_samples(const TimedTrajectory& tr) {
 
 std::vector<JointMove> joint_moves(const TimedTrajectory& tr) {
   const auto transit = static_cast<char>(SegmentKind::Transit);
+  if (tr.kind.size() != tr.size() || tr.region_index.size() != tr.size() || tr.q.size() != tr.size())
+    throw std::invalid_argument("joint_moves: the trajectory has " + std::to_string(tr.size()) + " samples but " +
+                                std::to_string(tr.kind.size()) + " sample kinds, " + std::to_string(tr.region_index.size()) +
+                                " region indices and " + std::to_string(tr.q.size()) +
+                                " joint vectors (a trajectory of times and joints only has no joint moves to find)");
   std::vector<JointMove> out;
   std::size_t i = 0;
   while (i < tr.size()) {
