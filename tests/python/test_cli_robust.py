@@ -95,7 +95,7 @@ def test_failed_rerun_keeps_the_previous_set(previous, run_cli, monkeypatch):
         Path(path).write_bytes(b"\0" * 100)  # what a full disk leaves: a truncated file
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
-    monkeypatch.setattr(pipeline.np, "savez_compressed", disk_full)
+    monkeypatch.setattr(pipeline, "_save_npz", disk_full)
     r = run_cli("demo", "--out", out, "--config", cfg)
     assert r.exit_code == 2
     line = _one_error_line(r.output)
