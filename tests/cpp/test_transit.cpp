@@ -3,6 +3,7 @@
 // brute-force distance to the wall's points (not the octree).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -213,6 +214,53 @@ TEST(Transit, ProtrusionInTheTransitIsRerouted) {
   EXPECT_EQ(kept.rerouted, 0);
   EXPECT_EQ(kept.failed, rep.rerouted);
   EXPECT_EQ(kept.detour_time_s, 0.0);
+}
+
+// clear_transits screens a move by the exact check first and reads the octree only where that
+// leaves less than a leaf diagonal to spare: the moves it reports are exactly those the octree's
+// readings put below a margin (check_clearance_octree on each move, as before the screen), with a
+// rock whose height puts the transit's allowance below, within and beyond a diagonal.
+TEST(Transit, TheExactScreenReportsTheMovesTheOctreeReadingsFlag) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig timing;
+  ClearanceConfig cfg;
+  cfg.reroute_transits = false;  // every flagged move is reported as it is
+  const TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  const auto moves = joint_moves(tr);
+  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  ASSERT_NE(it, moves.end());
+  double least = std::numeric_limits<double>::infinity(), x_c = 0.0, th_c = 0.0;
+  for (std::size_t k = it->start; k <= it->end; ++k) {
+    const Eigen::Vector3d p = tr.nozzle[k].position_m;
+    const double room = kR - std::hypot(p.y(), p.z());
+    if (room < least) least = room, x_c = p.x(), th_c = std::atan2(p.z(), p.y());
+  }
+  const double diagonal = std::sqrt(3.0) * cfg.octree_resolution_m;
+  int flagged_total = 0, spared_by_octree = 0;
+  for (const double spare : {-0.1, 0.02, 0.05, 0.08, 0.3}) {
+    const Points wall = wall_with_protrusion(-0.6, 2.0, x_c, th_c, least - cfg.nozzle_margin_m - spare, 0.8);
+    const WallOctree octree(wall, cfg.octree_resolution_m);
+    std::vector<int> flagged;
+    for (std::size_t i = 0; i < moves.size(); ++i) {
+      TimedTrajectory piece;
+      for (std::size_t k = moves[i].start; k <= moves[i].end; ++k) piece.t_s.push_back(tr.t_s[k]), piece.q.push_back(tr.q[k]);
+      const ClearanceReport oct = check_clearance_octree(robot, piece, octree, cfg);
+      if (oct.samples_below_margin() > 0) flagged.push_back(static_cast<int>(i));
+      const ClearanceReport exact = check_clearance(robot, piece, octree, cfg);
+      if (oct.samples_below_margin() > 0 && exact.samples_below_margin() == 0) ++spared_by_octree;
+      // The octree never reads long: where it flags nothing the exact check flags nothing either.
+      if (oct.samples_below_margin() == 0) EXPECT_EQ(exact.samples_below_margin(), 0) << "spare " << spare << ", move " << i;
+    }
+    TimedTrajectory copy = tr;
+    const TransitReport rep = clear_transits(robot, copy, octree, cfg, timing);
+    std::vector<int> reported;
+    for (const auto& d : rep.detours) reported.push_back(d.move);
+    EXPECT_EQ(reported, flagged) << "spare " << spare << " m (leaf diagonal " << diagonal << " m)";
+    EXPECT_EQ(rep.rerouted, 0);
+    flagged_total += static_cast<int>(flagged.size());
+  }
+  EXPECT_GT(flagged_total, 0);     // the low rocks block the transit
+  EXPECT_GT(spared_by_octree, 0);  // and some rock is within a diagonal: flagged by the octree alone
 }
 
 // A rock at the goal of the transit (where the next region starts spraying): no route can help, the
