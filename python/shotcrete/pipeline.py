@@ -203,10 +203,10 @@ def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, ro
     files = {"plan": "plan.json", "surface_cloud": "surface.ply", "sprayed_cloud": "sprayed.ply"}
     if trajectory is not None:
         _save_npz(out / "trajectory.npz", t_s=trajectory.t_s, q=trajectory.q, qd=trajectory.qd,
-                            qdd=trajectory.qdd, nozzle_position_m=frame.points_to_input(trajectory.positions),
-                            nozzle_axis=trajectory.axes, base_position_m=_base_position(robot, frame),
-                            spraying=trajectory.spraying, pass_index=trajectory.pass_index,
-                            region_index=trajectory.region_index)
+                  qdd=trajectory.qdd, nozzle_position_m=frame.points_to_input(trajectory.positions),
+                  nozzle_axis=trajectory.axes, base_position_m=_base_position(robot, frame),
+                  spraying=trajectory.spraying, pass_index=trajectory.pass_index,
+                  region_index=trajectory.region_index)
         files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle
     # Per cell, for surveyors' own tools: TD before, planned and executed deposit, residual, level.
     report.write_cells_csv(out / "cells.csv", report.cell_table(surface, plan, arm_plan.executed))

@@ -91,14 +91,17 @@ class SurfaceIndex {
   /// Ball (centre, radius) that contains every point of the cloud this nozzle can reach (inside
   /// the cone) on the first surface along its axis; see deposition.cpp for the bound.
   std::pair<Eigen::Vector3d, double> reach_ball(const SpotModel& model, const NozzlePose& nozzle) const;
-  /// Adds rate_mps(point) * weight for every point reachable from `nozzle` (eq. 2-13) to a
-  /// buffer of cloud-size entries in the index's internal point order (no size check, no
-  /// allocation: the inner step of accumulate_dwells); only the points in reach_ball are visited.
-  /// add_sorted adds such a buffer to a vector in cloud order.
+
+ private:
+  friend void accumulate_dwells(const SpotModel&, const SurfaceIndex&, const std::vector<NozzlePose>&,
+                                const std::vector<double>&, double, Eigen::VectorXd&);
+  // accumulate_dwells' inner steps: adds rate_mps(point) * weight for every point reachable from
+  // `nozzle` (eq. 2-13; only the points in reach_ball are visited) to a buffer of cloud-size
+  // entries in the index's internal point order (no size check, no allocation); add_sorted adds
+  // such a buffer to a vector in cloud order.
   void add_rates_sorted(const SpotModel& model, const NozzlePose& nozzle, double weight, double* sorted) const;
   void add_sorted(const std::vector<double>& sorted, Eigen::VectorXd& out) const;
 
- private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
