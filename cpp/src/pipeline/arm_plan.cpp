@@ -5,7 +5,6 @@
 #include <cmath>
 #include <limits>
 #include <map>
-#include <mutex>
 #include <memory>
 
 #include "shotcrete/robot/robot.hpp"
@@ -304,25 +303,14 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (config.clearance.enabled) out.obstructed = obstructed_cells(surface, robot, config);
   // The arm's caps depend on a pass's geometry only: the lines of a round repeat across re-plans,
   // so they are computed once per distinct pass, keyed by every waypoint's position and axis.
-  // The planner asks for the passes of a region at once, from several threads (WaypointCaps):
-  // the cache is read and filled under a lock, the caps computed outside it.
   auto cache = std::make_shared<std::map<std::vector<double>, std::vector<double>>>();
-  auto cache_mutex = std::make_shared<std::mutex>();
   const SpeedCapFn arm = arm_speed_caps(robot, config);
-  const SpeedCapFn cap = [&, cache, cache_mutex](const std::vector<NozzlePose>& wp) {
+  const SpeedCapFn cap = [&, cache](const std::vector<NozzlePose>& wp) {
     if (wp.empty()) return std::vector<double>{};
     std::vector<double> key = geometry_key(wp);
-    std::vector<double> c;
-    {
-      const std::lock_guard<std::mutex> lock(*cache_mutex);
-      const auto it = cache->find(key);
-      if (it != cache->end()) c = it->second;
-    }
-    if (c.empty()) {
-      c = arm(wp);
-      const std::lock_guard<std::mutex> lock(*cache_mutex);
-      cache->emplace(std::move(key), c);
-    }
+    auto it = cache->find(key);
+    if (it == cache->end()) it = cache->emplace(std::move(key), arm(wp)).first;
+    std::vector<double> c = it->second;
     if (!out.learned.points_m.empty())
       for (std::size_t k = 0; k < wp.size(); ++k) c[k] = std::min(c[k], out.learned.at(wp[k].position_m));
     return c;
