@@ -73,6 +73,7 @@ TEST(Clearance, OctreeDistanceAgainstBruteForce) {
   for (double res : {0.05, 0.02}) {
     const WallOctree tree(wall, res);
     EXPECT_GT(tree.occupied_leaves(), 1000u);
+    EXPECT_NEAR(tree.leaf_diagonal_m(), std::sqrt(3.0) * res, 1e-15);  // the bound the readings keep below
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> U(0.0, 1.0);
     double worst_short = 0.0;

@@ -191,6 +191,96 @@ TEST(Region, TurnRunsSizedForTheSpeedChange) {
   }
 }
 
+TEST(Geometry, CurvedPassesAreSampledWithoutCornerSpikes) {
+  // A pass curving at r = 0.12 m (waypoints 1 cm apart, the axis the outward normal) as the
+  // planner writes it; sampled 4.7 mm apart (0.235 m/s at 50 Hz). Straight segments met their
+  // corners every other sample: second differences of 0 and 2 / r, joint-acceleration spikes.
+  const double r = 0.12, dth = 0.01 / r;
+  Pass pass;
+  for (int k = 0; k <= 24; ++k) {
+    const Eigen::Vector3d n(std::cos(k * dth), std::sin(k * dth), 0.0);
+    pass.waypoints.push_back({r * n, n});
+  }
+  pass.speed_mps = 0.235;
+  pass.length_m = 0.24;
+  const CartesianPath path = region_path({pass}, leads(0.1, 0.1));
+  const PathPiece* piece = nullptr;
+  for (const auto& p : path.pieces())
+    if (p.kind == SegmentKind::Pass) piece = &p;
+  ASSERT_NE(piece, nullptr);
+  for (std::size_t k = 0; k < pass.waypoints.size(); ++k) {  // through every waypoint
+    const NozzlePose at = piece->pose_at(piece->cum_m[k]);
+    EXPECT_LT((at.position_m - pass.waypoints[k].position_m).norm(), 1e-12);
+    EXPECT_LT((at.axis - pass.waypoints[k].axis).norm(), 1e-12);
+  }
+  const double h = 0.0047;
+  for (double s = 0.02; s + 0.02 < piece->length_m(); s += 0.0011) {
+    const NozzlePose a = piece->pose_at(s - h), b = piece->pose_at(s), c = piece->pose_at(s + h);
+    EXPECT_NEAR((a.position_m - 2.0 * b.position_m + c.position_m).norm() / (h * h), 1.0 / r, 0.1 / r) << s;
+    EXPECT_NEAR(b.position_m.norm(), r, 2e-5) << s;  // on the circle within 0.02 mm (chords: 0.1 mm in)
+    EXPECT_NEAR(std::acos(std::min(1.0, b.axis.dot(c.axis))) / h, 1.0 / r, 0.1 / r) << s;  // the axis turns evenly
+    EXPECT_NEAR((a.axis - 2.0 * b.axis + c.axis).norm() / (h * h), 1.0 / (r * r), 0.1 / (r * r)) << s;
+  }
+  // A corner of more than 30 deg stays a corner (both legs straight), and a segment twice as long
+  // as its neighbour does not bulge.
+  Pass ell;
+  for (const Eigen::Vector3d& p : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0.1, 0, 0), Eigen::Vector3d(0.2, 0, 0),
+                                   Eigen::Vector3d(0.2, 0.1, 0), Eigen::Vector3d(0.2, 0.2, 0), Eigen::Vector3d(0.21, 0.21, 0),
+                                   Eigen::Vector3d(0.22, 0.6, 0)})
+    ell.waypoints.push_back({p, Eigen::Vector3d(0, 0, 1)});
+  ell.speed_mps = 0.2;
+  ell.length_m = 1.0;
+  const CartesianPath lp = region_path({ell}, leads(0.1, 0.1));
+  for (const auto& p : lp.pieces()) {
+    if (p.kind != SegmentKind::Pass) continue;
+    for (double s = 0.0; s <= p.cum_m[2]; s += 0.005) EXPECT_NEAR(p.pose_at(s).position_m.y(), 0.0, 1e-12) << s;
+    for (double s = p.cum_m[2]; s <= p.cum_m[4]; s += 0.005) EXPECT_NEAR(p.pose_at(s).position_m.x(), 0.2, 1e-12) << s;
+    const double mid = 0.5 * (p.cum_m[5] + p.cum_m[6]);
+    EXPECT_LT((p.pose_at(mid).position_m - 0.5 * (ell.waypoints[5].position_m + ell.waypoints[6].position_m)).norm(), 1e-12);
+  }
+}
+
+TEST(RegionPath, EasedJoinsRunLongerWhereTheMinimumRunBinds) {
+  // Passes at 0.2 m/s: a stop at 0.5 m/s^2 needs 0.08 m, less than the 0.1 m minimum run, so the
+  // run is 0.1 m whatever the acceleration. An eased gap (scale 0.5) runs 0.2 m and its stop is
+  // about half as hard: before, easing left it as it was (a slew at 1.006x its limit through six
+  // easings on the default bay, then two re-plans of the whole bay). A turn's runs stay as sized:
+  // there the arc, eased by its speed, carries the excess.
+  auto line = [](double z) {
+    Pass p;
+    for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
+    p.length_m = 1.2;
+    p.speed_mps = 0.2;
+    return p;
+  };
+  RegionPathOptions stop = leads(0.1, 0.1, 0.1);
+  stop.stop_accel_mps2 = 0.5;
+  stop.gap_accel_scale = {1.0, 0.5};
+  const CartesianPath eased = region_path({line(4.6), line(4.8), line(5.0)}, stop);
+  TimingParams prm = TimingParams::from_config(TimingConfig{});
+  prm.k1 = prm.k2 = 0.5;
+  const SpeedProfile prof = region_profile(eased, prm);
+  std::vector<double> outs, ins, peaks;
+  for (std::size_t i = 0; i < eased.pieces().size(); ++i) {
+    const auto& p = eased.pieces()[i];
+    if (p.motion == PieceMotion::StartFromRest) ins.push_back(p.length_m());
+    if (p.motion != PieceMotion::StopAtEnd) continue;
+    outs.push_back(p.length_m());
+    const double t0 = prof.time_at_distance(eased.piece_start_m(i)), t1 = prof.time_at_distance(eased.piece_start_m(i + 1));
+    double peak = 0.0;
+    for (double t = t0; t <= t1; t += 0.001) peak = std::max(peak, std::abs(prof.at(t).a_mps2));
+    peaks.push_back(peak);
+  }
+  ASSERT_EQ(outs.size(), 2u);
+  ASSERT_EQ(ins.size(), 2u);
+  EXPECT_NEAR(outs[0], 0.1, 1e-9);
+  EXPECT_NEAR(ins[0], 0.1, 1e-9);
+  EXPECT_NEAR(outs[1], 0.2, 1e-9);
+  EXPECT_NEAR(ins[1], 0.2, 1e-9);
+  EXPECT_GT(peaks[0], 0.0);
+  EXPECT_NEAR(peaks[1] / peaks[0], 0.5, 0.05);
+}
+
 TEST(Region, SerpentineNeverStopsAndKeepsPassSpeeds) {
   const auto passes = axial_region(6, 1.2, 0.2, 0.0, 1.2, {0.2, 0.3, 0.25});
   TimingParams prm;

@@ -166,17 +166,49 @@ TEST(Robot, ForwardKinematicsMatchesIndependentUrdfFk) {
 }
 
 TEST(Robot, JacobianMatchesFiniteDifferences) {
-  const Robot r = Robot::load(cfg());
+  RobotConfig c = cfg();
+  c.base_position_m = Eigen::Vector3d(0.6, 0.1, -1.3);
+  const Robot r = Robot::load(c);
   std::mt19937 rng(5);
-  const Eigen::VectorXd q = random_q(r, rng);
-  const Eigen::MatrixXd J = r.jacobian(q);
-  const double h = 1e-6;
-  for (int i = 0; i < r.dof(); ++i) {
-    Eigen::VectorXd qp = q, qm = q;
-    qp(i) += h;
-    qm(i) -= h;
-    const Eigen::Vector3d dp = (r.fk(qp).translation() - r.fk(qm).translation()) / (2 * h);
-    EXPECT_LT((dp - J.col(i).head<3>()).norm(), 1e-6) << r.joint_names()[i];
+  for (int s = 0; s < 20; ++s) {
+    const Eigen::VectorXd q = random_q(r, rng);
+    const Eigen::MatrixXd J = r.jacobian(q);
+    const Eigen::Matrix3d R = r.fk(q).linear();
+    const double h = 1e-6;
+    for (int i = 0; i < r.dof(); ++i) {
+      Eigen::VectorXd qp = q, qm = q;
+      qp(i) += h;
+      qm(i) -= h;
+      const Eigen::Vector3d dp = (r.fk(qp).translation() - r.fk(qm).translation()) / (2 * h);
+      EXPECT_LT((dp - J.col(i).head<3>()).norm(), 1e-6) << r.joint_names()[i];
+      // Angular rows: dR/dq R^T is the skew matrix of the joint's angular velocity per unit rate.
+      const Eigen::Matrix3d W = (r.fk(qp).linear() - r.fk(qm).linear()) / (2 * h) * R.transpose();
+      const Eigen::Vector3d w(0.5 * (W(2, 1) - W(1, 2)), 0.5 * (W(0, 2) - W(2, 0)), 0.5 * (W(1, 0) - W(0, 1)));
+      EXPECT_LT((w - J.col(i).tail<3>()).norm(), 1e-6) << r.joint_names()[i];
+    }
+  }
+}
+
+TEST(Robot, KinematicsFromSeveralThreadsEqualsOneThread) {
+  // fk, jacobian and link_frames are called from parallel loops (clearance checks, the deposit's
+  // stages): the same answers, bit for bit, as one after another.
+  const Robot r = Robot::load(cfg());
+  std::mt19937 rng(11);
+  std::vector<Eigen::VectorXd> qs;
+  for (int s = 0; s < 400; ++s) qs.push_back(random_q(r, rng));
+  std::vector<Eigen::Matrix4d> fk(qs.size()), frames(qs.size());
+  std::vector<Eigen::MatrixXd> jac(qs.size());
+#pragma omp parallel for num_threads(4) schedule(dynamic, 1)
+  for (long s = 0; s < static_cast<long>(qs.size()); ++s) {
+    const auto k = static_cast<std::size_t>(s);
+    fk[k] = r.fk(qs[k]).matrix();
+    jac[k] = r.jacobian(qs[k]);
+    frames[k] = r.link_frames(qs[k]).back().matrix();
+  }
+  for (std::size_t k = 0; k < qs.size(); ++k) {
+    EXPECT_EQ(fk[k], r.fk(qs[k]).matrix()) << k;
+    EXPECT_EQ(jac[k], r.jacobian(qs[k])) << k;
+    EXPECT_EQ(frames[k], r.link_frames(qs[k]).back().matrix()) << k;
   }
 }
 

@@ -196,14 +196,15 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   SpeedCapMap map;
   EXPECT_EQ(map.learn(tr, vel, acc, 0.9), 2);
   ASSERT_EQ(map.speed_mps.size(), 2u);
-  // min(0.9 / 2, sqrt(0.9 / 3)) * 0.5 m/s
-  EXPECT_NEAR(map.speed_mps[0], 0.5 * std::min(0.45, std::sqrt(0.3)), 1e-12);
+  // A lone sample over the acceleration limit (its neighbours at 0) is a step in the joint's
+  // velocity, which scales with v: min(0.9 / 2, 0.9 / 3) * 0.5 m/s.
+  EXPECT_NEAR(map.speed_mps[0], 0.5 * std::min(0.45, 0.3), 1e-12);
   EXPECT_NEAR(map.at(Eigen::Vector3d(0.15 - 0.09, 0, 0)), map.speed_mps[0], 1e-12);
   EXPECT_TRUE(std::isinf(map.at(Eigen::Vector3d(0.15 - 0.11, 0, 0))));
   // The link sample over the acceleration limit (its run stops from the pass end): the bound goes
-  // to the last pass sample (5), sqrt(0.9 / 5) of its speed.
+  // to the last pass sample (5), 0.9 / 5 of its speed (a lone sample again: linear).
   EXPECT_EQ(map.points_m[1], tr.nozzle[5].position_m);
-  EXPECT_NEAR(map.speed_mps[1], 0.5 * std::sqrt(0.9 / 5.0), 1e-12);
+  EXPECT_NEAR(map.speed_mps[1], 0.5 * 0.9 / 5.0, 1e-12);
   // A link sample over a velocity limit counts at its own position (it cruises at the speed of a
   // pass next to it) and at the pass end its run leaves, which may lie beyond the bounds' radius
   // (here 0.1 m: the default bay's graded lead-in reached 1 m/s 0.3 m before its pass).
@@ -266,9 +267,16 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   const Eigen::VectorXd fast = Eigen::VectorXd::Constant(2, 10.0);  // velocities within their limits
   SpeedCapMap change;
   EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 0);
-  ramp.qdd[4] = Eigen::Vector2d(2.0, 3.0);  // joint 1: q'' v^2 = 3 at sample 4 (v = 1.3 m/s)
-  EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 1);
-  EXPECT_NEAR(change.speed_mps[0], 1.3 * std::sqrt(0.9 / 3.0), 1e-9);
+  // joint 1: q'' v^2 = 3 over samples 3-5 (a curve; v = 1.1, 1.3, 1.5 m/s): bounds by sqrt.
+  for (int i = 3; i <= 5; ++i) ramp.qdd[i] = Eigen::Vector2d(2.0, 3.0);
+  EXPECT_EQ(change.learn(ramp, fast, acc, 0.9), 3);
+  EXPECT_NEAR(change.speed_mps[1], 1.3 * std::sqrt(0.9 / 3.0), 1e-9);
+  // The same excess at sample 4 alone: a step in joint 1's velocity (the nozzle's axis starting
+  // to turn where a lead meets a curved pass) scales with v, so the bound is linear.
+  ramp.qdd[3] = ramp.qdd[5] = Eigen::Vector2d(2.0, 0.0);
+  SpeedCapMap step;
+  EXPECT_EQ(step.learn(ramp, fast, acc, 0.9), 1);
+  EXPECT_NEAR(step.speed_mps[0], 1.3 * 0.9 / 3.0, 1e-9);
   // A zig-zag (joint 1's acceleration flips sign from sample to sample) is no curve a lower speed
   // would follow: no bound.
   for (int i = 0; i < 9; ++i) ramp.qdd[i] = Eigen::Vector2d(2.0, i % 2 ? 3.0 : -3.0);
@@ -282,5 +290,10 @@ TEST(ArmPlan, SpeedCapMapLearnsFromLimitBreakingSamples) {
   SpeedCapMap run_in;
   EXPECT_EQ(run_in.learn(in, vel, acc, 0.9), 1);
   EXPECT_EQ(run_in.points_m[0], in.nozzle[4].position_m);
-  EXPECT_NEAR(run_in.speed_mps[0], 0.5 * std::sqrt(0.9 / 4.0), 1e-12);
+  EXPECT_NEAR(run_in.speed_mps[0], 0.5 * 0.9 / 4.0, 1e-12);  // a lone sample: linear
+  // Over two samples (a stop the run cannot lengthen): sqrt.
+  in.qdd[3] = Eigen::Vector2d(0.0, 4.0);
+  SpeedCapMap run_in_curve;
+  EXPECT_EQ(run_in_curve.learn(in, vel, acc, 0.9), 1);
+  EXPECT_NEAR(run_in_curve.speed_mps[0], 0.5 * std::sqrt(0.9 / 4.0), 1e-12);
 }

@@ -405,6 +405,7 @@ WallOctree::~WallOctree() = default;
 WallOctree::WallOctree(WallOctree&&) noexcept = default;
 WallOctree& WallOctree::operator=(WallOctree&&) noexcept = default;
 double WallOctree::resolution_m() const { return impl_->resolution_m; }
+double WallOctree::leaf_diagonal_m() const { return std::sqrt(3.0) * impl_->resolution_m; }
 std::size_t WallOctree::occupied_leaves() const { return impl_->leaves; }
 
 double WallOctree::distance(const CollisionShape& shape, const Eigen::Isometry3d& link_pose, Eigen::Vector3d* closest_m,
@@ -638,7 +639,7 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
   std::vector<BallCover> covers;  // the field bounds' cover of each shape
   for (const auto& s : shapes) corners.push_back(box_corners(s)), covers.push_back(ball_cover(s, kFieldCoverSlack_m));
   wall.field_voxel_m();  // the field built here, once, inside the timing
-  const double leaf_diagonal_m = std::sqrt(3.0) * wall.resolution_m();
+  const double leaf_diagonal_m = wall.leaf_diagonal_m();
   // Fixed stretches of samples, whatever the number of threads: the result (minima, counts,
   // queries) depends on the trajectory only.
   const std::size_t n_chunks = std::clamp<std::size_t>(n / kChunkSamples, 1, kMaxChunks);

@@ -223,7 +223,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
   TransitReport rep;
   const auto pairs = self_check_pairs(robot);
   std::vector<JointMove> moves = joint_moves(trajectory);
-  const double leaf_diagonal_m = std::sqrt(3.0) * wall.resolution_m();
+  const double leaf_diagonal_m = wall.leaf_diagonal_m();
   rep.moves_checked = static_cast<int>(moves.size());
   for (std::size_t i = 0; i < moves.size(); ++i) {
     const JointMove move = moves[i];

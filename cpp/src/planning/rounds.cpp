@@ -149,10 +149,15 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   std::vector<PassPart> parts;
   std::vector<Eigen::VectorXd> unit;  // per pass, at 1 m/s: the cells its passes reach
   std::vector<double> v_max;
+  {
+    std::vector<const Pass*> all;
+    std::vector<std::string> names;
+    for (std::size_t j = 0; j < rp.passes.size(); ++j) all.push_back(&rp.passes[j]), names.push_back(where + ", pass " + std::to_string(j));
+    caps = ctx.caps(all, names);
+  }
   for (std::size_t j = 0; j < rp.passes.size(); ++j) {
     const Pass& p = rp.passes[j];
-    caps.push_back(ctx.caps(p, where + ", pass " + std::to_string(j)));
-    const auto& cap = caps.back();
+    const auto& cap = caps[j];
     if (cap.size() != p.waypoints.size() || std::any_of(cap.begin(), cap.end(), [](double v) { return std::isnan(v); }))
       throw std::runtime_error(where + ", pass " + std::to_string(j) + ": the speed cap has no usable value");
     Pass unit_pass = p;
@@ -296,12 +301,18 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
                   RoundContext& ctx, DwellProblem& problem) {
   const PlannerConfig& pc = ctx.config.planner;
   const double rebound = ctx.config.deposition.rebound_fraction;
+  std::vector<const Pass*> all;
+  std::vector<std::string> names;
+  for (std::size_t s = 0; s < sides.size(); ++s)
+    for (const Pass& pass : sides[s].passes)
+      all.push_back(&pass), names.push_back(round_name(in.number) + ", side " + std::to_string(s) + ", line " + std::to_string(pass.line));
+  const std::vector<std::vector<double>> caps = ctx.caps(all, names);
+  std::size_t next = 0;
   for (std::size_t s = 0; s < sides.size(); ++s)
     for (std::size_t p = 0; p < sides[s].passes.size(); ++p) {
       const Pass& pass = sides[s].passes[p];
       const std::size_t nw = pass.waypoints.size();
-      const auto cap = ctx.caps(pass, round_name(in.number) + ", side " + std::to_string(s) + ", line " +
-                                          std::to_string(pass.line));
+      const std::vector<double>& cap = caps[next++];
       // Segments of equal length, about segment_length_m: a short last piece would bound the
       // speed change into it (limit_speed_changes) and starve the cells at the pass's end.
       const std::size_t per = std::max<std::size_t>(1, std::llround(pc.segment_length_m / pc.sample_step_m));

@@ -4,6 +4,7 @@
 #include <nlopt.hpp>
 
 #include <algorithm>
+#include <exception>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -609,12 +610,43 @@ std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::v
 // Speed caps
 
 std::vector<double> WaypointCaps::operator()(const Pass& pass, const std::string& where) {
-  const PlannerConfig& pc = config_;
-  std::vector<double> cap(pass.waypoints.size(), pc.max_speed_mps);
-  if (!fn_) return cap;
+  if (!fn_) return std::vector<double>(pass.waypoints.size(), config_.max_speed_mps);
   const auto t0 = std::chrono::steady_clock::now();
   const std::vector<double> c = fn_(pass.waypoints);
   seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return checked(pass, c, where);
+}
+
+std::vector<std::vector<double>> WaypointCaps::operator()(const std::vector<const Pass*>& passes,
+                                                          const std::vector<std::string>& where) {
+  if (where.size() != passes.size()) throw std::invalid_argument("WaypointCaps: one name per pass");
+  std::vector<std::vector<double>> out(passes.size());
+  if (!fn_) {
+    for (std::size_t i = 0; i < passes.size(); ++i) out[i].assign(passes[i]->waypoints.size(), config_.max_speed_mps);
+    return out;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<std::exception_ptr> failed(passes.size());
+#pragma omp parallel for schedule(dynamic, 1) if (passes.size() > 1)
+  for (long i = 0; i < static_cast<long>(passes.size()); ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    try {
+      out[k] = fn_(passes[k]->waypoints);
+    } catch (...) {
+      failed[k] = std::current_exception();
+    }
+  }
+  seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  for (std::size_t i = 0; i < passes.size(); ++i) {  // errors and warnings in the order of the calls one by one
+    if (failed[i]) std::rethrow_exception(failed[i]);
+    out[i] = checked(*passes[i], out[i], where[i]);
+  }
+  return out;
+}
+
+std::vector<double> WaypointCaps::checked(const Pass& pass, const std::vector<double>& c, const std::string& where) {
+  const PlannerConfig& pc = config_;
+  std::vector<double> cap(pass.waypoints.size(), pc.max_speed_mps);
   if (c.size() != cap.size())
     throw std::runtime_error("plan_bay: the speed cap returned " + std::to_string(c.size()) + " values for " +
                              std::to_string(cap.size()) + " waypoints");

@@ -42,29 +42,62 @@ void check_q(const Robot& robot, const Eigen::VectorXd& q, const char* what);
 /// Angle between two directions [rad].
 double axis_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b);
 
-// Per-call KDL solver state (KDL solvers are not thread-safe; construction is cheap).
+// Forward kinematics and the Jacobian of the chain, composed from the chain's joints and segment
+// tips as Robot::link_frames composes them (no KDL solver: KDL's Joint::pose caches its last
+// rotation in the chain, so its solvers are not safe from several threads, and its Jacobian solver
+// changes the reference point of every column per segment). One pass gives the pose and the
+// Jacobian (reference point the chain tip, both in the chain's base frame, as KDL's JntToJac).
 struct Kin {
   const Robot::Impl& r;
-  KDL::ChainFkSolverPos_recursive fk;
-  KDL::ChainJntToJacSolver jac;
-  KDL::JntArray qk;
-  KDL::Frame frame;
-  KDL::Jacobian J;
+  Eigen::Matrix<double, 6, Eigen::Dynamic> J;
+  std::vector<Eigen::Vector3d> axis, origin;  // per joint: unit axis and a point on it, chain base frame
+  std::vector<char> rotational;               // per joint: turns (else slides)
   explicit Kin(const Robot::Impl& impl)
-      : r(impl), fk(impl.chain), jac(impl.chain), qk(impl.chain.getNrOfJoints()), J(impl.chain.getNrOfJoints()) {}
-  // Pose of nozzle_tip in the base frame.
-  void pose(const Eigen::VectorXd& q, Eigen::Vector3d& p, Eigen::Matrix3d& R) {
-    qk.data = q;
-    fk.JntToCart(qk, frame);
-    for (int i = 0; i < 3; ++i) {
-      p(i) = frame.p(i);
-      for (int j = 0; j < 3; ++j) R(i, j) = frame.M(i, j);
+      : r(impl), J(6, static_cast<Eigen::Index>(impl.chain.getNrOfJoints())), axis(impl.chain.getNrOfJoints()),
+        origin(impl.chain.getNrOfJoints()), rotational(impl.chain.getNrOfJoints(), 0) {}
+  // Pose of the chain tip (nozzle_tip) in the chain's base frame; with `jacobian` also J.
+  void compose(const Eigen::VectorXd& q, Eigen::Vector3d& p, Eigen::Matrix3d& R, bool jacobian) {
+    KDL::Frame f = KDL::Frame::Identity();
+    std::size_t j = 0;
+    for (std::size_t i = 0; i < r.chain.segments.size(); ++i) {
+      const KDL::Joint& joint = r.chain.segments[i].getJoint();
+      const bool moves = joint.getType() != KDL::Joint::None;
+      const double qi = moves ? q[static_cast<Eigen::Index>(j)] : 0.0;
+      if (moves && jacobian) {
+        const KDL::Vector a = f.M * joint.JointAxis(), o = f * joint.JointOrigin();
+        axis[j] = Eigen::Vector3d(a.x(), a.y(), a.z());
+        origin[j] = Eigen::Vector3d(o.x(), o.y(), o.z());
+        const auto t = joint.getType();
+        rotational[j] = t == KDL::Joint::RotAxis || t == KDL::Joint::RotX || t == KDL::Joint::RotY || t == KDL::Joint::RotZ;
+      }
+      const KDL::Frame at_joint = joint.getType() == KDL::Joint::RotAxis
+                                      ? KDL::Frame(KDL::Rotation::Rot2(joint.JointAxis(), qi), joint.JointOrigin())
+                                      : joint.pose(qi);
+      f = f * at_joint * r.segment_tip[i];
+      if (moves) ++j;
+    }
+    p = Eigen::Vector3d(f.p.x(), f.p.y(), f.p.z());
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) R(a, b) = f.M(a, b);
+    if (!jacobian) return;
+    for (std::size_t k = 0; k < axis.size(); ++k) {
+      const auto c = static_cast<Eigen::Index>(k);
+      if (rotational[k]) {
+        J.block<3, 1>(0, c) = axis[k].cross(p - origin[k]);
+        J.block<3, 1>(3, c) = axis[k];
+      } else {
+        J.block<3, 1>(0, c) = axis[k];
+        J.block<3, 1>(3, c).setZero();
+      }
     }
   }
+  // Pose of nozzle_tip in the base frame.
+  void pose(const Eigen::VectorXd& q, Eigen::Vector3d& p, Eigen::Matrix3d& R) { compose(q, p, R, false); }
   const Eigen::Matrix<double, 6, Eigen::Dynamic>& jacobian(const Eigen::VectorXd& q) {
-    qk.data = q;
-    jac.JntToJac(qk, J);
-    return J.data;
+    Eigen::Vector3d p;
+    Eigen::Matrix3d R;
+    compose(q, p, R, true);
+    return J;
   }
 };
 

@@ -55,10 +55,22 @@ Eigen::Matrix<double, 5, Eigen::Dynamic> task_jacobian(const Eigen::Matrix3d& R,
 
 TaskError task_error(const Robot& robot, const Eigen::VectorXd& q, const NozzlePose& target,
                      Eigen::MatrixXd* jacobian, AxisError form) {
-  const Eigen::Isometry3d T = robot.fk(q);
-  const Eigen::Matrix3d R = T.linear();
-  const TaskError out = task_error(T.translation(), R, target.position_m, target.axis.normalized(), form);
-  if (jacobian) *jacobian = task_jacobian(R, robot.jacobian(q));
+  check_q(robot, q, "q");
+  // Pose and Jacobian in one pass over the chain, then into the robot's base frame (a rotation
+  // and a translation), as Robot::fk and Robot::jacobian give them.
+  Kin kin(robot.impl());
+  Eigen::Vector3d p;
+  Eigen::Matrix3d R;
+  kin.compose(q, p, R, jacobian != nullptr);
+  const Eigen::Isometry3d& base = robot.impl().base;
+  R = base.linear() * R;
+  const TaskError out = task_error(base * p, R, target.position_m, target.axis.normalized(), form);
+  if (jacobian) {
+    Eigen::Matrix<double, 6, Eigen::Dynamic> J(6, kin.J.cols());
+    J.topRows<3>() = base.linear() * kin.J.topRows<3>();
+    J.bottomRows<3>() = base.linear() * kin.J.bottomRows<3>();
+    *jacobian = task_jacobian(R, J);
+  }
   return out;
 }
 

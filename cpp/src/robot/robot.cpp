@@ -270,10 +270,14 @@ double Robot::max_reach_m() const { return impl_->max_reach_m; }
 
 Eigen::Isometry3d Robot::fk(const Eigen::VectorXd& q) const {
   check_q(*this, q, "q");
-  KDL::ChainFkSolverPos_recursive solver(impl_->chain);
-  KDL::Frame f;
-  if (solver.JntToCart(to_kdl(q), f) < 0) throw std::runtime_error("KDL forward kinematics failed");
-  return impl_->base * to_eigen(f);
+  Kin kin(*impl_);
+  Eigen::Isometry3d f = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d p;
+  Eigen::Matrix3d R;
+  kin.pose(q, p, R);
+  f.linear() = R;
+  f.translation() = p;
+  return impl_->base * f;
 }
 
 std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q) const {

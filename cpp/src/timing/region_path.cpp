@@ -149,7 +149,10 @@ void append_turn(CartesianPath& path, const Join& j, const RegionPathOptions& o)
 void append_stop_and_go(CartesianPath& path, const Join& j, const RegionPathOptions& o) {
   const double stop_accel = j.gap_scale * o.stop_accel_mps2;
   const double v_out = last_speed(j.p), v_in = first_speed(j.q);
-  const double run = o.turn_run_m > 0.0 ? o.turn_run_m : 0.1;
+  // An eased join (gap_scale < 1) runs 1 / scale as long: where the minimum run binds (a stop from
+  // 0.34 m/s over 0.1 m), a lower acceleration alone left the stop as it was (the default bay: a
+  // slew at 1.006x its limit through six easings, then two re-plans of the whole bay).
+  const double run = (o.turn_run_m > 0.0 ? o.turn_run_m : 0.1) / std::max(j.gap_scale, 1e-3);
   // Long enough to stop from / start to the pass speeds within the acceleration limit (plain
   // cycloidal stop / start, peak v^2 / s).
   double run_out = run, run_in = run;

@@ -70,6 +70,9 @@ class WallOctree {
   /// bounding box would need more than 64 M cells.
   double field_voxel_m() const;
   double resolution_m() const;
+  /// Diagonal [m] of an octree leaf: how far the octree's readings may fall short of the exact
+  /// distance to the points (a point anywhere in an occupied leaf).
+  double leaf_diagonal_m() const;
   std::size_t occupied_leaves() const;
 
  private:
