@@ -35,6 +35,15 @@ TurnAroundOptions speeds(double v_in, double v_out) {
   return o;
 }
 
+// A 1.2 m pass along +x at height z (waypoints 1 cm apart, the axis up) at speed_mps.
+Pass line_along_x(double z, double speed_mps) {
+  Pass p;
+  for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
+  p.length_m = 1.2;
+  p.speed_mps = speed_mps;
+  return p;
+}
+
 }  // namespace
 
 TEST(Geometry, TurnAroundDiameterIsSpacingAndTangentsContinuous) {
@@ -246,13 +255,7 @@ TEST(RegionPath, EasedJoinsRunLongerWhereTheMinimumRunBinds) {
   // about half as hard: before, easing left it as it was (a slew at 1.006x its limit through six
   // easings on the default bay, then two re-plans of the whole bay). A turn's runs stay as sized:
   // there the arc, eased by its speed, carries the excess.
-  auto line = [](double z) {
-    Pass p;
-    for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
-    p.length_m = 1.2;
-    p.speed_mps = 0.2;
-    return p;
-  };
+  const auto line = [](double z) { return line_along_x(z, 0.2); };
   RegionPathOptions stop = leads(0.1, 0.1, 0.1);
   stop.stop_accel_mps2 = 0.5;
   stop.gap_accel_scale = {1.0, 0.5};
@@ -598,13 +601,7 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   // Two passes along +x on neighbouring lines (not a serpentine): stop-and-go between them. At
   // 0.8 m/s and 0.5 m/s^2 the plain cycloidal stop needs 0.8^2 / 0.5 = 1.28 m (a k2 = 0.5 cruise
   // would need 3.84 m).
-  auto line = [](double z) {
-    Pass p;
-    for (double x = 0.0; x <= 1.2 + 1e-9; x += 0.01) p.waypoints.push_back({Eigen::Vector3d(x, 0, z), Eigen::Vector3d(0, 0, 1)});
-    p.length_m = 1.2;
-    p.speed_mps = 0.8;
-    return p;
-  };
+  const auto line = [](double z) { return line_along_x(z, 0.8); };
   const std::vector<Pass> passes = {line(4.6), line(4.8)};
   const CartesianPath fixed = region_path(passes, leads(0.1, 0.1, 0.1));
   RegionPathOptions stop = leads(0.1, 0.1, 0.1);
