@@ -147,12 +147,16 @@ class Params(unittest.TestCase):
                      "synth/theta_max_rad": 1.5, "synth/pit_count": 1, "synth/points_per_cell": 4.0,
                      "robot/base_position_m": [0.6, 0.0, -7.2]}.items():
             rospy.set_param("/%s/%s" % (name, k), v)
+        clouds = u.Collector("/%s/cloud" % name, PointCloud2)
         exe = roslib.packages.find_node("shotcrete_ros", "shotcrete_node")[0]
         node = subprocess.Popen([exe, "__name:=" + name], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
+            # The node serves ~plan while it still loads its startup cloud: called right after
+            # wait_for_service (CI, under load) it answered no summary ("no cloud yet" or "busy";
+            # which one was not logged). So wait for the cloud, as the tests above do, and ask
+            # again while the node is still busy publishing it.
+            self.assertIsNotNone(clouds.wait(timeout=60), "no cloud from the synthetic bay")
             rospy.wait_for_service("/%s/plan" % name, timeout=60)
-            # The service is up while the node still sets its startup cloud (under load in CI: the
-            # answer was "busy", not a summary): ask again while it says so.
             deadline = time.time() + 60.0
             res = rospy.ServiceProxy("/%s/plan" % name, Trigger)()
             while res.message.startswith("busy") and time.time() < deadline:

@@ -609,14 +609,6 @@ std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::v
 // ---------------------------------------------------------------------------------------------
 // Speed caps
 
-std::vector<double> WaypointCaps::operator()(const Pass& pass, const std::string& where) {
-  if (!fn_) return std::vector<double>(pass.waypoints.size(), config_.max_speed_mps);
-  const auto t0 = std::chrono::steady_clock::now();
-  const std::vector<double> c = fn_(pass.waypoints);
-  seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return checked(pass, c, where);
-}
-
 std::vector<std::vector<double>> WaypointCaps::operator()(const std::vector<const Pass*>& passes,
                                                           const std::vector<std::string>& where) {
   if (where.size() != passes.size()) throw std::invalid_argument("WaypointCaps: one name per pass");
@@ -637,7 +629,7 @@ std::vector<std::vector<double>> WaypointCaps::operator()(const std::vector<cons
     }
   }
   seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  for (std::size_t i = 0; i < passes.size(); ++i) {  // errors and warnings in the order of the calls one by one
+  for (std::size_t i = 0; i < passes.size(); ++i) {  // errors and warnings in pass order
     if (failed[i]) std::rethrow_exception(failed[i]);
     out[i] = checked(*passes[i], out[i], where[i]);
   }

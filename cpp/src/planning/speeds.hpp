@@ -134,11 +134,10 @@ class WaypointCaps {
  public:
   WaypointCaps(SpeedCapFn fn, const PlannerConfig& config, std::vector<std::string>& warnings)
       : fn_(std::move(fn)), config_(config), warnings_(warnings) {}
-  /// `where` names the pass in warnings and errors ("round 2, region 3, pass 1").
-  std::vector<double> operator()(const Pass& pass, const std::string& where);
   /// The caps of several passes at once: the SpeedCapFn runs on them in parallel (every SpeedCapFn
   /// of the core is safe from several threads: arm_speed_caps, plan_for_arm's cache), the checks
-  /// and warnings follow in order, as one call per pass would give them.
+  /// and warnings follow in pass order. `where` names each pass in warnings and errors ("round 2,
+  /// region 3, pass 1").
   std::vector<std::vector<double>> operator()(const std::vector<const Pass*>& passes, const std::vector<std::string>& where);
   bool active() const { return static_cast<bool>(fn_); }
   double seconds() const { return seconds_; }  // time spent in the SpeedCapFn

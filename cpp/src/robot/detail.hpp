@@ -42,6 +42,14 @@ void check_q(const Robot& robot, const Eigen::VectorXd& q, const char* what);
 /// Angle between two directions [rad].
 double axis_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b);
 
+// A joint's frame at position q, as KDL's Joint::pose gives it but without the rotation it caches
+// inside the chain (a data race from several threads); kdl_parser's joints: axis joints, unit
+// scale, no offset. What Robot::link_frames and Kin compose the chain from.
+inline KDL::Frame joint_pose(const KDL::Joint& joint, double q) {
+  return joint.getType() == KDL::Joint::RotAxis ? KDL::Frame(KDL::Rotation::Rot2(joint.JointAxis(), q), joint.JointOrigin())
+                                                : joint.pose(q);
+}
+
 // Forward kinematics and the Jacobian of the chain, composed from the chain's joints and segment
 // tips as Robot::link_frames composes them (no KDL solver: KDL's Joint::pose caches its last
 // rotation in the chain, so its solvers are not safe from several threads, and its Jacobian solver
@@ -70,10 +78,7 @@ struct Kin {
         const auto t = joint.getType();
         rotational[j] = t == KDL::Joint::RotAxis || t == KDL::Joint::RotX || t == KDL::Joint::RotY || t == KDL::Joint::RotZ;
       }
-      const KDL::Frame at_joint = joint.getType() == KDL::Joint::RotAxis
-                                      ? KDL::Frame(KDL::Rotation::Rot2(joint.JointAxis(), qi), joint.JointOrigin())
-                                      : joint.pose(qi);
-      f = f * at_joint * r.segment_tip[i];
+      f = f * joint_pose(joint, qi) * r.segment_tip[i];
       if (moves) ++j;
     }
     p = Eigen::Vector3d(f.p.x(), f.p.y(), f.p.z());

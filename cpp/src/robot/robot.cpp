@@ -290,11 +290,7 @@ std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q) cons
   for (std::size_t i = 0; i < impl_->chain.segments.size(); ++i) {
     const KDL::Joint& joint = impl_->chain.segments[i].getJoint();
     const double qi = joint.getType() != KDL::Joint::None ? q[j++] : 0.0;
-    // Joint::pose(q) without its cache (kdl_parser's joints: axis joints, unit scale, no offset).
-    const KDL::Frame at_joint = joint.getType() == KDL::Joint::RotAxis
-                                    ? KDL::Frame(KDL::Rotation::Rot2(joint.JointAxis(), qi), joint.JointOrigin())
-                                    : joint.pose(qi);
-    f = f * at_joint * impl_->segment_tip[i];
+    f = f * joint_pose(joint, qi) * impl_->segment_tip[i];
     out.push_back(impl_->base * to_eigen(f));
   }
   return out;
