@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import time
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -64,9 +65,13 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
 
         progress("report", 0.0)
         t_report = time.perf_counter()
-        figures = figures_step(tmp / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
-        files = files_step(tmp, surface, arm_plan, frame, robot)
-        facts = page_step(tmp, surface, arm_plan, config, robot)
+        # The files (trajectory.npz's deflate, about 1 s on the default bay, frees the GIL) are
+        # written on a second thread while the figures are drawn.
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            files_written = pool.submit(files_step, tmp, surface, arm_plan, frame, robot)
+            figures = figures_step(tmp / "figures", surface, arm_plan.plan, summary, arm_plan.executed)
+            facts = page_step(tmp, surface, arm_plan, config, robot)
+            files = files_written.result()
         timings["report"] = time.perf_counter() - t_report
         timings["total"] = time.perf_counter() - t0
         result["timings_s"] = timings

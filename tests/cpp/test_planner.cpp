@@ -439,6 +439,54 @@ TEST(GradedSpeeds, TheOptimumMatchesABruteForceSearchWithAndWithoutTheGuard) {
   EXPECT_LT(on_cell(g.speeds_mps, 1), 0.0052);
 }
 
+TEST(GradedSpeeds, ABackgroundDepositCountsAsLaidAlready) {
+  // The same two passes; cells 6..11 already get 12 mm from elsewhere (a neighbouring region's
+  // passes, the timed passes' leads and turns). The optimum of |T + b - t| with the guard on
+  // T + b, brute-forced independently, is what optimise_speeds finds; graded_deposit_cost is that
+  // objective on the whole deposit; a warm start from the speeds without the background reaches
+  // the same optimum.
+  const int n = 12;
+  const std::vector<Eigen::VectorXd> unit = {bell(n, 4.0, 0.004), bell(n, 7.0, 0.004)};
+  PlannerConfig cfg;
+  const std::vector<double> v_max = {cfg.max_speed_mps, cfg.max_speed_mps};
+  SpeedTargets t;
+  for (int c = 2; c <= 9; ++c) t.slots.push_back(c), t.target_m.push_back(0.045);
+  t.guard_weight = 100.0;
+  for (int c : {0, 1, 10, 11}) t.guard_slots.push_back(c), t.guard_max_m.push_back(0.015);
+  Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
+  b.tail(6).setConstant(0.012);
+  auto deposit = [&](const std::vector<double>& v) { return Eigen::VectorXd(unit[0] / v[0] + unit[1] / v[1] + b); };
+  auto objective = [&](const std::vector<double>& v) {
+    const Eigen::VectorXd x = deposit(v);
+    double f = 0;
+    for (std::size_t i = 0; i < t.slots.size(); ++i) f += std::abs(x[t.slots[i]] - t.target_m[i]);
+    for (std::size_t i = 0; i < t.guard_slots.size(); ++i) f += t.guard_weight * std::max(0.0, x[t.guard_slots[i]] - t.guard_max_m[i]);
+    return f;
+  };
+  double best = 1e300;
+  for (double w0 = 1.0; w0 <= 20.0; w0 += 0.01)
+    for (double w1 = 1.0; w1 <= 20.0; w1 += 0.01) best = std::min(best, objective({1 / w0, 1 / w1}));
+  const PassSpeeds without = optimise_speeds(unit, t, cfg, v_max);
+  SpeedTargets with_b = t;
+  with_b.background_m = b;
+  const PassSpeeds with = optimise_speeds(unit, with_b, cfg, v_max);
+  EXPECT_NEAR(objective(with.speeds_mps), best, 0.01 * best);
+  EXPECT_GT(objective(without.speeds_mps), 1.2 * best);  // the background ignored: a worse plan
+  EXPECT_GT(with.speeds_mps[1], without.speeds_mps[1]);   // the right side needs less: faster
+  EXPECT_NEAR(graded_deposit_cost(t, deposit(with.speeds_mps)), objective(with.speeds_mps), 1e-12);
+  std::vector<PassPart> parts = {{0, 0.0, unit[0]}, {1, 0.0, unit[1]}};
+  const PassSpeeds warm = optimise_speeds(parts, 2, with_b, cfg, v_max, without.speeds_mps);
+  EXPECT_NEAR(objective(warm.speeds_mps), best, 0.01 * best);
+  // Bad backgrounds and start speeds are errors naming the problem.
+  with_b.background_m = Eigen::VectorXd::Zero(n - 1);
+  EXPECT_THROW(optimise_speeds(unit, with_b, cfg, v_max), std::invalid_argument);
+  with_b.background_m = b;
+  with_b.background_m[3] = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(optimise_speeds(unit, with_b, cfg, v_max), std::invalid_argument);
+  EXPECT_THROW(optimise_speeds(parts, 2, t, cfg, v_max, {0.1}), std::invalid_argument);
+  EXPECT_THROW(graded_deposit_cost(t, Eigen::VectorXd::Zero(5)), std::invalid_argument);
+}
+
 TEST(GradedSpeeds, IllPosedProblemsAreErrors) {
   PlannerConfig cfg;
   const std::vector<Eigen::VectorXd> unit = {bell(5, 2.0, 0.004)};

@@ -705,7 +705,10 @@ TEST(RegionProfile, AnEasedTurnSlowsItsArcEvenBelowTheCentripetalCap) {
   // over a joint acceleration limit through every easing).
   using namespace shotcrete;
   using timing_detail::PieceSpec;
-  const TimingParams params = TimingParams::from_config(TimingConfig{});
+  TimingConfig slow_turns;  // the arc at the pass speed, under the centripetal cap
+  slow_turns.turn_speed_mps = 0.0;
+  slow_turns.turn_accel_mps2 = 0.0;
+  const TimingParams params = TimingParams::from_config(slow_turns);
   auto arc_min_speed = [&](double scale) {
     const double r = 0.1, v = 0.1;
     std::vector<PieceSpec> specs = {

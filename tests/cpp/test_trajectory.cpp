@@ -4,6 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
+#include <regex>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -154,6 +157,55 @@ TEST(RobotTiming, StopAndGoMovesHappenInJointSpace) {
   }
   EXPECT_LE(tr.max_velocity_ratio, 1.0 + 1e-3);
   EXPECT_LE(tr.max_acceleration_ratio, 1.03);
+}
+
+// Turn-arounds at their own speed (timing.turn_speed_mps) over a joint limit that no easing
+// removes (here an arm whose joints are 5x slower than the bundled one's: the 0.28 m/s arcs
+// between 0.05 m/s passes break its velocity limits) are timed at the passes' speeds instead:
+// the same trajectory as the slow-turn timing, within the limits. On the bundled arm the region
+// keeps its fast turns.
+TEST(RobotTiming, OwnSpeedTurnsOverALimitFallBackToThePassSpeeds) {
+  std::ifstream in(std::string(SHOTCRETE_DATA_DIR) + "/shotcrete_manipulator.urdf");
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string urdf = text.str();
+  std::string slow_urdf;
+  const std::regex velocity(R"re(velocity="([0-9][0-9.]*)")re");
+  auto last = urdf.cbegin();
+  for (std::sregex_iterator it(urdf.begin(), urdf.end(), velocity), end; it != end; ++it) {
+    slow_urdf.append(last, (*it)[0].first);
+    slow_urdf += "velocity=\"" + std::to_string(0.2 * std::stod((*it)[1].str())) + "\"";
+    last = (*it)[0].second;
+  }
+  slow_urdf.append(last, urdf.cend());
+  ASSERT_NE(slow_urdf, urdf);
+  const Eigen::Vector3d base = RobotConfig{}.base_position_m;
+  const auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.2, {0.05});
+  TimingConfig fast;
+  fast.turn_speed_mps = 0.5;
+  fast.turn_accel_mps2 = 1.0;
+  TimingConfig slow = fast;
+  slow.turn_speed_mps = 0.0;
+  slow.turn_accel_mps2 = 0.0;
+  auto fastest_turn_mps = [](const TimedTrajectory& tr) {
+    double v = 0.0;
+    for (std::size_t i = 1; i < tr.size(); ++i)
+      if (tr.kind[i] == static_cast<char>(SegmentKind::Turn))
+        v = std::max(v, (tr.nozzle[i].position_m - tr.nozzle[i - 1].position_m).norm() / (tr.t_s[i] - tr.t_s[i - 1]));
+    return v;
+  };
+  const Robot bundled = Robot::from_string(urdf, base);
+  const TimedTrajectory kept = time_plan(bundled, {passes}, bundled.stow(), fast, RobotConfig{});
+  EXPECT_GT(fastest_turn_mps(kept), 0.2);  // the arcs run at their own speed
+  EXPECT_LE(std::max(kept.max_velocity_ratio, kept.max_acceleration_ratio), 1.0 + 1e-3);
+  const Robot sluggish = Robot::from_string(slow_urdf, base);
+  const TimedTrajectory fell_back = time_plan(sluggish, {passes}, sluggish.stow(), fast, RobotConfig{});
+  const TimedTrajectory reference = time_plan(sluggish, {passes}, sluggish.stow(), slow, RobotConfig{});
+  EXPECT_LE(std::max(fell_back.max_velocity_ratio, fell_back.max_acceleration_ratio), 1.0 + 1e-3);
+  EXPECT_LT(fastest_turn_mps(fell_back), 0.051);
+  EXPECT_EQ(fell_back.size(), reference.size());
+  EXPECT_NEAR(fell_back.duration_s, reference.duration_s, 1e-9);
+  EXPECT_GT(fell_back.duration_s, kept.duration_s);
 }
 
 TEST(RobotTiming, BadInput) {

@@ -197,6 +197,7 @@ struct PlannerConfig {
   double levelling_guard_weight = 100.0;  // optimal mode: cost of a mm past the band per mm off target, squared (0: no guard)
   int levelling_lookahead_rounds = 3;  // optimal mode: rounds a round's dwells are solved for (it sprays one)
   int levelling_executed_corrections = 2;  // optimal mode: re-solves of a round against its own executed deposit (0: none)
+  int graded_executed_corrections = 1;  // graded mode: re-solves of a region's speeds against its own executed deposit (0: none, nor the round's other regions)
   bool graded_thesis_objective = false;  // graded mode: the thesis's objective as written (one target per region)
   double graded_overfill_allowance_m = 0.025;  // graded mode: fill past flush a reached cell may take
   double graded_guard_weight = 1000.0;  // graded mode: cost of over-fill past the allowance per unit off target
@@ -246,10 +247,10 @@ struct TimingConfig {
   double pso_w_min = 0.0;            // w = (w_max - w_min) Bs + w_min
   double pso_w_max = 1.0;
   double max_lead_length_m = 0.5;    // swarm bound of the start/end lengths
-  double turn_speed_mps = 0.0;       // nozzle speed mid turn-around; 0 = keep the pass speeds
+  double turn_speed_mps = 0.5;       // nozzle speed mid turn-around; 0 = keep the pass speeds
   double turn_run_m = 0.1;           // straight run before / after each turn-around arc (speed change room)
   double speed_change_accel_mps2 = 0.5;  // peak nozzle acceleration of speed changes inside a pass
-  double turn_accel_mps2 = 0.0;  // centripetal acceleration on turn arcs and speed changes on turn runs; 0 = speed_change_accel_mps2
+  double turn_accel_mps2 = 1.0;  // centripetal acceleration on turn arcs and speed changes on turn runs; 0 = speed_change_accel_mps2
   // Least duration of a turn-around that runs at its own speed (turn_speed_mps, or the arc's
   // centripetal cap), s: the pump (flow.min_off_s, 2 s) switches off over a turn only if it lasts
   // that long; a shorter turn is sprayed through, concrete the dwell solve does not plan for.

@@ -9,7 +9,6 @@
 #include <cmath>
 #include <functional>
 #include <limits>
-#include <unordered_map>
 #include <sstream>
 #include <stdexcept>
 
@@ -87,6 +86,12 @@ void check_speed_problem(const std::vector<PassPart>& parts, std::size_t n_passe
       throw std::invalid_argument("speed optimisation: a guarded cell's limit must be finite and >= 0, got " + std::to_string(x));
   if (!(t.guard_weight >= 0) || !std::isfinite(t.guard_weight))
     throw std::invalid_argument("speed optimisation: the guard weight must be finite and >= 0");
+  if (t.background_m.size() > 0) {
+    if (t.background_m.size() != parts.front().unit.size())
+      throw std::invalid_argument("speed optimisation: the background has " + std::to_string(t.background_m.size()) +
+                                  " cell slots, the passes' deposit " + std::to_string(parts.front().unit.size()));
+    if (!t.background_m.allFinite()) throw std::invalid_argument("speed optimisation: the background deposit is not finite");
+  }
   for (std::size_t j = 0; j < v_max.size(); ++j)
     if (!(v_max[j] > cfg.min_speed_mps) || std::isnan(v_max[j]))
       throw std::invalid_argument("speed optimisation: pass " + std::to_string(j) + " speed bound " +
@@ -179,7 +184,8 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
   };
   std::vector<Entry> ea, eg;
   std::vector<Eigen::Index> ra, rg;
-  std::unordered_map<Eigen::Index, double> delta;
+  // Deposit change per row at a step: dense, only the rows a direction touches reset and read.
+  std::vector<double> delta_a(static_cast<std::size_t>(obj.A.rows()), 0.0), delta_g(static_cast<std::size_t>(obj.G.rows()), 0.0);
   for (int sweep = 0; sweep < 30; ++sweep) {
     double gain = 0;
     for (const Direction& d : dirs) {
@@ -201,12 +207,12 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
       };
       auto cost = [&](double step) {
         double f = 0;
-        delta.clear();
-        for (const auto& e : ea) delta[e.row] += e.a * dz(e.part, step);
-        for (Eigen::Index r : ra) f += std::abs(Ta[r] + delta[r] - obj.t[r]);
-        delta.clear();
-        for (const auto& e : eg) delta[e.row] += e.a * dz(e.part, step);
-        for (Eigen::Index r : rg) f += obj.guard_weight * std::max(0.0, Tg[r] + delta[r] - obj.hi[r]);
+        for (Eigen::Index r : ra) delta_a[static_cast<std::size_t>(r)] = 0.0;
+        for (const auto& e : ea) delta_a[static_cast<std::size_t>(e.row)] += e.a * dz(e.part, step);
+        for (Eigen::Index r : ra) f += std::abs(Ta[r] + delta_a[static_cast<std::size_t>(r)] - obj.t[r]);
+        for (Eigen::Index r : rg) delta_g[static_cast<std::size_t>(r)] = 0.0;
+        for (const auto& e : eg) delta_g[static_cast<std::size_t>(e.row)] += e.a * dz(e.part, step);
+        for (Eigen::Index r : rg) f += obj.guard_weight * std::max(0.0, Tg[r] + delta_g[static_cast<std::size_t>(r)] - obj.hi[r]);
         return f;
       };
       const double best = golden_section_min(cost, s_lo, s_hi, 50), before = cost(0.0), after = cost(best);
@@ -224,8 +230,11 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
 }  // namespace
 
 PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_passes, const SpeedTargets& targets,
-                           const PlannerConfig& cfg, const std::vector<double>& v_max) {
+                           const PlannerConfig& cfg, const std::vector<double>& v_max, const std::vector<double>& v_start) {
   check_speed_problem(parts, n_passes, targets, cfg, v_max);
+  if (!v_start.empty() && v_start.size() != n_passes)
+    throw std::invalid_argument("speed optimisation: " + std::to_string(v_start.size()) + " start speeds for " +
+                                std::to_string(n_passes) + " passes");
   const int n = static_cast<int>(n_passes);
   const int m = static_cast<int>(targets.slots.size());
   GradedObjective obj;
@@ -234,6 +243,10 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
   obj.t = Eigen::Map<const Eigen::VectorXd>(targets.target_m.data(), m);
   obj.hi = Eigen::Map<const Eigen::VectorXd>(targets.guard_max_m.data(), obj.G.rows());
   obj.guard_weight = targets.guard_weight;
+  if (targets.background_m.size() > 0) {  // |T + b - t| = |T - (t - b)|, likewise the guard
+    for (int i = 0; i < m; ++i) obj.t[i] -= targets.background_m[targets.slots[i]];
+    for (Eigen::Index i = 0; i < obj.hi.size(); ++i) obj.hi[i] -= targets.background_m[targets.guard_slots[i]];
+  }
   for (const auto& p : parts) obj.pass_of.push_back(p.pass), obj.floor_of.push_back(p.w_floor_s_per_m);
   Objective objective = [&](const std::vector<double>& v) {
     Eigen::VectorXd w(n);
@@ -241,7 +254,7 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
     return obj(w) / m;
   };
   // Start: one common speed that gives the median target on the median cell.
-  std::vector<double> sums(m), tt(targets.target_m);
+  std::vector<double> sums(m), tt(obj.t.data(), obj.t.data() + m);
   const Eigen::VectorXd row_sums = obj.A * Eigen::VectorXd::Ones(obj.A.cols());
   for (int i = 0; i < m; ++i) sums[i] = row_sums[i];
   std::nth_element(sums.begin(), sums.begin() + m / 2, sums.end());
@@ -252,9 +265,11 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
   std::vector<double>& v = out.speeds_mps;
   v.resize(n);
   std::vector<double> step(n);
+  const bool warm_start = !v_start.empty();
   for (int j = 0; j < n; ++j) {
-    v[j] = std::clamp(v0, cfg.min_speed_mps, v_max[j]);
-    step[j] = std::min(0.25 * v[j], 0.45 * (v_max[j] - cfg.min_speed_mps));
+    const bool warm = warm_start && std::isfinite(v_start[j]);
+    v[j] = std::clamp(warm ? v_start[j] : v0, cfg.min_speed_mps, v_max[j]);
+    step[j] = std::min((warm ? 0.1 : 0.25) * v[j], 0.45 * (v_max[j] - cfg.min_speed_mps));
   }
   if (n >= 2)
     bobyqa_speeds(objective, v, step, v_max, cfg.min_speed_mps);
@@ -278,6 +293,20 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
     out.note = msg.str();
   }
   return out;
+}
+
+double graded_deposit_cost(const SpeedTargets& targets, const Eigen::VectorXd& deposit_m) {
+  if (targets.target_m.size() != targets.slots.size() || targets.guard_max_m.size() != targets.guard_slots.size())
+    throw std::invalid_argument("graded_deposit_cost: one target per cell and one limit per guarded cell are needed");
+  auto at = [&](int s) {
+    if (s < 0 || s >= deposit_m.size()) throw std::invalid_argument("graded_deposit_cost: cell slot " + std::to_string(s) + " out of range");
+    return deposit_m[s];
+  };
+  double f = 0;
+  for (std::size_t i = 0; i < targets.slots.size(); ++i) f += std::abs(at(targets.slots[i]) - targets.target_m[i]);
+  for (std::size_t i = 0; i < targets.guard_slots.size(); ++i)
+    f += targets.guard_weight * std::max(0.0, at(targets.guard_slots[i]) - targets.guard_max_m[i]);
+  return f;
 }
 
 PassSpeeds optimise_speeds(const std::vector<Eigen::VectorXd>& unit_per_pass, const SpeedTargets& targets,

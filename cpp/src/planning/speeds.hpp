@@ -26,10 +26,18 @@ struct SpeedTargets {
                                      // region; in the last round also the region's own cells)
   std::vector<double> guard_max_m;   // per guard slot: the most it may get before it is over-filled
   double guard_weight = 1.0;         // cost of a metre over a guard limit, relative to a metre off target
+  Eigen::VectorXd background_m;      // per cell slot: deposit the speeds do not control, laid anyway
+                                     // (other regions of the round, the timed passes' difference from
+                                     // the solve); empty: none
 };
+
+/// The objective's cell terms at a deposit given per cell slot [m], background included: how good
+/// a deposit, however laid (the timed passes' simulated one), is for the region.
+double graded_deposit_cost(const SpeedTargets& targets, const Eigen::VectorXd& deposit_m);
 
 /// BOBYQA speeds of the passes of one region: minimise
 ///   sum_region |t_c - T_c(v)| + guard_weight * sum_guard max(0, T_c(v) - max_c)
+/// with T_c(v) the passes' deposit plus the background.
 /// (the thesis's sum |Td - T_s(V)|, with a target per cell, and the cells around the region that
 /// its spray reaches kept from over-filling). unit_per_pass[j][slot]: thickness on a cell slot from
 /// pass j at 1 m/s. v_max: per pass upper bound (the machine's speed cap, at most max_speed_mps,
@@ -47,8 +55,11 @@ struct PassPart {
   Eigen::VectorXd unit;  // thickness per cell slot at 1 m/s
 };
 /// The same with passes given as parts (each pass needs at least one).
+/// v_start (empty: one common speed): where the search starts, e.g. the speeds of the same region
+/// solved with another background (BOBYQA's first steps then a tenth of the speeds, not a quarter).
 PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_passes, const SpeedTargets& targets,
-                           const PlannerConfig& cfg, const std::vector<double>& v_max);
+                           const PlannerConfig& cfg, const std::vector<double>& v_max,
+                           const std::vector<double>& v_start = {});
 
 // ---------------------------------------------------------------------------------------------
 // Levelling rounds: one dwell per segment
