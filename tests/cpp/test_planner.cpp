@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <tuple>
 
 #include "shotcrete/planning/planner.hpp"
 #include "shotcrete/timing/region_spray.hpp"
@@ -394,15 +395,21 @@ double graded_objective(const std::vector<Eigen::VectorXd>& unit, const SpeedTar
   return f / t.slots.size();
 }
 
+// Two passes over a row of 12 cells, bells centred on cells 4 and 7, at the planner's speed bounds.
+struct TwoBells {
+  static constexpr int n = 12;
+  std::vector<Eigen::VectorXd> unit{bell(n, 4.0, 0.004), bell(n, 7.0, 0.004)};
+  PlannerConfig cfg;
+  std::vector<double> v_max{cfg.max_speed_mps, cfg.max_speed_mps};
+};
+
 }  // namespace
 
 TEST(GradedSpeeds, TheOptimumMatchesABruteForceSearchWithAndWithoutTheGuard) {
   // Two passes over cells 0..11; the region is cells 2..9, and cells 0, 1, 10, 11 around it are
   // already nearly flush, so the guard limits what they may take.
-  const int n = 12;
-  const std::vector<Eigen::VectorXd> unit = {bell(n, 4.0, 0.004), bell(n, 7.0, 0.004)};
-  PlannerConfig cfg;
-  const std::vector<double> v_max = {cfg.max_speed_mps, cfg.max_speed_mps};
+  const TwoBells p;
+  const auto& [unit, cfg, v_max] = std::tie(p.unit, p.cfg, p.v_max);
   SpeedTargets t;
   for (int c = 2; c <= 9; ++c) {
     t.slots.push_back(c);
@@ -445,10 +452,9 @@ TEST(GradedSpeeds, ABackgroundDepositCountsAsLaidAlready) {
   // T + b, brute-forced independently, is what optimise_speeds finds; graded_deposit_cost is that
   // objective on the whole deposit; a warm start from the speeds without the background reaches
   // the same optimum.
-  const int n = 12;
-  const std::vector<Eigen::VectorXd> unit = {bell(n, 4.0, 0.004), bell(n, 7.0, 0.004)};
-  PlannerConfig cfg;
-  const std::vector<double> v_max = {cfg.max_speed_mps, cfg.max_speed_mps};
+  const TwoBells p;
+  const int n = TwoBells::n;
+  const auto& [unit, cfg, v_max] = std::tie(p.unit, p.cfg, p.v_max);
   SpeedTargets t;
   for (int c = 2; c <= 9; ++c) t.slots.push_back(c), t.target_m.push_back(0.045);
   t.guard_weight = 100.0;
