@@ -224,7 +224,8 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   // into this one: 101 mm laid where 69 were asked) and what the timed passes lay beyond the
   // solve (leads, turns sprayed through, the pump's spells and ramps): the solve is repeated with
   // the difference as a fixed deposit (plan -> time -> simulate -> correct, as the levelling
-  // rounds) and kept while the simulated deposit's cost falls.
+  // rounds) and kept while the simulated deposit's cost falls. As there, the simulation is of the
+  // passes as planned: ordering may reverse a region later (the same passes and turns backwards).
   const bool executed = pc.graded_executed_corrections > 0 && !pc.graded_thesis_objective;
   auto solve = [&](const SpeedTargets& t, const std::vector<double>& v_start) {
     try {

@@ -499,13 +499,11 @@ RegionTiming eased_region(const TimingContext& ctx, RegionJob job, const Eigen::
 // 0.3-0.5 m/s where the slew turns fast: 1.06x on a graded region of the default bay) are timed
 // again at the passes' speeds (turn_speed_mps and turn_accel_mps2 0, as the slow turns are
 // everywhere), and the timing with the smaller excess is kept: slower turns in that region
-// rather than a trajectory over the limits.
+// rather than a trajectory over the limits. Likewise when the own-speed timing fails outright.
 RegionTiming time_region_within_limits(const TimingContext& ctx, const RegionJob& job, const Eigen::VectorXd& q_prev) {
-  double ratio = 0.0;
-  RegionTiming best = eased_region(ctx, job, q_prev, ratio);
-  const bool own_turns = ctx.timing.turn_speed_mps > 0.0 || ctx.timing.turn_accel_mps2 > 0.0 ||
-                         job.params.turn_speed_mps > 0.0 || job.params.turn_accel_mps2 > 0.0;
-  if (ratio <= 1.0 || !own_turns) return best;
+  const bool own_turns = job.passes.size() >= 2 &&  // one pass: no turn
+                         (ctx.timing.turn_speed_mps > 0.0 || ctx.timing.turn_accel_mps2 > 0.0 ||
+                          job.params.turn_speed_mps > 0.0 || job.params.turn_accel_mps2 > 0.0);
   TimingConfig slow = ctx.timing;
   slow.turn_speed_mps = 0.0;
   slow.turn_accel_mps2 = 0.0;
@@ -513,12 +511,27 @@ RegionTiming time_region_within_limits(const TimingContext& ctx, const RegionJob
   RegionJob slow_job = job;
   slow_job.params.turn_speed_mps = 0.0;
   slow_job.params.turn_accel_mps2 = 0.0;
-  double slow_ratio = 0.0;
+  double ratio = 0.0, slow_ratio = 0.0;
+  RegionTiming best;
+  try {
+    best = eased_region(ctx, job, q_prev, ratio);
+  } catch (const std::exception&) {
+    // The own-speed turns' longer runs may leave the reach: the turns at the passes' speeds then,
+    // and the first error if those fail as well.
+    if (!own_turns) throw;
+    try {
+      return eased_region(slow_ctx, slow_job, q_prev, slow_ratio);
+    } catch (const std::exception&) {
+    }
+    throw;
+  }
+  if (ratio <= 1.0 || !own_turns) return best;
   try {
     RegionTiming at_pass_speeds = eased_region(slow_ctx, slow_job, q_prev, slow_ratio);
-    if (slow_ratio < ratio) best = std::move(at_pass_speeds);
+    // Kept when it is within the limits by more and tracks the nozzle path as well.
+    if (slow_ratio < ratio && (at_pass_speeds.tracked || !best.tracked)) best = std::move(at_pass_speeds);
   } catch (const std::exception&) {
-    // The own-speed turns' timing stands (it tracked); the limit check reports its excess.
+    // The own-speed turns' timing stands; the limit check reports its excess.
   }
   return best;
 }
