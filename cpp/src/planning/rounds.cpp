@@ -139,11 +139,17 @@ std::vector<Pass> passes_at(std::vector<Pass> passes, const PassSpeeds& speeds, 
   return passes;
 }
 
-// What passes lay on the cells [m per slot] when they are timed and the pump drives them
-// (region_spray: speed ramps, leads and turns, turns sprayed through, spells lengthened).
-Eigen::VectorXd sprayed_deposit_m(const std::vector<Pass>& passes, const CellSurface& cells, const RoundContext& ctx) {
+// What a region's passes lay on the cells [m per slot] when they are timed and the pump drives
+// them (region_spray: speed ramps, leads and turns, turns sprayed through, spells lengthened,
+// flow ramps), and the pump's on-time [s].
+struct SprayedPasses {
+  Eigen::VectorXd deposit_m;
+  double on_time_s = 0;
+};
+SprayedPasses sprayed_passes(const std::vector<Pass>& passes, const CellSurface& cells, const RoundContext& ctx) {
   const RegionSpray spray = region_spray(passes, ctx.config);
-  return unit_deposit(ctx.model, cells, spray.nozzle, spray.dwell_s, ctx.config.deposition.rebound_fraction);
+  return {unit_deposit(ctx.model, cells, spray.nozzle, spray.dwell_s, ctx.config.deposition.rebound_fraction),
+          spray.flow.on_time_s()};
 }
 
 // The deposit the solve meant: sum_k unit_k max(1 / v_pass(k), floor_k) [m per slot].
@@ -238,14 +244,14 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   PassSpeeds speeds = solve(targets, {});
   std::vector<Pass> passes = passes_at(rp.passes, speeds, caps, ctx);
   if (executed) {
-    Eigen::VectorXd sprayed = sprayed_deposit_m(passes, cells, ctx);
+    Eigen::VectorXd sprayed = sprayed_passes(passes, cells, ctx).deposit_m;
     double best = graded_deposit_cost(targets, round_deposit_m + sprayed);
     for (int it = 0; it < pc.graded_executed_corrections; ++it) {
       SpeedTargets corrected = targets;
       corrected.background_m = round_deposit_m + sprayed - solved_deposit_m(parts, speeds);
       PassSpeeds speeds_next = solve(corrected, speeds.speeds_mps);
       std::vector<Pass> passes_next = passes_at(rp.passes, speeds_next, caps, ctx);
-      Eigen::VectorXd sprayed_next = sprayed_deposit_m(passes_next, cells, ctx);
+      Eigen::VectorXd sprayed_next = sprayed_passes(passes_next, cells, ctx).deposit_m;
       const double c = graded_deposit_cost(targets, round_deposit_m + sprayed_next);
       if (!(c < best)) break;
       best = c;
@@ -462,10 +468,9 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
   return out;
 }
 
-// What a round's regions lay on the cells [mm per slot] when their passes are timed and the pump
-// drives them (region_spray: speed ramps, turns sprayed through, spells lengthened, flow ramps),
-// and the pump's on-time [s]. The order the round is later sprayed in may reverse a region: the
-// same passes and turns backwards, about the same deposit.
+// What a round's regions lay on the cells [mm per slot] (sprayed_passes) and the pump's on-time
+// [s]. The order the round is later sprayed in may reverse a region: the same passes and turns
+// backwards, about the same deposit.
 struct SprayedRound {
   Eigen::VectorXd deposit_mm;
   double on_time_s = 0;
@@ -474,9 +479,9 @@ SprayedRound sprayed_round(const std::vector<RegionPlan>& regions, const CellSur
   SprayedRound out;
   out.deposit_mm = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(cells.cell_ids.size()));
   for (const auto& r : regions) {
-    const RegionSpray spray = region_spray(r.passes, ctx.config);
-    out.deposit_mm += unit_deposit(ctx.model, cells, spray.nozzle, spray.dwell_s, ctx.config.deposition.rebound_fraction) * 1000.0;
-    out.on_time_s += spray.flow.on_time_s();
+    const SprayedPasses sprayed = sprayed_passes(r.passes, cells, ctx);
+    out.deposit_mm += sprayed.deposit_m * 1000.0;
+    out.on_time_s += sprayed.on_time_s;
   }
   return out;
 }
