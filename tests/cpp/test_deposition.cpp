@@ -310,6 +310,47 @@ TEST(SurfaceIndex, WithinMatchesBruteForce) {
   EXPECT_THROW(SurfaceIndex(Cloud{c.xyz, Points()}), std::invalid_argument);
 }
 
+TEST(SurfaceIndex, ConeCulledSumsEqualTheBruteForceBitForBit) {
+  // add_rates_sorted skips the voxels wholly outside the spray cone. On a rough bay with pits,
+  // nozzles tilted along and across, near and far (and past the bay's end, where the fallback ball
+  // holds the whole cone), with fine and coarse voxels, every point's deposit equals the sum of
+  // point_rate_mps over the whole cloud: the skipped points would have added exactly 0.
+  SynthConfig sc;
+  sc.points_per_cell = 4;
+  const SyntheticBay bay = make_synthetic_bay(sc);
+  Cloud c = bay.sample(0.05);
+  c.normals.resize(c.size(), 3);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (Eigen::Index i = 0; i < c.size(); ++i) {  // radial normals, tilted up to 0.3 rad at random
+    const Eigen::Vector3d p = c.xyz.row(i);
+    const Eigen::Vector3d n = -Eigen::Vector3d(0, p.y(), p.z()).normalized() + 0.3 * Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5);
+    c.normals.row(i) = n.normalized().transpose();
+  }
+  const SpotModel m = default_model();
+  std::vector<NozzlePose> poses;
+  std::vector<double> dwell;
+  for (int q = 0; q < 60; ++q) {
+    const double th = 0.2 + 2.7 * u(rng), d = -0.3 + 1.8 * u(rng), tilt = 1.2 * (u(rng) - 0.5);
+    const Eigen::Vector3d radial(0, std::cos(th), std::sin(th)), along(1, 0, 0);
+    poses.push_back({Eigen::Vector3d(d, 0, 0) + (5.6 + 0.15 - 0.4 - 1.2 * u(rng)) * radial,
+                     (radial + tilt * along + 0.8 * (u(rng) - 0.5) * radial.cross(along)).normalized()});
+    dwell.push_back(0.1 + u(rng));
+  }
+  Eigen::VectorXd brute = Eigen::VectorXd::Zero(c.size());
+  for (std::size_t k = 0; k < poses.size(); ++k)
+    for (Eigen::Index i = 0; i < c.size(); ++i)
+      brute[i] += point_rate_mps(m, poses[k], c.xyz.row(i).transpose(), c.normals.row(i).transpose()) * dwell[k];
+  ASSERT_GT((brute.array() > 0).count(), 5000);
+  for (double voxel_m : {0.02, 0.05, 0.3}) {
+    const SurfaceIndex idx(c, voxel_m);
+    Eigen::VectorXd got = Eigen::VectorXd::Zero(c.size());
+    accumulate_dwells(m, idx, poses, dwell, 0.0, got);
+    ASSERT_EQ((got.array() > 0).count(), (brute.array() > 0).count()) << "voxel " << voxel_m;
+    EXPECT_LT((got - brute).cwiseAbs().maxCoeff(), 1e-14 * brute.maxCoeff()) << "voxel " << voxel_m;
+  }
+}
+
 TEST(SurfaceIndex, ReachBallHoldsEveryReachablePoint) {
   // Synthetic bay with pits: for random nozzle poses, every point with a non-zero rate
   // (brute force over the whole cloud) lies inside the query ball.

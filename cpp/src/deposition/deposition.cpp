@@ -370,9 +370,40 @@ struct SurfaceIndex::Impl {
         if (a > z) continue;
         const long row = voxel(0, j, k);
         const int b = start[row + a], e = start[row + z + 1];
-        if (b < e) f(b, e);
+        if (b < e) f(b, e, a, z, j, k);
       }
     }
+  }
+
+  // visit_ball, less the voxels that lie wholly outside the cone from apex c along unit axis a
+  // with half-angle alpha (cos_a, sin_a): a voxel's points are within its half diagonal of its
+  // centre, and a centre farther than that from the cone leaves every point outside it, where
+  // the spray kernel is 0 anyway. The runs of the voxels kept are visited as before.
+  template <class F>
+  void visit_ball_in_cone(const Eigen::Vector3d& center, double r, const Eigen::Vector3d& c, const Eigen::Vector3d& a,
+                          double cos_a, double sin_a, F&& f) const {
+    const double rho = 0.5 * std::sqrt(3.0) * cell * (1.0 + 1e-9) + 1e-9;
+    auto outside = [&](long i, long j, long k) {
+      const Eigen::Vector3d v = lo + cell * Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5) - c;
+      const double t = v.dot(a), perp = std::sqrt(std::max(0.0, v.squaredNorm() - t * t));
+      // Distance from v to the cone: to its surface, or to the apex where v lies behind it.
+      const double dist = t * cos_a + perp * sin_a <= 0 ? v.norm() : perp * cos_a - t * sin_a;
+      return dist > rho;
+    };
+    visit_ball(center, r, [&](int, int, long a0, long a1, long j, long k) {
+      const long row = voxel(0, j, k);
+      long i = a0;
+      while (i <= a1) {
+        while (i <= a1 && outside(i, j, k)) ++i;
+        long z = i;
+        while (z <= a1 && !outside(z, j, k)) ++z;
+        if (i < z) {
+          const int b = start[row + i], e = start[row + z];
+          if (b < e) f(b, e);
+        }
+        i = z;
+      }
+    });
   }
 };
 
@@ -436,7 +467,7 @@ void SurfaceIndex::within(const Eigen::Vector3d& center, double radius_m, std::v
   out.clear();
   const double r2 = radius_m * radius_m;
   const Impl& m = *impl_;
-  m.visit_ball(center, radius_m, [&](int b, int e) {
+  m.visit_ball(center, radius_m, [&](int b, int e, long, long, long, long) {
     for (int s = b; s < e; ++s) {
       const double dx = m.xyz[3 * s] - center.x(), dy = m.xyz[3 * s + 1] - center.y(), dz = m.xyz[3 * s + 2] - center.z();
       if (dx * dx + dy * dy + dz * dz <= r2) out.push_back(m.order[s]);
@@ -502,7 +533,8 @@ void SurfaceIndex::add_rates_sorted(const SpotModel& model, const NozzlePose& no
   const Impl& m = *impl_;
   const auto [center, radius] = reach_ball(model, nozzle);
   const RateKernel k(model, nozzle);
-  m.visit_ball(center, radius, [&](int b, int e) {
+  const double alpha = model.cone_half_angle_rad();
+  m.visit_ball_in_cone(center, radius, k.c, k.a, std::cos(alpha), std::sin(alpha), [&](int b, int e) {
     for (int s = b; s < e; ++s) {
       const double* p = &m.xyz[3 * s];
       const double* n = &m.nrm[3 * s];
