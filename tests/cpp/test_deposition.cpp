@@ -310,23 +310,31 @@ TEST(SurfaceIndex, WithinMatchesBruteForce) {
   EXPECT_THROW(SurfaceIndex(Cloud{c.xyz, Points()}), std::invalid_argument);
 }
 
+// The default synthetic bay (pits, roughness) sampled with radial normals toward the axis, each
+// tilted by up to tilt_rad at random (0: exact-enough radial normals).
+static Cloud synthetic_bay_cloud(int points_per_cell, double tilt_rad, std::mt19937& rng) {
+  SynthConfig sc;
+  sc.points_per_cell = points_per_cell;
+  Cloud c = make_synthetic_bay(sc).sample(0.05);
+  c.normals.resize(c.size(), 3);
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  for (Eigen::Index i = 0; i < c.size(); ++i) {
+    const Eigen::Vector3d p = c.xyz.row(i);
+    Eigen::Vector3d n = -Eigen::Vector3d(0, p.y(), p.z()).normalized();
+    if (tilt_rad > 0) n = (n + tilt_rad * Eigen::Vector3d(u(rng), u(rng), u(rng))).normalized();
+    c.normals.row(i) = n.transpose();
+  }
+  return c;
+}
+
 TEST(SurfaceIndex, ConeCulledSumsEqualTheBruteForceBitForBit) {
   // add_rates_sorted skips the voxels wholly outside the spray cone. On a rough bay with pits,
   // nozzles tilted along and across, near and far (and past the bay's end, where the fallback ball
   // holds the whole cone), with fine and coarse voxels, every point's deposit equals the sum of
   // point_rate_mps over the whole cloud: the skipped points would have added exactly 0.
-  SynthConfig sc;
-  sc.points_per_cell = 4;
-  const SyntheticBay bay = make_synthetic_bay(sc);
-  Cloud c = bay.sample(0.05);
-  c.normals.resize(c.size(), 3);
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> u(0, 1);
-  for (Eigen::Index i = 0; i < c.size(); ++i) {  // radial normals, tilted up to 0.3 rad at random
-    const Eigen::Vector3d p = c.xyz.row(i);
-    const Eigen::Vector3d n = -Eigen::Vector3d(0, p.y(), p.z()).normalized() + 0.3 * Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5);
-    c.normals.row(i) = n.normalized().transpose();
-  }
+  const Cloud c = synthetic_bay_cloud(4, 0.3, rng);
   const SpotModel m = default_model();
   std::vector<NozzlePose> poses;
   std::vector<double> dwell;
@@ -354,15 +362,8 @@ TEST(SurfaceIndex, ConeCulledSumsEqualTheBruteForceBitForBit) {
 TEST(SurfaceIndex, ReachBallHoldsEveryReachablePoint) {
   // Synthetic bay with pits: for random nozzle poses, every point with a non-zero rate
   // (brute force over the whole cloud) lies inside the query ball.
-  SynthConfig sc;
-  sc.points_per_cell = 6;
-  const SyntheticBay bay = make_synthetic_bay(sc);
-  Cloud c = bay.sample(0.05);
-  c.normals.resize(c.size(), 3);
-  for (Eigen::Index i = 0; i < c.size(); ++i) {  // exact-enough normals: radial, toward the axis
-    const Eigen::Vector3d p = c.xyz.row(i);
-    c.normals.row(i) = -Eigen::Vector3d(0, p.y(), p.z()).normalized().transpose();
-  }
+  std::mt19937 no_tilt(0);
+  const Cloud c = synthetic_bay_cloud(6, 0.0, no_tilt);
   const SurfaceIndex idx(c);
   const SpotModel m = default_model();
   std::mt19937 rng(7);
