@@ -327,7 +327,7 @@ static Cloud synthetic_bay_cloud(int points_per_cell, double tilt_rad, std::mt19
   return c;
 }
 
-TEST(SurfaceIndex, ConeCulledSumsEqualTheBruteForceBitForBit) {
+TEST(SurfaceIndex, ConeCulledSumsEqualTheBruteForce) {
   // add_rates_sorted skips the voxels wholly outside the spray cone. On a rough bay with pits,
   // nozzles tilted along and across, near and far (and past the bay's end, where the fallback ball
   // holds the whole cone), with fine and coarse voxels, every point's deposit equals the sum of

@@ -382,7 +382,9 @@ struct SurfaceIndex::Impl {
   template <class F>
   void visit_ball_in_cone(const Eigen::Vector3d& center, double r, const Eigen::Vector3d& c, const Eigen::Vector3d& a,
                           double cos_a, double sin_a, F&& f) const {
-    const double rho = 0.5 * std::sqrt(3.0) * cell * (1.0 + 1e-9) + 1e-9;
+    // Plus the rounding of coordinates as large as the box's (survey coordinates run to 1e7 m).
+    const double far_m = lo.cwiseAbs().maxCoeff() + cell * static_cast<double>(std::max({dims[0], dims[1], dims[2]}));
+    const double rho = 0.5 * std::sqrt(3.0) * cell * (1.0 + 1e-9) + 1e-9 + 1e-14 * far_m;
     auto outside = [&](long i, long j, long k) {
       const Eigen::Vector3d v = lo + cell * Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5) - c;
       const double t = v.dot(a), perp = std::sqrt(std::max(0.0, v.squaredNorm() - t * t));
