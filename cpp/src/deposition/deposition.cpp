@@ -394,16 +394,14 @@ struct SurfaceIndex::Impl {
     };
     visit_ball(center, r, [&](int, int, long a0, long a1, long j, long k) {
       const long row = voxel(0, j, k);
-      long i = a0;
-      while (i <= a1) {
-        while (i <= a1 && outside(i, j, k)) ++i;
-        long z = i;
-        while (z <= a1 && !outside(z, j, k)) ++z;
-        if (i < z) {
-          const int b = start[row + i], e = start[row + z];
-          if (b < e) f(b, e);
-        }
-        i = z;
+      long run = -1;  // first voxel of the run of kept voxels being gathered
+      for (long i = a0; i <= a1 + 1; ++i) {
+        const bool keep = i <= a1 && !outside(i, j, k);
+        if (keep && run < 0) run = i;
+        if (keep || run < 0) continue;
+        const int b = start[row + run], e = start[row + i];
+        if (b < e) f(b, e);
+        run = -1;
       }
     });
   }
