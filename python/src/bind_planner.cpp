@@ -67,7 +67,14 @@ void bind_planner(py::module_& m) {
       "progress(stage: str, fraction: float) is called between stages. With a robot, every pass or\n"
       "segment is bounded by the speed the arm can follow there within its joint velocity and\n"
       "acceleration limits (timing.joint_limit_margin kept free), so the simulated deposit is sprayable.");
-  m.def("plan_passes", &plan_passes, py::arg("grid"), py::arg("cells"), py::arg("spacing_m"), py::arg("config"),
-        "Pass lines over grid cells: slicing planes, crossing points, standoff offset, spline.");
+  m.def(
+      "plan_passes",
+      [](const Grid& grid, const std::vector<int>& cells, double spacing_m, const PlannerConfig& config,
+         const std::vector<Eigen::Vector3d>& lean) { return plan_passes(grid, cells, spacing_m, config, &lean); },
+      py::arg("grid"), py::arg("cells"), py::arg("spacing_m"), py::arg("config"),
+      py::arg("lean") = std::vector<Eigen::Vector3d>{},
+      "Pass lines over grid cells: slicing planes, crossing points, standoff offset, spline. lean (empty,\n"
+      "or one 3-vector per grid cell): the nozzle's lean off square there, tangent to the wall, length =\n"
+      "angle [rad] (ObstructedCells.lean).");
   m.def("clamped_cubic_spline", &clamped_cubic_spline, py::arg("points"), py::arg("step_m"));
 }

@@ -497,11 +497,16 @@ void bind_timing(py::module_& m) {
       .def_readonly("least_distance_m", &ObstructedCells::least_distance_m)
       .def_readonly("nearest_obstacle_m", &ObstructedCells::nearest_obstacle_m)
       .def_readonly("links", &ObstructedCells::links)
-      .def_readonly("obstacle_points", &ObstructedCells::obstacle_points);
+      .def_readonly("obstacle_points", &ObstructedCells::obstacle_points)
+      .def_readonly("lean", &ObstructedCells::lean,
+                    "per grid cell the nozzle's lean off square (tangent 3-vector, length = angle [rad]); empty: none leans")
+      .def_readonly("leaned_cells", &ObstructedCells::leaned_cells, "cells sprayed from a leaned pose (clear)")
+      .def_readonly("max_lean_rad", &ObstructedCells::max_lean_rad);
   m.def("obstructed_cells", &obstructed_cells, py::arg("surface"), py::arg("robot"), py::arg("config"),
         py::call_guard<py::gil_scoped_release>(),
         "Cells whose spraying pose (nozzle tip at planner.standoff_m square to the design line) brings a nozzle link "
-        "rigid with the tip within clearance.nozzle_margin_m of a point of the scan outside the grid.");
+        "rigid with the tip within clearance.nozzle_margin_m of a point of the scan outside the grid, and no lean "
+        "up to clearance.max_nozzle_lean_rad clears it; the lean field of the cells a lean clears.");
   m.def("spraying_samples", &spraying_samples, py::arg("trajectory"),
         "The trajectory's spraying samples only (times, joints, poses; no derivatives): check_clearance of it "
         "gives the clearance while spraying.");

@@ -1,6 +1,7 @@
 // Planner: spline, pass geometry on a cylinder, rounds on analytic and synthetic bays, bad input.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -84,6 +85,43 @@ TEST(Passes, StandoffAndAxisOnACylinder) {
       EXPECT_LT(d0.dot(d1), 0) << enum_name(direction);
     }
   }
+}
+
+TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
+  // Axial passes over a uniform 100 mm bay (wall radius 5.7 m, d in [0, 0.8]) with a lean toward +d
+  // that ramps from 0 at d = 0.4 m to 0.3 rad at the end: every waypoint's spray axis meets the wall
+  // at the standoff, tipped off radial by the ramp's angle there, toward +d; the passes run on past
+  // the square start (edge_overrun_m) but not past the leaning end.
+  Surface s = analytic_bay(uniform_100mm);
+  PlannerConfig pc;
+  std::vector<int> all;
+  for (int c = 0; c < s.grid.size(); ++c)
+    if (s.grid.valid[c]) all.push_back(c);
+  auto ramp = [](double d) { return 0.3 * std::clamp((d - 0.4) / 0.375, 0.0, 1.0); };
+  std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(s.grid.size()), Eigen::Vector3d::Zero());
+  for (int c = 0; c < s.grid.size(); ++c) lean[static_cast<std::size_t>(c)] = ramp(s.grid.d_center(s.grid.col_of(c))) * Eigen::Vector3d::UnitX();
+  const auto passes = plan_passes(s.grid, all, 0.2, pc, &lean);
+  ASSERT_FALSE(passes.empty());
+  double worst_wall = 0, worst_angle = 0, d_lo = 1e9, d_hi = -1e9, steepest = 0;
+  for (const auto& p : passes)
+    for (const auto& w : p.waypoints) {
+      const Eigen::Vector3d hit = w.position_m + pc.standoff_m * w.axis;
+      const Eigen::Vector3d radial = Eigen::Vector3d(0, hit.y(), hit.z()).normalized();
+      worst_wall = std::max(worst_wall, std::abs(std::hypot(hit.y(), hit.z()) - 5.7));
+      const double angle = std::acos(std::min(1.0, w.axis.dot(radial)));
+      worst_angle = std::max(worst_angle, std::abs(angle - ramp(hit.x())));
+      steepest = std::max(steepest, angle);
+      if (ramp(hit.x()) > 0.01) EXPECT_GT(w.axis.x(), 0.0);  // (the spline rings by < 0.005 rad at the ramp's foot)
+      d_lo = std::min(d_lo, hit.x());
+      d_hi = std::max(d_hi, hit.x());
+    }
+  EXPECT_LT(worst_wall, 0.002);
+  EXPECT_LT(worst_angle, 0.01);
+  EXPECT_NEAR(steepest, 0.3, 0.01);
+  EXPECT_NEAR(d_lo, 0.025 - pc.edge_overrun_m, 0.005);
+  EXPECT_NEAR(d_hi, 0.775, 0.005);
+  lean.pop_back();
+  EXPECT_THROW(plan_passes(s.grid, all, 0.2, pc, &lean), std::invalid_argument);
 }
 
 TEST(Planner, UniformOverbreakEndsFlush) {

@@ -200,9 +200,11 @@ def nozzle_distance(tip, z, pts, radius=0.05, length=0.5):
 
 
 def test_obstructed_cells_by_the_face_match_a_brute_force_and_the_plane_distance():
-    """A bay with the face at its end: the cells whose spraying pose puts the nozzle within its
-    margin (0.4 m) of the face are the obstructed ones; by the plane, d_face - d - 0.05 < 0.4."""
+    """A bay with the face at its end and the nozzle held square (max_nozzle_lean_rad 0): the cells
+    whose spraying pose puts the nozzle within its margin (0.4 m) of the face are the obstructed
+    ones; by the plane, d_face - d - 0.05 < 0.4."""
     cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    cfg.clearance.max_nozzle_lean_rad = 0.0
     surface = shotcrete.build_surface(shotcrete.make_synthetic_bay(cfg.synth).sample_scan(), cfg)
     robot = shotcrete.load_robot(cfg)
     ob = shotcrete._core.obstructed_cells(surface, robot, cfg)
@@ -227,18 +229,71 @@ def test_obstructed_cells_by_the_face_match_a_brute_force_and_the_plane_distance
                 plane.append(row * g.n_d + col)
     assert sorted(ob.cells) == ref == plane
     assert len(ref) > 0 and len(ref) < valid.sum()
+    assert ob.leaned_cells == 0 and len(ob.lean) == 0
+
+
+def leaned_axis(z, lean):
+    """The spray axis z tipped toward the tangent vector `lean` by its length [rad]."""
+    t = lean - (lean @ z) * z
+    a = np.linalg.norm(t)
+    return z if a < 1e-12 else np.cos(a) * z + np.sin(a) * t / a
+
+
+def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
+    """The same bay with the nozzle free to lean (default max_nozzle_lean_rad): no cell is
+    obstructed; every cell's leaned pose keeps the nozzle link (brute force over the obstacle
+    points) its margin from the face, leans toward the face and no further than allowed, the
+    cells far from the face stay square, and along each row the nozzle's place moves forward
+    with the cell (the lean fades at 0.5 rad per metre of standoff: half the spot's speed)."""
+    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    surface = shotcrete.build_surface(shotcrete.make_synthetic_bay(cfg.synth).sample_scan(), cfg)
+    robot = shotcrete.load_robot(cfg)
+    ob = shotcrete._core.obstructed_cells(surface, robot, cfg)
+    g = surface.grid
+    valid = np.asarray(g.valid)
+    td = np.asarray(g.td_m)
+    pts = np.asarray(surface.cloud.xyz)[~np.asarray(surface.in_grid)]
+    assert ob.cells == [] and ob.leaned_cells > 0
+    lean = np.asarray(ob.lean).reshape(g.n_theta, g.n_d, 3)
+    angle = np.linalg.norm(lean, axis=2)
+    assert angle.max() <= cfg.clearance.max_nozzle_lean_rad + 1e-9
+    assert abs(ob.max_lean_rad - angle[valid].max()) < 1e-9
+    assert ob.leaned_cells == int((valid & (angle > 1e-9)).sum())
+    S, margin, face = cfg.planner.standoff_m, ob.margin_m, cfg.synth.length_m
+    tips = np.full((g.n_theta, g.n_d), np.nan)
+    for row in range(g.n_theta):
+        th = g.theta0_rad + (row + 0.5) * g.dtheta_rad
+        z = np.array([0.0, np.cos(th), np.sin(th)])
+        for col in range(g.n_d):
+            if not valid[row, col]:
+                continue
+            d = g.d0_m + (col + 0.5) * g.cell_size_m
+            wall = np.array([d, 0, 0]) + (cfg.profile.design_radius_m + td[row, col]) * z
+            a = leaned_axis(z, lean[row, col])
+            tip = wall - S * a
+            assert nozzle_distance(tip, a, pts).min() >= margin
+            tips[row, col] = tip[0]
+            if angle[row, col] > 0:
+                assert lean[row, col] @ np.array([1.0, 0, 0]) > 0.99 * angle[row, col]  # toward the face
+            # Square where even the nearest needed lean (at the column that is blocked square) has faded.
+            first_blocked = face - 0.05 - margin
+            if d < first_blocked - cfg.clearance.max_nozzle_lean_rad / (0.5 / S) - 0.05:
+                assert angle[row, col] == 0.0
+        steps = np.diff(tips[row][valid[row]])
+        assert (steps >= 0.5 * g.cell_size_m - 1e-3).all()
 
 
 def test_plan_of_a_bay_against_its_face_leaves_the_obstructed_cells_out(tmp_path, run_cli):
-    """The CLI on the face scene: exit 3 with obstructed_cells (and those cells not counted among
-    the cells the plan left short); no pass puts the nozzle over them, so every pass waypoint keeps
-    the nozzle's margin from the face (d <= d_face - margin - the nozzle's radius)."""
+    """The CLI on the face scene with the nozzle held square: exit 3 with obstructed_cells (and
+    those cells not counted among the cells the plan left short); no pass puts the nozzle over
+    them, so every pass waypoint keeps the nozzle's margin from the face (d <= d_face - margin -
+    the nozzle's radius)."""
     cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
     xyz = tmp_path / "scene.ply"
     shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
     conf = tmp_path / "c.yaml"
     conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
-                    "planner:\n  max_rounds: 1\n")
+                    "planner:\n  max_rounds: 1\nclearance:\n  max_nozzle_lean_rad: 0\n")
     r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
     assert r.exit_code == 3, r.output
     rep = json.loads((tmp_path / "o" / "report.json").read_text())
@@ -254,3 +309,33 @@ def test_plan_of_a_bay_against_its_face_leaves_the_obstructed_cells_out(tmp_path
     plan = json.loads((tmp_path / "o" / "plan.json").read_text())
     ds = [w[0] for rnd in plan["rounds"] for reg in rnd["regions"] for p in reg["passes"] for w in p["positions_m"]]
     assert ds and max(ds) <= face_d - margin - 0.05 + 1e-4
+
+
+def test_plan_of_a_bay_against_its_face_leans_the_nozzle_to_spray_it_all(tmp_path, run_cli):
+    """The CLI on the same face scene with the nozzle free to lean: no cell is obstructed, the
+    passes lean toward the face near it, and every waypoint (position and spray axis from
+    plan.json) keeps the nozzle link, a 0.05 m cylinder 0.5 m back from the tip, its margin from
+    the face plane; the cells by the face get concrete (the executed deposit, cells.csv)."""
+    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    xyz = tmp_path / "scene.ply"
+    shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
+    conf = tmp_path / "c.yaml"
+    conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
+                    "planner:\n  max_rounds: 1\n")
+    r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
+    assert r.exit_code in (0, 3), r.output
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert "obstructed_cells" not in [p["code"] for p in rep["problems"]]
+    assert rep["obstructed"]["cells"] == 0 and rep["obstructed"]["leaned_cells"] > 0
+    assert 0 < rep["obstructed"]["max_lean_deg"] <= np.degrees(cfg.clearance.max_nozzle_lean_rad) + 1e-6
+    plan = json.loads((tmp_path / "o" / "plan.json").read_text())
+    pos = np.array([w for rnd in plan["rounds"] for reg in rnd["regions"] for p in reg["passes"] for w in p["positions_m"]])
+    ax = np.array([w for rnd in plan["rounds"] for reg in rnd["regions"] for p in reg["passes"] for w in p["axes"]])
+    assert len(pos) == len(ax) > 0
+    face_d, margin = cfg.synth.length_m, cfg.clearance.nozzle_margin_m
+    link_front = pos[:, 0] + 0.05 * np.sqrt(np.clip(1 - ax[:, 0] ** 2, 0, 1))
+    assert (face_d - link_front).min() >= margin - 1e-3
+    assert ax[:, 0].max() > np.sin(0.3)  # leaned toward the face somewhere
+    cells = np.genfromtxt(tmp_path / "o" / "cells.csv", delimiter=",", names=True)
+    last = cells["d_m"] > face_d - 0.05
+    assert last.any() and (cells["deposit_executed_mm"][last] > 5).all()

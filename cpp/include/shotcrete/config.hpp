@@ -281,6 +281,9 @@ struct ClearanceConfig {
                                       // DOF keep the links from the wall while spraying); 0 = off
   double null_space_influence_m = 1.5;  // links' key points nearer the wall than this are pushed away [m]
                                         // (while spraying they work 1-1.5 m from it at a 1 m standoff)
+  double max_nozzle_lean_rad = 0.6109;  // the nozzle may lean this far off square to keep clear of what is
+                                        // not wall (a face, a duct): 35 deg, the steepest spraying angle
+                                        // of nozzlemen's practice at corners; 0 = square only
 };
 
 /// rescan.reference: where the two scans are registered (docs/architecture.md §12).

@@ -272,36 +272,113 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   const WallOctree wall(obstacles, config.clearance.octree_resolution_m);
   const auto& axis = surface.axis;
   const auto& prof = surface.profile;
-  for (int c = 0; c < grid.size(); ++c) {
+  const double standoff = config.planner.standoff_m;
+  // The nozzle links' least distance to the obstacles with the spray axis `a` on wall point p
+  // (the tip at the standoff back along it; x, y any: the roll about the spray is free, and the
+  // bundled nozzle link is round about it).
+  auto clearance_at = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& a, Eigen::Vector3d* nearest) {
+    Eigen::Isometry3d tip = Eigen::Isometry3d::Identity();
+    const Eigen::Vector3d x = (std::abs(a.dot(axis.ex)) < 0.9 ? axis.ex : axis.ey).cross(a).normalized();
+    tip.linear().col(0) = x;
+    tip.linear().col(1) = a.cross(x);
+    tip.linear().col(2) = a;
+    tip.translation() = p - standoff * a;
+    double least = std::numeric_limits<double>::infinity();
+    for (const auto& [sh, rel] : rigid) {
+      Eigen::Vector3d q;
+      const double dist = wall.exact_distance(sh, tip * rel, &q, out.margin_m + 1.0);
+      if (dist < least) {
+        least = dist;
+        if (nearest) *nearest = q;
+      }
+    }
+    return least;
+  };
+  // Each cell's wall point and square spraying axis (the design line's normal; radial on a circle).
+  const int n = grid.size();
+  std::vector<Eigen::Vector3d> point(static_cast<std::size_t>(n)), square(static_cast<std::size_t>(n));
+  std::vector<char> live(static_cast<std::size_t>(n), 0);
+  for (int c = 0; c < n; ++c) {
     if (!grid.valid[static_cast<std::size_t>(c)] || !std::isfinite(grid.td_m[c])) continue;
     const double th = grid.theta_center(grid.row_of(c)), d = grid.d_center(grid.col_of(c));
-    Eigen::Vector3d n = axis.radial(th);
+    Eigen::Vector3d nrm = axis.radial(th);
     if (!prof.is_circle()) {
       const Eigen::Vector3d dn = design_normal(axis, prof, th);
-      if (dn.allFinite()) n = dn;
+      if (dn.allFinite()) nrm = dn;
     }
-    const Eigen::Vector3d wall_point = axis.to_cartesian(prof.radius_at(th) + prof.radial_offset_m(grid.td_m[c], th), th, d);
-    // The tip at the standoff, its z axis (the spray) toward the wall; x, y any: the roll about the
-    // spray is free, and the bundled nozzle link is round about it.
-    Eigen::Isometry3d tip = Eigen::Isometry3d::Identity();
-    const Eigen::Vector3d z = n;
-    const Eigen::Vector3d x = (std::abs(z.dot(axis.ex)) < 0.9 ? axis.ex : axis.ey).cross(z).normalized();
-    tip.linear().col(0) = x;
-    tip.linear().col(1) = z.cross(x);
-    tip.linear().col(2) = z;
-    tip.translation() = wall_point - config.planner.standoff_m * n;
-    double least = std::numeric_limits<double>::infinity();
+    point[static_cast<std::size_t>(c)] = axis.to_cartesian(prof.radius_at(th) + prof.radial_offset_m(grid.td_m[c], th), th, d);
+    square[static_cast<std::size_t>(c)] = nrm;
+    live[static_cast<std::size_t>(c)] = 1;
+  }
+  // The spray axis leaned by `lean` (tangent; length = angle) off the square one.
+  auto leaned = [&](int c, const Eigen::Vector3d& lean) -> Eigen::Vector3d {
+    const Eigen::Vector3d& a0 = square[static_cast<std::size_t>(c)];
+    const Eigen::Vector3d t = lean - lean.dot(a0) * a0;
+    const double angle = t.norm();
+    return angle > 1e-9 ? Eigen::Vector3d((std::cos(angle) * a0 + std::sin(angle) * t / angle).normalized()) : a0;
+  };
+  // 1. Where the square pose is too close, the least lean (steps of 0.05 rad, along the axis or
+  //    around it, either way) that clears the obstacles, with half a cell and 1 cm to spare (a
+  //    one-cell pass runs half a cell either side; the spline between knots).
+  const double max_lean = config.clearance.max_nozzle_lean_rad, step = 0.05, spare = 0.5 * grid.cell_size_m + 0.01;
+  std::vector<Eigen::Vector3d> need(static_cast<std::size_t>(n), Eigen::Vector3d::Zero());
+  std::vector<int> square_blocked;
+  for (int c = 0; c < n; ++c) {
+    if (!live[static_cast<std::size_t>(c)]) continue;
+    const Eigen::Vector3d& p = point[static_cast<std::size_t>(c)];
+    if (clearance_at(p, square[static_cast<std::size_t>(c)], nullptr) >= out.margin_m) continue;
+    square_blocked.push_back(c);
+    const Eigen::Vector3d& a0 = square[static_cast<std::size_t>(c)];
+    const Eigen::Vector3d along = (axis.ex - axis.ex.dot(a0) * a0).normalized(), around = a0.cross(along);
+    const Eigen::Vector3d dirs[4] = {along, -along, around, -around};
+    bool found = false;
+    for (double angle = step; angle <= max_lean + 1e-9 && !found; angle += step)
+      for (const auto& t : dirs)
+        if (clearance_at(p, leaned(c, angle * t), nullptr) >= out.margin_m + spare) {
+          need[static_cast<std::size_t>(c)] = angle * t;
+          found = true;
+          break;
+        }
+  }
+  // 2. The lean field: each needed lean fades out over the wall around its cell at 0.5 rad per
+  //    standoff (so along a pass the nozzle still moves at half the speed of its spot or more,
+  //    and never back); a cell takes the strongest of those reaching it.
+  const double fade_rad_per_m = 0.5 / standoff;
+  std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(n), Eigen::Vector3d::Zero());
+  const double arc = grid.cell_size_m;  // a row's arc (theta step = cell size / design radius)
+  for (int c : square_blocked) {
+    const Eigen::Vector3d& v = need[static_cast<std::size_t>(c)];
+    const double angle = v.norm();
+    if (angle <= 0) continue;
+    const int reach = static_cast<int>(std::ceil(angle / fade_rad_per_m / grid.cell_size_m));
+    const int r0 = grid.row_of(c), c0 = grid.col_of(c);
+    for (int r = std::max(0, r0 - reach); r <= std::min(grid.n_theta - 1, r0 + reach); ++r)
+      for (int k = std::max(0, c0 - reach); k <= std::min(grid.n_d - 1, c0 + reach); ++k) {
+        const double dist = std::hypot((r - r0) * arc, (k - c0) * grid.cell_size_m);
+        const double a = angle - fade_rad_per_m * dist;
+        Eigen::Vector3d& l = lean[static_cast<std::size_t>(grid.index(r, k))];
+        if (a > l.norm()) l = (a / angle) * v;
+      }
+  }
+  // 3. Obstructed: the cells whose pose in that field (square, or leaned) still comes too close.
+  int leaned_cells = 0;
+  for (int c = 0; c < n; ++c) {
+    if (!live[static_cast<std::size_t>(c)]) continue;
+    const Eigen::Vector3d& l = lean[static_cast<std::size_t>(c)];
+    const bool tipped = l.norm() > 1e-9;
+    if (!tipped && !std::binary_search(square_blocked.begin(), square_blocked.end(), c)) continue;
     Eigen::Vector3d nearest = Eigen::Vector3d::Zero();
-    for (const auto& [sh, rel] : rigid) {
-      Eigen::Vector3d p;
-      const double dist = wall.exact_distance(sh, tip * rel, &p, out.margin_m + 1.0);
-      if (dist < least) least = dist, nearest = p;
-    }
+    const double least = clearance_at(point[static_cast<std::size_t>(c)], leaned(c, l), &nearest);
     if (least < out.margin_m) {
       out.cells.push_back(c);
       if (least < out.least_distance_m) out.least_distance_m = least, out.nearest_obstacle_m = nearest;
+    } else if (tipped) {
+      ++leaned_cells;
+      out.max_lean_rad = std::max(out.max_lean_rad, l.norm());
     }
   }
+  out.leaned_cells = leaned_cells;
+  if (leaned_cells > 0) out.lean = std::move(lean);
   if (out.cells.empty()) out.least_distance_m = 0.0;
   return out;
 }
@@ -349,7 +426,8 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   for (int attempt = 0;; ++attempt) {
     const std::string prefix = attempt == 0 ? "" : "re-plan " + std::to_string(attempt) + ": ";
     out.plan = plan_bay(surface, config, progress ? ProgressFn([&](const std::string& s, double f) { progress(prefix + s, f); }) : ProgressFn{}, cap,
-                        out.obstructed ? out.obstructed->cells : std::vector<int>{});
+                        out.obstructed ? out.obstructed->cells : std::vector<int>{},
+                        out.obstructed ? out.obstructed->lean : std::vector<Eigen::Vector3d>{});
     out.replans = attempt;
     if (progress) progress(prefix + "trajectory", 0.0);
     regions.clear();

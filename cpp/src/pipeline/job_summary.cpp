@@ -591,6 +591,7 @@ std::string JobSummary::to_json() const {
     w.key("obstructed").begin_object().field("cells", static_cast<int>(o.cells.size())).field("margin_m", o.margin_m);
     w.field("least_distance_m", o.least_distance_m).field("obstacle_points", o.obstacle_points);
     w.field("above_level_0", obstructed_above_level_0);
+    w.field("leaned_cells", o.leaned_cells).field("max_lean_deg", o.max_lean_rad * 180.0 / M_PI);
     w.key("nearest_obstacle_m").begin_array().value(o.nearest_obstacle_m.x()).value(o.nearest_obstacle_m.y())
         .value(o.nearest_obstacle_m.z()).end_array();
     w.key("links").begin_array();

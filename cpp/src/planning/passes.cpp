@@ -4,6 +4,7 @@
 #include <cmath>
 #include <optional>
 #include <stdexcept>
+#include <string>
 #include <utility>
 
 namespace shotcrete {
@@ -174,13 +175,15 @@ namespace {
 // metres of wall (s = theta * R, or d).
 struct PassFrame {
   const Grid& grid;
+  const std::vector<Eigen::Vector3d>* lean;  // per cell, or null: every pose square
   bool axial;
   double R, cs;
   int n_u, n_w;
   double w0;  // lower edge of w index 0
 
-  PassFrame(const Grid& g, bool along_axis)
+  PassFrame(const Grid& g, const std::vector<Eigen::Vector3d>* lean_per_cell, bool along_axis)
       : grid(g),
+        lean(lean_per_cell && !lean_per_cell->empty() ? lean_per_cell : nullptr),
         axial(along_axis),
         R(g.profile.radius_m),
         cs(g.cell_size_m),
@@ -191,18 +194,25 @@ struct PassFrame {
   int u_of(int c) const { return axial ? grid.col_of(c) : grid.row_of(c); }
   int w_of(int c) const { return axial ? grid.row_of(c) : grid.col_of(c); }
   double w_center(int iw) const { return w0 + (iw + 0.5) * cs; }
+  Eigen::Vector3d lean_of(int c) const { return lean ? (*lean)[static_cast<std::size_t>(c)] : Eigen::Vector3d::Zero(); }
+};
+
+// A wall point on a pass line: where, its normal, and the nozzle's lean over it.
+struct Crossing {
+  Eigen::Vector3d point, normal, lean;
 };
 
 // A pass line's knots before the spline: nozzle poses and the u index each came from.
 struct LineKnots {
   std::vector<NozzlePose> poses;
   std::vector<int> u;
+  std::vector<char> leaned;  // the knot's pose leans off square
 };
 
 // Where the slicing plane at w = wk crosses the wall at u = iu: from the pair of cells that
 // straddle the plane (segment-plane intersection), or the nearest valid cell where one is missing;
 // nothing where there is no data on either side (the spline bridges the gap).
-std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crossing_point(const PassFrame& f, int iu, double wk) {
+std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
   const Grid& grid = f.grid;
   const int below = static_cast<int>(std::floor((wk - f.w0) / f.cs - 0.5));
   const int above = below + 1;
@@ -225,7 +235,8 @@ std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crossing_point(const 
         ((1 - u) * grid.mean_normal.row(f.cell_of(iu, below)) + u * grid.mean_normal.row(f.cell_of(iu, above)))
             .transpose()
             .normalized();
-    return std::make_pair(p, nrm);
+    const Eigen::Vector3d lean = (1 - u) * f.lean_of(f.cell_of(iu, below)) + u * f.lean_of(f.cell_of(iu, above));
+    return Crossing{p, nrm, lean};
   }
   if (!vb && !va) return std::nullopt;
   const int c = f.cell_of(iu, vb ? below : above);
@@ -233,12 +244,14 @@ std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crossing_point(const 
   // Move the lone cell's point onto the plane, keeping its radius.
   const Eigen::Vector3d p =
       f.axial ? grid.axis.to_cartesian(cyl[0], theta_k, cyl[2]) : grid.axis.to_cartesian(cyl[0], cyl[1], wk);
-  return std::make_pair(p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()));
+  return Crossing{p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()), f.lean_of(c)};
 }
 
-// The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis.
+// The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis; with a
+// lean (tangent vector, length = angle [rad]) the spray axis tips toward it and the nozzle stands
+// the standoff back along the tipped axis.
 NozzlePose standoff_pose(const TunnelAxis& axis, const DesignProfile& profile, const Eigen::Vector3d& p,
-                         const Eigen::Vector3d& nrm, const PlannerConfig& config) {
+                         const Eigen::Vector3d& nrm, const Eigen::Vector3d& lean, const PlannerConfig& config) {
   NozzlePose pose;
   const Eigen::Vector3d q = p - axis.origin_m;
   // Square to the design line: the radial direction on a circle, the section's normal on a section.
@@ -255,6 +268,12 @@ NozzlePose standoff_pose(const TunnelAxis& axis, const DesignProfile& profile, c
     pose.axis = radial;
     pose.position_m = p - config.standoff_m * radial;
   }
+  const Eigen::Vector3d tangent = lean - lean.dot(pose.axis) * pose.axis;
+  const double angle = tangent.norm();
+  if (angle > 1e-9) {
+    pose.axis = (std::cos(angle) * pose.axis + std::sin(angle) * tangent / angle).normalized();
+    pose.position_m = p - config.standoff_m * pose.axis;
+  }
   return pose;
 }
 
@@ -262,11 +281,15 @@ NozzlePose standoff_pose(const TunnelAxis& axis, const DesignProfile& profile, c
 // wall: the knots' distance from the axis is smoothed along the pass (binomial weights over
 // +-2 knots). Without it the path wiggles by up to 9 degrees per centimetre and the boom's
 // joint accelerations explode; on a smooth wall nothing changes.
-void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots) {
+// A leaning nozzle's distance from the axis changes with its lean: there the radii smoothed are
+// those of the wall points it aims at (the standoff along the axis), and the nozzle stands back
+// from the smoothed point along its own axis.
+void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots, bool leaned, double standoff_m) {
   if (knots.size() < 3) return;
   const std::size_t m = knots.size();
   std::vector<Eigen::Vector3d> cyl(m);
-  for (std::size_t i = 0; i < m; ++i) cyl[i] = axis.to_cylindrical(knots[i].position_m);
+  for (std::size_t i = 0; i < m; ++i)
+    cyl[i] = axis.to_cylindrical(leaned ? Eigen::Vector3d(knots[i].position_m + standoff_m * knots[i].axis) : knots[i].position_m);
   const double wts[5] = {1, 4, 6, 4, 1};
   for (std::size_t i = 0; i < m; ++i) {
     double sum = 0, wsum = 0;
@@ -277,19 +300,21 @@ void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots) {
       wsum += wts[o + 2];
     }
     knots[i].position_m = axis.to_cartesian(sum / wsum, cyl[i][1], cyl[i][2]);
+    if (leaned) knots[i].position_m -= standoff_m * knots[i].axis;
   }
 }
 
 // At the bay's ends (the arches) run on past the last cell, so the end cells see the whole
-// spot like the others instead of half of it.
+// spot like the others instead of half of it. Not where the nozzle leans there: it leans to keep
+// clear of something past that end (a face), and running on would bring it nearer.
 void add_edge_overrun(LineKnots& k, int n_u, double overrun_m) {
   auto& knots = k.poses;
-  if (k.u.front() == 0) {
+  if (k.u.front() == 0 && !k.leaned.front()) {
     NozzlePose extra = knots.front();
     extra.position_m -= overrun_m * (knots[1].position_m - knots[0].position_m).normalized();
     knots.insert(knots.begin(), extra);
   }
-  if (k.u.back() == n_u - 1) {
+  if (k.u.back() == n_u - 1 && !k.leaned.back()) {
     const std::size_t m = knots.size();
     NozzlePose extra = knots.back();
     extra.position_m += overrun_m * (knots[m - 1].position_m - knots[m - 2].position_m).normalized();
@@ -311,8 +336,9 @@ LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double w
   for (int iu = u_lo; iu <= u_hi; ++iu) {
     const auto crossing = crossing_point(f, iu, wk);
     if (!crossing) continue;
-    k.poses.push_back(standoff_pose(f.grid.axis, f.grid.profile, crossing->first, crossing->second, config));
+    k.poses.push_back(standoff_pose(f.grid.axis, f.grid.profile, crossing->point, crossing->normal, crossing->lean, config));
     k.u.push_back(iu);
+    k.leaned.push_back(crossing->lean.norm() > 1e-9);
   }
   if (k.poses.size() == 1) {
     // A one-cell-long line: a pass over that cell, from edge to edge.
@@ -323,6 +349,7 @@ LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double w
     b.position_m += 0.5 * f.cs * dir;
     k.poses = {a, b};
     k.u = {k.u[0], k.u[0]};
+    k.leaned = {k.leaned[0], k.leaned[0]};
   }
   return k;
 }
@@ -330,10 +357,13 @@ LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double w
 }  // namespace
 
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
-                              const PlannerConfig& config) {
+                              const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean) {
   if (cells.empty()) return {};
   if (!(spacing_m > 0)) throw std::invalid_argument("plan_passes: spacing_m must be > 0");
-  const PassFrame f(grid, config.pass_direction == PassDirection::axial);
+  if (lean && !lean->empty() && lean->size() != static_cast<std::size_t>(grid.size()))
+    throw std::invalid_argument("plan_passes: lean has " + std::to_string(lean->size()) + " entries for " +
+                                std::to_string(grid.size()) + " grid cells");
+  const PassFrame f(grid, lean, config.pass_direction == PassDirection::axial);
   int w_lo = f.n_w, w_hi = -1;
   double theta_sum = 0;
   for (int c : cells) {
@@ -355,7 +385,8 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
     const double wk = mid + (line - 0.5 * (n_lines - 1)) * spacing_m;
     LineKnots knots = line_knots(f, cells, wk, spacing_m, config);
     if (knots.poses.empty()) continue;
-    smooth_knot_radii(grid.axis, knots.poses);
+    const bool leaned = std::any_of(knots.leaned.begin(), knots.leaned.end(), [](char l) { return l != 0; });
+    smooth_knot_radii(grid.axis, knots.poses, leaned, config.standoff_m);
     if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m);
     Pass pass;
     pass.line = line;

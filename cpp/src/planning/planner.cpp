@@ -90,7 +90,7 @@ void finish_plan(Plan& plan, const SprayedWall& wall, const Surface& surface, co
 }  // namespace
 
 Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress, const SpeedCapFn& speed_cap,
-              const std::vector<int>& excluded_cells) {
+              const std::vector<int>& excluded_cells, const std::vector<Eigen::Vector3d>& lean) {
   validate(config);
   const auto t_start = Clock::now();
   const PlannerConfig& pc = config.planner;
@@ -105,7 +105,10 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
   plan.deposited_m = Eigen::VectorXd::Zero(surface.cloud.size());
   plan.timings_s["setup"] = seconds_since(t_start);
   WaypointCaps caps(speed_cap, pc, plan.warnings);
-  RoundContext ctx{config, model, spacing, caps, plan, progress};
+  if (!lean.empty() && lean.size() != static_cast<std::size_t>(surface.grid.size()))
+    throw std::invalid_argument("plan_bay: lean has " + std::to_string(lean.size()) + " entries for " +
+                                std::to_string(surface.grid.size()) + " grid cells");
+  RoundContext ctx{config, model, spacing, caps, plan, progress, lean.empty() ? nullptr : &lean};
   const std::unique_ptr<RoundStages> stages =
       pc.mode == PlannerMode::graded ? graded_rounds() : levelling_rounds(pc.finish_tolerance_m);
   if (!excluded_cells.empty()) {

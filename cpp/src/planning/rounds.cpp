@@ -176,7 +176,7 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   rp.target_thickness_m = top == 1 ? std::max(rp.region.td_mean_m, rp.region.td_max_m - 0.045)
                                    : rp.region.td_max_m - level_floor_mm(top) / 1000.0 + 0.005;
   rp.spacing_m = ctx.spacing_m;
-  rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, pc);
+  rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, pc, ctx.lean);
   if (rp.passes.empty()) return std::nullopt;
   for (auto& p : rp.passes) lengthen_short_pass(p, ctx.model.radius_m, pc.sample_step_m);
   const std::string where = round_name(in.number) + ", region " + std::to_string(ri);
@@ -335,7 +335,7 @@ std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<
   const bool axial = pc.pass_direction == PassDirection::axial;
   // Closer lines than the two-pass spacing: the per-segment speeds then shape the layer
   // across the lines too (measured: RMS 6.5 mm instead of 10 mm on the default bay).
-  const auto all = plan_passes(grid, open_cells, pc.levelling_spacing_ratio * ctx.spacing_m, pc);
+  const auto all = plan_passes(grid, open_cells, pc.levelling_spacing_ratio * ctx.spacing_m, pc, ctx.lean);
   RegionPlan side[2];
   for (const auto& p : all) {
     const Eigen::Vector3d mid = p.waypoints[p.waypoints.size() / 2].position_m;

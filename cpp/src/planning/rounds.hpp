@@ -38,6 +38,7 @@ struct RoundContext {
   WaypointCaps& caps;          // the machine's speed caps along a pass
   Plan& plan;                  // warnings and speed_capped are added here
   const ProgressFn& progress;  // stage "round <number>"
+  const std::vector<Eigen::Vector3d>* lean = nullptr;  // per cell, the nozzle's lean (plan_passes); null: square
 
   void report(int round_number, double fraction) const;
 };

@@ -39,8 +39,11 @@ struct SpeedCapMap {
 /// Cells of the bay that cannot be sprayed from a clear pose: with the nozzle at the planner's
 /// standoff square to the design line (the pose every pass puts it in over that cell), a nozzle
 /// link rigid with the tip comes within clearance.nozzle_margin_m of a point of the scan that is
-/// not gridded wall (a duct under the crown, the face at the bay's end, a rig, muck). No pass can
-/// lay their concrete without that: they are reported (problem obstructed_cells), not claimed.
+/// not gridded wall (a duct under the crown, the face at the bay's end, a rig, muck), and leaning
+/// the nozzle off square (along the axis or around it, up to clearance.max_nozzle_lean_rad) does
+/// not clear it either. Where a lean clears it, the passes lean there (`lean`, faded out over the
+/// wall around at 0.5 rad per standoff so a pass's nozzle never runs back). No pass can lay the
+/// obstructed cells' concrete: they are reported (problem obstructed_cells), not claimed.
 struct ObstructedCells {
   std::vector<int> cells;          // grid cell indices (row * n_d + col), ascending
   double margin_m = 0.0;           // the nozzle margin they were checked with
@@ -48,6 +51,11 @@ struct ObstructedCells {
   Eigen::Vector3d nearest_obstacle_m = Eigen::Vector3d::Zero();  // that point (tunnel frame)
   std::vector<std::string> links;  // the nozzle links checked
   int obstacle_points = 0;         // points of the scan left out of the grid (the obstacles)
+  // The poses that lean to keep clear: per grid cell the lean off square (a vector tangent to the
+  // wall, toward which the spray axis tips, length = angle [rad]; plan_passes), empty when none does.
+  std::vector<Eigen::Vector3d> lean;
+  int leaned_cells = 0;            // cells sprayed from a leaned pose (clear; not among `cells`)
+  double max_lean_rad = 0.0;       // the steepest lean of those
 };
 ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config);
 

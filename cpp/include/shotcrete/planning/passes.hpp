@@ -40,8 +40,12 @@ void reverse_pass(Pass& pass);
 /// crossing points from pairs of neighbouring cells on either side of each plane, offset by the
 /// standoff toward the axis (along -r, or along the normal), clamped cubic spline sampled every
 /// sample_step_m. Passes alternate direction (serpentine) and step up the wall from the springline.
+/// lean (optional, one entry per grid cell): the nozzle's lean off square over that cell, a vector
+/// tangent to the wall whose direction the spray axis tips toward and whose length is the lean
+/// angle [rad]; the nozzle then stands at the standoff back along the leaned axis (the pose that
+/// keeps it off a face or a duct: nozzle_lean). Interpolated between cells like the crossing points.
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
-                              const PlannerConfig& config);
+                              const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean = nullptr);
 
 /// Clamped cubic spline through `points` (chord-length parameter; end slopes of the parabola
 /// through the three end knots), sampled about `step_m` apart including both ends.

@@ -96,7 +96,10 @@ using SpeedCapFn = std::function<std::vector<double>(const std::vector<NozzlePos
 /// excluded_cells (grid cell indices): cells no round plans, grades or counts as unreachable (cells
 /// no clear pose can spray, obstructed_cells): no pass is laid for them, so the nozzle is not put
 /// where only they would need it; the deposit of their neighbours' passes still lands on them.
+/// lean (empty, or one entry per grid cell): the nozzle's lean over each cell (plan_passes), the
+/// poses that keep the nozzle clear of what is not wall (nozzle_lean in pipeline/arm_plan.hpp).
 Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& progress = {},
-              const SpeedCapFn& speed_cap = {}, const std::vector<int>& excluded_cells = {});
+              const SpeedCapFn& speed_cap = {}, const std::vector<int>& excluded_cells = {},
+              const std::vector<Eigen::Vector3d>& lean = {});
 
 }  // namespace shotcrete
