@@ -244,7 +244,8 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
     obstructed; every cell's leaned pose keeps the nozzle link (brute force over the obstacle
     points) its margin from the face, leans toward the face and no further than allowed, the
     cells far from the face stay square, and along each row the nozzle's place moves forward
-    with the cell (the lean fades at 0.5 rad per metre of standoff: half the spot's speed)."""
+    with the cell (the lean fades at clearance.nozzle_lean_fade_rad_per_m, 0.5 rad/m: at a 1 m
+    standoff, half the spot's speed or more)."""
     cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
     surface = shotcrete.build_surface(shotcrete.make_synthetic_bay(cfg.synth).sample_scan(), cfg)
     robot = shotcrete.load_robot(cfg)
@@ -277,10 +278,14 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
                 assert lean[row, col] @ np.array([1.0, 0, 0]) > 0.99 * angle[row, col]  # toward the face
             # Square where even the nearest needed lean (at the column that is blocked square) has faded.
             first_blocked = face - 0.05 - margin
-            if d < first_blocked - cfg.clearance.max_nozzle_lean_rad / (0.5 / S) - 0.05:
+            if d < first_blocked - cfg.clearance.max_nozzle_lean_rad / cfg.clearance.nozzle_lean_fade_rad_per_m - 0.05:
                 assert angle[row, col] == 0.0
         steps = np.diff(tips[row][valid[row]])
-        assert (steps >= 0.5 * g.cell_size_m - 1e-3).all()
+        assert (steps >= (1 - cfg.clearance.nozzle_lean_fade_rad_per_m * S) * g.cell_size_m - 1e-3).all()
+    # A fade at or above 1 / standoff would run the nozzle back: refused, naming the key.
+    cfg.clearance.nozzle_lean_fade_rad_per_m = 1.0 / S
+    with pytest.raises(ValueError, match="nozzle_lean_fade_rad_per_m"):
+        shotcrete._core.obstructed_cells(surface, robot, cfg)
 
 
 def test_plan_of_a_bay_against_its_face_leaves_the_obstructed_cells_out(tmp_path, run_cli):

@@ -284,6 +284,9 @@ struct ClearanceConfig {
   double max_nozzle_lean_rad = 0.6109;  // the nozzle may lean this far off square to keep clear of what is
                                         // not wall (a face, a duct): 35 deg, the steepest spraying angle
                                         // of nozzlemen's practice at corners; 0 = square only
+  double nozzle_lean_fade_rad_per_m = 0.5;  // a needed lean fades out over the wall around its cell at this
+                                            // rate [rad per m of wall]: along a pass the nozzle moves at
+                                            // 1 - rate * standoff of its spot's speed or more (< 1 / standoff)
 };
 
 /// rescan.reference: where the two scans are registered (docs/architecture.md §12).

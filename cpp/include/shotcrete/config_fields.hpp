@@ -203,6 +203,7 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("null_space_gain", &ClearanceConfig::null_space_gain, 0.0, 100.0, "clearance term of the regions' joint tracking (null-space drift from the wall, per metre of path); 0 = off");
   f("null_space_influence_m", &ClearanceConfig::null_space_influence_m, 0.01, 10.0, "links' key points nearer the wall than this are pushed away by the clearance term [m]");
   f("max_nozzle_lean_rad", &ClearanceConfig::max_nozzle_lean_rad, 0.0, 1.0472, "the nozzle leans at most this far off square to stay clear of what is not wall (face, duct) [rad]; 0 = square only");
+  f("nozzle_lean_fade_rad_per_m", &ClearanceConfig::nozzle_lean_fade_rad_per_m, 0.01, 10.0, "a needed lean fades out over the wall around its cell at this rate [rad per m of wall]; below 1 / planner.standoff_m");
 }
 
 template <class F> void visit(RescanConfig*, F&& f) {

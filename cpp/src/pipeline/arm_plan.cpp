@@ -6,6 +6,8 @@
 #include <limits>
 #include <map>
 #include <mutex>
+#include <stdexcept>
+#include <string>
 #include <memory>
 
 #include "shotcrete/robot/robot.hpp"
@@ -340,10 +342,15 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
           break;
         }
   }
-  // 2. The lean field: each needed lean fades out over the wall around its cell at 0.5 rad per
-  //    standoff (so along a pass the nozzle still moves at half the speed of its spot or more,
-  //    and never back); a cell takes the strongest of those reaching it.
-  const double fade_rad_per_m = 0.5 / standoff;
+  // 2. The lean field: each needed lean fades out over the wall around its cell at
+  //    clearance.nozzle_lean_fade_rad_per_m (so along a pass the nozzle moves forward at
+  //    1 - rate * standoff of its spot's speed or more, never back); a cell takes the strongest
+  //    of those reaching it.
+  const double fade_rad_per_m = config.clearance.nozzle_lean_fade_rad_per_m;
+  if (!(fade_rad_per_m * standoff < 1.0))
+    throw std::invalid_argument("obstructed_cells: clearance.nozzle_lean_fade_rad_per_m = " + std::to_string(fade_rad_per_m) +
+                                " must be below 1 / planner.standoff_m = " + std::to_string(1.0 / standoff) +
+                                " (a faster fade would run the nozzle back along its pass)");
   std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(n), Eigen::Vector3d::Zero());
   const double arc = grid.cell_size_m;  // a row's arc (theta step = cell size / design radius)
   for (int c : square_blocked) {
