@@ -199,36 +199,46 @@ def nozzle_distance(tip, z, pts, radius=0.05, length=0.5):
     return np.hypot(np.maximum(r - radius, 0.0), excess)
 
 
-def test_obstructed_cells_by_the_face_match_a_brute_force_and_the_plane_distance():
-    """A bay with the face at its end and the nozzle held square (max_nozzle_lean_rad 0): the cells
-    whose spraying pose puts the nozzle within its margin (0.4 m) of the face are the obstructed
-    ones; by the plane, d_face - d - 0.05 < 0.4."""
+def face_scene_obstruction(**clearance):
+    """The 1 rad slice with the face at its end (no lining, no invert, no noise), its surface, its
+    obstructed_cells with the clearance keys given, and the obstacle points (outside the grid)."""
     cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
-    cfg.clearance.max_nozzle_lean_rad = 0.0
+    for k, v in clearance.items():
+        setattr(cfg.clearance, k, v)
     surface = shotcrete.build_surface(shotcrete.make_synthetic_bay(cfg.synth).sample_scan(), cfg)
-    robot = shotcrete.load_robot(cfg)
-    ob = shotcrete._core.obstructed_cells(surface, robot, cfg)
-    assert ob.links == ["nozzle"] and ob.margin_m == cfg.clearance.nozzle_margin_m
-    g = surface.grid
-    valid = np.asarray(g.valid)
-    td = np.asarray(g.td_m)
-    pts = np.asarray(surface.cloud.xyz)[~np.asarray(surface.in_grid)]
-    assert ob.obstacle_points == len(pts)
-    ref, plane = [], []
+    ob = shotcrete._core.obstructed_cells(surface, shotcrete.load_robot(cfg), cfg)
+    return cfg, surface, ob, np.asarray(surface.cloud.xyz)[~np.asarray(surface.in_grid)]
+
+
+def grid_wall_points(g, cfg):
+    """(row, col, d, radial unit z, wall point at the cell's TD) of every valid cell of a circle
+    bay on the x axis."""
+    valid, td = np.asarray(g.valid), np.asarray(g.td_m)
     for row in range(g.n_theta):
         th = g.theta0_rad + (row + 0.5) * g.dtheta_rad
         z = np.array([0.0, np.cos(th), np.sin(th)])
         for col in range(g.n_d):
-            if not valid[row, col]:
-                continue
-            d = g.d0_m + (col + 0.5) * g.cell_size_m
-            tip = np.array([d, 0, 0]) + (cfg.profile.design_radius_m + td[row, col] - cfg.planner.standoff_m) * z
-            if nozzle_distance(tip, z, pts).min() < ob.margin_m:
-                ref.append(row * g.n_d + col)
-            if cfg.synth.length_m - d - 0.05 < ob.margin_m:
-                plane.append(row * g.n_d + col)
+            if valid[row, col]:
+                d = g.d0_m + (col + 0.5) * g.cell_size_m
+                yield row, col, d, z, np.array([d, 0, 0]) + (cfg.profile.design_radius_m + td[row, col]) * z
+
+
+def test_obstructed_cells_by_the_face_match_a_brute_force_and_the_plane_distance():
+    """A bay with the face at its end and the nozzle held square (max_nozzle_lean_rad 0): the cells
+    whose spraying pose puts the nozzle within its margin (0.4 m) of the face are the obstructed
+    ones; by the plane, d_face - d - 0.05 < 0.4."""
+    cfg, surface, ob, pts = face_scene_obstruction(max_nozzle_lean_rad=0.0)
+    assert ob.links == ["nozzle"] and ob.margin_m == cfg.clearance.nozzle_margin_m
+    assert ob.obstacle_points == len(pts)
+    g = surface.grid
+    ref, plane = [], []
+    for row, col, d, z, wall in grid_wall_points(g, cfg):
+        if nozzle_distance(wall - cfg.planner.standoff_m * z, z, pts).min() < ob.margin_m:
+            ref.append(row * g.n_d + col)
+        if cfg.synth.length_m - d - 0.05 < ob.margin_m:
+            plane.append(row * g.n_d + col)
     assert sorted(ob.cells) == ref == plane
-    assert len(ref) > 0 and len(ref) < valid.sum()
+    assert len(ref) > 0 and len(ref) < np.asarray(g.valid).sum()
     assert ob.leaned_cells == 0 and len(ob.lean) == 0
 
 
@@ -246,14 +256,9 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
     cells far from the face stay square, and along each row the nozzle's place moves forward
     with the cell (the lean fades at clearance.nozzle_lean_fade_rad_per_m, 0.5 rad/m: at a 1 m
     standoff, half the spot's speed or more)."""
-    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
-    surface = shotcrete.build_surface(shotcrete.make_synthetic_bay(cfg.synth).sample_scan(), cfg)
-    robot = shotcrete.load_robot(cfg)
-    ob = shotcrete._core.obstructed_cells(surface, robot, cfg)
+    cfg, surface, ob, pts = face_scene_obstruction()
     g = surface.grid
     valid = np.asarray(g.valid)
-    td = np.asarray(g.td_m)
-    pts = np.asarray(surface.cloud.xyz)[~np.asarray(surface.in_grid)]
     assert ob.cells == [] and ob.leaned_cells > 0
     lean = np.asarray(ob.lean).reshape(g.n_theta, g.n_d, 3)
     angle = np.linalg.norm(lean, axis=2)
@@ -262,30 +267,37 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
     assert ob.leaned_cells == int((valid & (angle > 1e-9)).sum())
     S, margin, face = cfg.planner.standoff_m, ob.margin_m, cfg.synth.length_m
     tips = np.full((g.n_theta, g.n_d), np.nan)
+    for row, col, d, z, wall in grid_wall_points(g, cfg):
+        a = leaned_axis(z, lean[row, col])
+        tip = wall - S * a
+        assert nozzle_distance(tip, a, pts).min() >= margin
+        tips[row, col] = tip[0]
+        if angle[row, col] > 0:
+            assert lean[row, col] @ np.array([1.0, 0, 0]) > 0.99 * angle[row, col]  # toward the face
+        # Square where even the nearest needed lean (at the column that is blocked square) has faded.
+        first_blocked = face - 0.05 - margin
+        if d < first_blocked - cfg.clearance.max_nozzle_lean_rad / cfg.clearance.nozzle_lean_fade_rad_per_m - 0.05:
+            assert angle[row, col] == 0.0
     for row in range(g.n_theta):
-        th = g.theta0_rad + (row + 0.5) * g.dtheta_rad
-        z = np.array([0.0, np.cos(th), np.sin(th)])
-        for col in range(g.n_d):
-            if not valid[row, col]:
-                continue
-            d = g.d0_m + (col + 0.5) * g.cell_size_m
-            wall = np.array([d, 0, 0]) + (cfg.profile.design_radius_m + td[row, col]) * z
-            a = leaned_axis(z, lean[row, col])
-            tip = wall - S * a
-            assert nozzle_distance(tip, a, pts).min() >= margin
-            tips[row, col] = tip[0]
-            if angle[row, col] > 0:
-                assert lean[row, col] @ np.array([1.0, 0, 0]) > 0.99 * angle[row, col]  # toward the face
-            # Square where even the nearest needed lean (at the column that is blocked square) has faded.
-            first_blocked = face - 0.05 - margin
-            if d < first_blocked - cfg.clearance.max_nozzle_lean_rad / cfg.clearance.nozzle_lean_fade_rad_per_m - 0.05:
-                assert angle[row, col] == 0.0
         steps = np.diff(tips[row][valid[row]])
         assert (steps >= (1 - cfg.clearance.nozzle_lean_fade_rad_per_m * S) * g.cell_size_m - 1e-3).all()
     # A fade at or above 1 / standoff would run the nozzle back: refused, naming the key.
     cfg.clearance.nozzle_lean_fade_rad_per_m = 1.0 / S
     with pytest.raises(ValueError, match="nozzle_lean_fade_rad_per_m"):
-        shotcrete._core.obstructed_cells(surface, robot, cfg)
+        shotcrete._core.obstructed_cells(surface, shotcrete.load_robot(cfg), cfg)
+
+
+def plan_face_scene(tmp_path, run_cli, extra_yaml=""):
+    """`shotcrete plan` (one round) on the face scene written as PLY: the config, the CLI result and
+    report.json (out dir tmp_path / "o")."""
+    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    xyz = tmp_path / "scene.ply"
+    shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
+    conf = tmp_path / "c.yaml"
+    conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
+                    "planner:\n  max_rounds: 1\n" + extra_yaml)
+    r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
+    return cfg, r, json.loads((tmp_path / "o" / "report.json").read_text())
 
 
 def test_plan_of_a_bay_against_its_face_leaves_the_obstructed_cells_out(tmp_path, run_cli):
@@ -293,15 +305,8 @@ def test_plan_of_a_bay_against_its_face_leaves_the_obstructed_cells_out(tmp_path
     those cells not counted among the cells the plan left short); no pass puts the nozzle over
     them, so every pass waypoint keeps the nozzle's margin from the face (d <= d_face - margin -
     the nozzle's radius)."""
-    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
-    xyz = tmp_path / "scene.ply"
-    shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
-    conf = tmp_path / "c.yaml"
-    conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
-                    "planner:\n  max_rounds: 1\nclearance:\n  max_nozzle_lean_rad: 0\n")
-    r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
+    cfg, r, rep = plan_face_scene(tmp_path, run_cli, "clearance:\n  max_nozzle_lean_rad: 0\n")
     assert r.exit_code == 3, r.output
-    rep = json.loads((tmp_path / "o" / "report.json").read_text())
     codes = [p["code"] for p in rep["problems"]]
     assert "obstructed_cells" in codes
     ob = rep["obstructed"]
@@ -321,15 +326,8 @@ def test_plan_of_a_bay_against_its_face_leans_the_nozzle_to_spray_it_all(tmp_pat
     passes lean toward the face near it, and every waypoint (position and spray axis from
     plan.json) keeps the nozzle link, a 0.05 m cylinder 0.5 m back from the tip, its margin from
     the face plane; the cells by the face get concrete (the executed deposit, cells.csv)."""
-    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
-    xyz = tmp_path / "scene.ply"
-    shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
-    conf = tmp_path / "c.yaml"
-    conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
-                    "planner:\n  max_rounds: 1\n")
-    r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
+    cfg, r, rep = plan_face_scene(tmp_path, run_cli)
     assert r.exit_code in (0, 3), r.output
-    rep = json.loads((tmp_path / "o" / "report.json").read_text())
     assert "obstructed_cells" not in [p["code"] for p in rep["problems"]]
     assert rep["obstructed"]["cells"] == 0 and rep["obstructed"]["leaned_cells"] > 0
     assert 0 < rep["obstructed"]["max_lean_deg"] <= np.degrees(cfg.clearance.max_nozzle_lean_rad) + 1e-6
