@@ -199,10 +199,10 @@ def nozzle_distance(tip, z, pts, radius=0.05, length=0.5):
     return np.hypot(np.maximum(r - radius, 0.0), excess)
 
 
-def face_scene_obstruction(**clearance):
+def face_scene_obstruction(length_m=0.6, **clearance):
     """The 1 rad slice with the face at its end (no lining, no invert, no noise), its surface, its
     obstructed_cells with the clearance keys given, and the obstacle points (outside the grid)."""
-    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0, length_m=length_m)
     for k, v in clearance.items():
         setattr(cfg.clearance, k, v)
     surface = shotcrete.build_surface(shotcrete.make_synthetic_bay(cfg.synth).sample_scan(), cfg)
@@ -256,7 +256,7 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
     cells far from the face stay square, and along each row the nozzle's place moves forward
     with the cell (the lean fades at clearance.nozzle_lean_fade_rad_per_m, 0.5 rad/m: at a 1 m
     standoff, half the spot's speed or more)."""
-    cfg, surface, ob, pts = face_scene_obstruction()
+    cfg, surface, ob, pts = face_scene_obstruction(length_m=2.0)
     g = surface.grid
     valid = np.asarray(g.valid)
     assert ob.cells == [] and ob.leaned_cells > 0
@@ -267,6 +267,7 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
     assert ob.leaned_cells == int((valid & (angle > 1e-9)).sum())
     S, margin, face = cfg.planner.standoff_m, ob.margin_m, cfg.synth.length_m
     tips = np.full((g.n_theta, g.n_d), np.nan)
+    square_seen = 0
     for row, col, d, z, wall in grid_wall_points(g, cfg):
         a = leaned_axis(z, lean[row, col])
         tip = wall - S * a
@@ -274,10 +275,12 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
         tips[row, col] = tip[0]
         if angle[row, col] > 0:
             assert lean[row, col] @ np.array([1.0, 0, 0]) > 0.99 * angle[row, col]  # toward the face
-        # Square where even the nearest needed lean (at the column that is blocked square) has faded.
+        # Square where even the steepest needed lean (at a column blocked square) has faded.
         first_blocked = face - 0.05 - margin
-        if d < first_blocked - cfg.clearance.max_nozzle_lean_rad / cfg.clearance.nozzle_lean_fade_rad_per_m - 0.05:
+        if d < first_blocked - ob.max_lean_rad / cfg.clearance.nozzle_lean_fade_rad_per_m - 0.05:
             assert angle[row, col] == 0.0
+            square_seen += 1
+    assert square_seen > 0.1 * valid.sum()  # the 2 m bay's first columns
     for row in range(g.n_theta):
         steps = np.diff(tips[row][valid[row]])
         assert (steps >= (1 - cfg.clearance.nozzle_lean_fade_rad_per_m * S) * g.cell_size_m - 1e-3).all()

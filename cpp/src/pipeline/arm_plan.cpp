@@ -334,23 +334,32 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
     const Eigen::Vector3d along = (axis.ex - axis.ex.dot(a0) * a0).normalized(), around = a0.cross(along);
     const Eigen::Vector3d dirs[4] = {along, -along, around, -around};
     bool found = false;
-    for (double angle = step; angle <= max_lean + 1e-9 && !found; angle += step)
+    // Steps of 0.05 rad, and the limit itself last (a limit between two steps is not rounded down).
+    std::vector<double> angles;
+    for (int i = 1; i * step < max_lean - 1e-9; ++i) angles.push_back(i * step);
+    if (max_lean > 0.0) angles.push_back(max_lean);
+    for (const double angle : angles) {
+      if (found) break;
       for (const auto& t : dirs)
         if (clearance_at(p, leaned(c, angle * t), nullptr) >= out.margin_m + spare) {
           need[static_cast<std::size_t>(c)] = angle * t;
           found = true;
           break;
         }
+    }
   }
   // 2. The lean field: each needed lean fades out over the wall around its cell at
   //    clearance.nozzle_lean_fade_rad_per_m (so along a pass the nozzle moves forward at
   //    1 - rate * standoff of its spot's speed or more, never back); a cell takes the strongest
   //    of those reaching it.
+  // (Across a circumferential pass the spray axis turns by 1 / R per metre of wall as well.)
   const double fade_rad_per_m = config.clearance.nozzle_lean_fade_rad_per_m;
-  if (!(fade_rad_per_m * standoff < 1.0))
+  const double fade_limit = 1.0 / standoff - (config.planner.pass_direction == PassDirection::circumferential ? 1.0 / prof.radius_m : 0.0);
+  if (max_lean > 0.0 && !(fade_rad_per_m < fade_limit))
     throw std::invalid_argument("obstructed_cells: clearance.nozzle_lean_fade_rad_per_m = " + std::to_string(fade_rad_per_m) +
-                                " must be below 1 / planner.standoff_m = " + std::to_string(1.0 / standoff) +
-                                " (a faster fade would run the nozzle back along its pass)");
+                                " must be below " + std::to_string(fade_limit) +
+                                " (1 / planner.standoff_m, less 1 / design radius for circumferential passes): a faster "
+                                "fade would run the nozzle back along its pass");
   std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(n), Eigen::Vector3d::Zero());
   const double arc = grid.cell_size_m;  // a row's arc (theta step = cell size / design radius)
   for (int c : square_blocked) {
@@ -375,13 +384,25 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
     const bool tipped = l.norm() > 1e-9;
     if (!tipped && !std::binary_search(square_blocked.begin(), square_blocked.end(), c)) continue;
     Eigen::Vector3d nearest = Eigen::Vector3d::Zero();
-    const double least = clearance_at(point[static_cast<std::size_t>(c)], leaned(c, l), &nearest);
+    double least = clearance_at(point[static_cast<std::size_t>(c)], leaned(c, l), &nearest);
+    // The field's lean may be another obstacle's, faded, and tip this cell toward something: its
+    // own (the least that clears it, or square) before it counts as obstructed.
+    const Eigen::Vector3d own = need[static_cast<std::size_t>(c)];
+    if (least < out.margin_m && tipped && (own - l).norm() > 1e-9) {
+      Eigen::Vector3d q = Eigen::Vector3d::Zero();
+      const double alt = clearance_at(point[static_cast<std::size_t>(c)], leaned(c, own), &q);
+      if (alt >= out.margin_m) {
+        lean[static_cast<std::size_t>(c)] = own;
+        least = alt, nearest = q;
+      }
+    }
+    const Eigen::Vector3d& used = lean[static_cast<std::size_t>(c)];
     if (least < out.margin_m) {
       out.cells.push_back(c);
       if (least < out.least_distance_m) out.least_distance_m = least, out.nearest_obstacle_m = nearest;
-    } else if (tipped) {
+    } else if (used.norm() > 1e-9) {
       ++leaned_cells;
-      out.max_lean_rad = std::max(out.max_lean_rad, l.norm());
+      out.max_lean_rad = std::max(out.max_lean_rad, used.norm());
     }
   }
   out.leaned_cells = leaned_cells;

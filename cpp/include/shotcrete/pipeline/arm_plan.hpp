@@ -42,8 +42,11 @@ struct SpeedCapMap {
 /// not gridded wall (a duct under the crown, the face at the bay's end, a rig, muck), and leaning
 /// the nozzle off square (along the axis or around it, up to clearance.max_nozzle_lean_rad) does
 /// not clear it either. Where a lean clears it, the passes lean there (`lean`, faded out over the
-/// wall around at 0.5 rad per standoff so a pass's nozzle never runs back). No pass can lay the
+/// wall around at clearance.nozzle_lean_fade_rad_per_m so a pass's nozzle never runs back; a cell
+/// the faded lean of another obstacle would not clear keeps its own). No pass can lay the
 /// obstructed cells' concrete: they are reported (problem obstructed_cells), not claimed.
+/// Throws std::invalid_argument for a fade rate at or above 1 / standoff (less 1 / design radius
+/// for circumferential passes) when the nozzle may lean.
 struct ObstructedCells {
   std::vector<int> cells;          // grid cell indices (row * n_d + col), ascending
   double margin_m = 0.0;           // the nozzle margin they were checked with
