@@ -10,6 +10,7 @@
 #include <string>
 #include <memory>
 
+#include "shotcrete/planning/passes.hpp"
 #include "shotcrete/robot/robot.hpp"
 
 namespace shotcrete {
@@ -312,13 +313,8 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
     square[static_cast<std::size_t>(c)] = nrm;
     live[static_cast<std::size_t>(c)] = 1;
   }
-  // The spray axis leaned by `lean` (tangent; length = angle) off the square one.
-  auto leaned = [&](int c, const Eigen::Vector3d& lean) -> Eigen::Vector3d {
-    const Eigen::Vector3d& a0 = square[static_cast<std::size_t>(c)];
-    const Eigen::Vector3d t = lean - lean.dot(a0) * a0;
-    const double angle = t.norm();
-    return angle > 1e-9 ? Eigen::Vector3d((std::cos(angle) * a0 + std::sin(angle) * t / angle).normalized()) : a0;
-  };
+  // The spray axis leaned by `lean` (tangent; length = angle) off the square one, as the passes lean it.
+  auto leaned = [&](int c, const Eigen::Vector3d& lean) { return leaned_axis(square[static_cast<std::size_t>(c)], lean); };
   // 1. Where the square pose is too close, the least lean (steps of 0.05 rad, along the axis or
   //    around it, either way) that clears the obstacles, with half a cell and 1 cm to spare (a
   //    one-cell pass runs half a cell either side; the spline between knots).

@@ -36,6 +36,13 @@ void reverse_pass(Pass& p) {
   std::reverse(p.speed_profile_mps.begin(), p.speed_profile_mps.end());
 }
 
+Eigen::Vector3d leaned_axis(const Eigen::Vector3d& square_axis, const Eigen::Vector3d& lean) {
+  const Eigen::Vector3d t = lean - lean.dot(square_axis) * square_axis;
+  const double angle = t.norm();
+  if (!(angle > 1e-9)) return square_axis;
+  return (std::cos(angle) * square_axis + std::sin(angle) * t / angle).normalized();
+}
+
 double polyline_length(const std::vector<NozzlePose>& w) {
   double len = 0;
   for (std::size_t i = 0; i + 1 < w.size(); ++i) len += (w[i + 1].position_m - w[i].position_m).norm();
@@ -268,10 +275,9 @@ NozzlePose standoff_pose(const TunnelAxis& axis, const DesignProfile& profile, c
     pose.axis = radial;
     pose.position_m = p - config.standoff_m * radial;
   }
-  const Eigen::Vector3d tangent = lean - lean.dot(pose.axis) * pose.axis;
-  const double angle = tangent.norm();
-  if (angle > 1e-9) {
-    pose.axis = (std::cos(angle) * pose.axis + std::sin(angle) * tangent / angle).normalized();
+  const Eigen::Vector3d tipped = leaned_axis(pose.axis, lean);
+  if (tipped != pose.axis) {
+    pose.axis = tipped;
     pose.position_m = p - config.standoff_m * pose.axis;
   }
   return pose;

@@ -47,6 +47,11 @@ void reverse_pass(Pass& pass);
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
                               const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean = nullptr);
 
+/// The spray axis `square_axis` (unit) tipped by `lean` (its component tangent to the axis gives
+/// the direction, its length the angle [rad]); `square_axis` itself when that is zero. The one
+/// formula of the passes' poses and of the clearance check of them (obstructed_cells).
+Eigen::Vector3d leaned_axis(const Eigen::Vector3d& square_axis, const Eigen::Vector3d& lean);
+
 /// Clamped cubic spline through `points` (chord-length parameter; end slopes of the parabola
 /// through the three end knots), sampled about `step_m` apart including both ends.
 std::vector<Eigen::Vector3d> clamped_cubic_spline(const std::vector<Eigen::Vector3d>& points, double step_m);
