@@ -59,6 +59,7 @@ void bind_collision(py::module_& m) {
       py::arg("point"), py::arg("shape"), py::arg("link_pose"), "Exact distance of a point to a shape (0 inside).");
   py::class_<LinkClearance>(m, "LinkClearance")
       .def_readonly("link", &LinkClearance::link)
+      .def_readonly("fixed", &LinkClearance::fixed, "no joint moves the link's shapes (fixed_shapes)")
       .def_readonly("margin_m", &LinkClearance::margin_m)
       .def_readonly("min_m", &LinkClearance::min_m)
       .def_readonly("at_time_s", &LinkClearance::at_time_s)
@@ -83,7 +84,9 @@ void bind_collision(py::module_& m) {
       .def_readonly("exact_queries", &ClearanceReport::exact_queries, "exact distances to the wall's points")
       .def_readonly("self_queries", &ClearanceReport::self_queries)
       .def_readonly("seconds", &ClearanceReport::seconds)
-      .def_property_readonly("samples_below_margin", &ClearanceReport::samples_below_margin);
+      .def_property_readonly("samples_below_margin", &ClearanceReport::samples_below_margin)
+      .def_property_readonly("moving_samples_below_margin", &ClearanceReport::moving_samples_below_margin,
+                             "samples_below_margin without the fixed links (those no posture changes)");
   m.def(
       "check_clearance",
       [](const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall, const ClearanceConfig& config,
@@ -102,11 +105,19 @@ void bind_collision(py::module_& m) {
         "Shape index pairs checked against each other (not neighbours, not touching at neutral).");
   m.def(
       "posture_allowance",
-      [](const Robot& robot, const Eigen::VectorXd& q, const WallOctree& wall, const ClearanceConfig& config, double cap_m) {
-        return posture_allowance(robot, q, wall, config, self_check_pairs(robot), cap_m);
+      [](const Robot& robot, const Eigen::VectorXd& q, const WallOctree& wall, const ClearanceConfig& config, double cap_m,
+         bool without_fixed) {
+        const std::vector<char> fixed = without_fixed ? fixed_shapes(robot) : std::vector<char>{};
+        return posture_allowance(robot, q, wall, config, self_check_pairs(robot), cap_m, without_fixed ? &fixed : nullptr);
       },
       py::arg("robot"), py::arg("q"), py::arg("wall"), py::arg("config"), py::arg("cap_m") = 10.0,
-      "Least distance less margin of posture q over the link shapes (wall) and link pairs, at most cap_m [m].");
+      py::arg("without_fixed") = false,
+      "Least distance less margin of posture q over the link shapes (wall) and link pairs, at most cap_m [m]; "
+      "without_fixed: leaving out the shapes no joint moves (fixed_shapes), as the transit router and start_posture do.");
+  m.def(
+      "fixed_shapes", [](const Robot& robot) { const auto f = fixed_shapes(robot); return std::vector<bool>(f.begin(), f.end()); },
+      py::arg("robot"),
+      "Per collision shape: True when no joint moves it (the base; a turret cylinder slewing about its own axis).");
   py::class_<TransitDetour>(m, "TransitDetour", "A joint move that came closer than the margins.")
       .def_readonly("move", &TransitDetour::move, "index among the trajectory's joint moves (0 = from the start)")
       .def_readonly("region_index", &TransitDetour::region_index, "-1 between regions, else a stop-and-go move")
@@ -129,6 +140,23 @@ void bind_collision(py::module_& m) {
       .def_readonly("detour_time_s", &TransitReport::detour_time_s)
       .def_readonly("detours", &TransitReport::detours)
       .def_readonly("seconds", &TransitReport::seconds);
+  py::class_<StartPosture>(m, "StartPosture", "The posture a job starts from.")
+      .def_readonly("q", &StartPosture::q)
+      .def_readonly("preferred", &StartPosture::preferred, "the posture asked for (the stow)")
+      .def_readonly("moved", &StartPosture::moved, "q is not `preferred`: that one broke a margin, q keeps them")
+      .def_readonly("preferred_allowance_m", &StartPosture::preferred_allowance_m)
+      .def_readonly("allowance_m", &StartPosture::allowance_m, "< 0: no clear posture was found")
+      .def_readonly("optimisations", &StartPosture::optimisations);
+  m.def(
+      "start_posture",
+      [](const Robot& robot, const Eigen::VectorXd& preferred, const WallOctree& wall, const ClearanceConfig& config) {
+        py::gil_scoped_release release;
+        return start_posture(robot, preferred, wall, config);
+      },
+      py::arg("robot"), py::arg("preferred"), py::arg("wall"), py::arg("config"),
+      "`preferred` when it keeps every margin from the wall, else the nearest posture found that does (the transit "
+      "router's search of maximum space allowance from it, its telescopes in, the neutral posture, turned about the "
+      "first joint).");
   m.def(
       "clear_transits",
       [](const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall, const ClearanceConfig& config,

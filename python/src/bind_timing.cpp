@@ -490,7 +490,10 @@ void bind_timing(py::module_& m) {
                              "TransitReport of its joint moves (clearance.enabled), or None")
       .def_property_readonly("obstructed",
                              [](const ArmPlan& a) -> py::object { return a.obstructed ? py::cast(*a.obstructed) : py::none(); },
-                             "ObstructedCells: cells no clear pose sprays (clearance.enabled), or None");
+                             "ObstructedCells: cells no clear pose sprays (clearance.enabled), or None")
+      .def_property_readonly("start",
+                             [](const ArmPlan& a) -> py::object { return a.start ? py::cast(*a.start) : py::none(); },
+                             "StartPosture the trajectory starts from (clearance.enabled), or None (the stow posture)");
   py::class_<ObstructedCells>(m, "ObstructedCells", "Cells of the bay no clear nozzle pose can spray.")
       .def_readonly("cells", &ObstructedCells::cells)
       .def_readonly("margin_m", &ObstructedCells::margin_m)

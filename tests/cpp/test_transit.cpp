@@ -290,3 +290,43 @@ TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
   EXPECT_GE(rep.failed, 1);
   if (rep.rerouted == 0) EXPECT_EQ(tr.duration_s, before.duration_s);  // nothing changed
 }
+
+// The wall of the narrow bay with a face across the axis at x = x_face (points every ~4 cm).
+Points wall_and_face(double x_face) {
+  const Points wall = wall_with_protrusion(-0.6, x_face, 0.0, 0.0, 0.0, 0.8);
+  std::vector<Eigen::Vector3d> face;
+  for (double y = -kR; y <= kR; y += 0.04)
+    for (double z = 0.0; z <= kR; z += 0.04)
+      if (std::hypot(y, z) < kR) face.emplace_back(x_face, y, z);
+  Points p(wall.rows() + static_cast<Eigen::Index>(face.size()), 3);
+  p.topRows(wall.rows()) = wall;
+  for (std::size_t k = 0; k < face.size(); ++k) p.row(wall.rows() + static_cast<Eigen::Index>(k)) = face[k].transpose();
+  return p;
+}
+
+TEST(Transit, StartPostureKeepsAClearStowAndLeavesOneInTheFace) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const ClearanceConfig cfg;
+  const auto pairs = self_check_pairs(robot);
+  // Without the face the stow posture keeps its margins: it is the start, nothing searched.
+  const Points open = wall_and_face(6.0);
+  ASSERT_GE(brute_allowance(robot, robot.stow(), open, cfg, pairs), 0.0);
+  const StartPosture same = start_posture(robot, robot.stow(), WallOctree(open, cfg.octree_resolution_m), cfg);
+  EXPECT_FALSE(same.moved);
+  EXPECT_EQ(same.q, robot.stow());
+  EXPECT_EQ(same.optimisations, 0);
+  EXPECT_GE(same.allowance_m, 0.0);
+  // A face 1.4 m ahead of the base: the stow posture's boom points into it.
+  const Points closed = wall_and_face(2.0);
+  ASSERT_LT(brute_allowance(robot, robot.stow(), closed, cfg, pairs), 0.0);
+  const StartPosture sp = start_posture(robot, robot.stow(), WallOctree(closed, cfg.octree_resolution_m), cfg);
+  ASSERT_TRUE(sp.moved);
+  EXPECT_LT(sp.preferred_allowance_m, 0.0);
+  EXPECT_GE(sp.allowance_m, 0.0);
+  EXPECT_TRUE(robot.within_limits(sp.q));
+  // The brute-force distances agree: clear, and the octree's reading is never more than that.
+  const double exact = brute_allowance(robot, sp.q, closed, cfg, pairs);
+  EXPECT_GE(exact, 0.0);
+  EXPECT_LE(sp.allowance_m, exact + 1e-6);
+  EXPECT_EQ(sp.preferred, robot.stow());
+}

@@ -124,3 +124,97 @@ def test_timed_trajectory_from_joints_checks_as_the_timed_one():
         _core.clear_transits(robot, saved, wall, cfg.clearance, cfg.timing)
     with pytest.raises(ValueError, match="sample kinds"):
         _core.joint_moves(saved)
+
+
+def _face(x_face: float) -> np.ndarray:
+    """A face across the narrow bay at x = x_face, points every 4 cm above the springlines."""
+    y, z = np.meshgrid(np.arange(-R, R, 0.04), np.arange(0.0, R, 0.04))
+    inside = np.hypot(y, z) < R
+    return np.column_stack([np.full(inside.sum(), x_face), y[inside], z[inside]])
+
+
+def test_a_job_starts_from_the_stow_posture_or_the_nearest_clear_one():
+    """start_posture: the stow posture when it keeps its margins (nothing searched); with a face
+    1.4 m ahead of the base the stow posture's boom is in it (exact numpy distances), and the
+    posture found keeps every margin by the same exact distances, within the joint limits, the
+    octree's reading never more than the exact one."""
+    cfg = shotcrete.load_config()
+    robot = shotcrete.load_robot(cfg)
+    wall = _wall(0.6, 1.2, 0.0)
+    stow = np.asarray(robot.stow())
+    assert _exact_allowance(robot, stow, wall, cfg.clearance) >= 0
+    same = _core.start_posture(robot, stow, _core.WallOctree(wall, 0.05), cfg.clearance)
+    assert not same.moved and np.array_equal(same.q, stow) and same.optimisations == 0
+    closed = np.vstack([wall[wall[:, 0] < 2.0], _face(2.0)])
+    assert _exact_allowance(robot, stow, closed, cfg.clearance) < 0
+    sp = _core.start_posture(robot, stow, _core.WallOctree(closed, 0.05), cfg.clearance)
+    assert sp.moved and sp.preferred_allowance_m < 0 <= sp.allowance_m
+    exact = _exact_allowance(robot, sp.q, closed, cfg.clearance)
+    assert exact >= 0 and sp.allowance_m <= exact + 1e-6
+    lo, hi = np.asarray(robot.lower_limits), np.asarray(robot.upper_limits)
+    assert np.all(sp.q >= lo) and np.all(sp.q <= hi)
+    with pytest.raises(ValueError, match="does not match the robot"):
+        _core.start_posture(robot, stow[:3], _core.WallOctree(closed, 0.05), cfg.clearance)
+
+
+def test_plan_by_a_face_starts_clear_of_it_and_routes_the_first_move_around_it(tmp_path, run_cli):
+    """`shotcrete plan` on a 1.5 m crown slice with its face (the stow posture's boom points into
+    it): report.json start_posture says the job starts elsewhere, the trajectory's first sample is
+    that posture, it keeps every margin from the scan's points (exact numpy distances), and the
+    move from it is checked and re-routed clear, not refused."""
+    conf = tmp_path / "c.yaml"
+    conf.write_text("synth: {theta_min_rad: 1.45, theta_max_rad: 1.7, length_m: 1.5, points_per_cell: 4, pit_count: 2,"
+                    " context_enabled: true, context_previous_bay_m: 0.0, context_invert_depth_m: 0.0}\n"
+                    "planner: {max_rounds: 1}\ntiming: {max_replans: 0}\n")
+    cfg = shotcrete.load_config(conf)
+    scan = shotcrete.make_synthetic_bay(cfg.synth).sample_scan()
+    shotcrete.write_cloud(tmp_path / "scene.ply", scan)
+    r = run_cli("plan", tmp_path / "scene.ply", "--out", tmp_path / "o", "--config", conf)
+    assert r.exit_code in (0, 3), r.output
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    robot = shotcrete.load_robot(cfg)
+    pts = np.asarray(scan.xyz, dtype=float)
+    start = rep["start_posture"]
+    stow = np.asarray(robot.stow())
+    assert np.allclose(list(start["stow"].values()), stow)
+    assert _exact_allowance(robot, stow, pts, cfg.clearance) < 0 and start["stow_allowance_m"] < 0
+    assert start["moved_from_stow"] and start["allowance_m"] >= 0
+    q0 = np.load(tmp_path / "o" / "trajectory.npz")["q"][0]
+    assert np.allclose(q0, list(start["joints"].values()))
+    assert _exact_allowance(robot, q0, pts, cfg.clearance) >= 0
+    assert any("the job starts from the nearest posture clear of it" in w for w in rep["warnings"])
+    first = [d for d in rep["clearance"]["transits"]["detours"] if d["move"] == 0]
+    assert all(d["rerouted"] for d in first)
+
+
+def test_fixed_shapes_are_those_no_joint_moves():
+    """fixed_shapes against the shapes' own placement (numpy, link_frames): a cylinder's axis ends
+    stay put over random postures for the fixed ones (base_link; the turret, slewing about its own
+    axis) and move for every other; posture_allowance without them ignores a rock at the base."""
+    cfg = shotcrete.load_config()
+    robot = shotcrete.load_robot(cfg)
+    fixed = _core.fixed_shapes(robot)
+    rng = np.random.default_rng(3)
+    lo, hi = np.asarray(robot.lower_limits), np.asarray(robot.upper_limits)
+
+    def ends(q):
+        frames = robot.link_frames(q)
+        out = []
+        for s in robot.collision_shapes:
+            T = np.asarray(frames[s.frame]) @ np.asarray(s.origin)
+            out.append(np.r_[T[:3, 3] - 0.5 * s.length_m * T[:3, 2], T[:3, 3] + 0.5 * s.length_m * T[:3, 2]])
+        return np.array(out)
+
+    ref = ends(robot.neutral())
+    moved = np.zeros(len(fixed), bool)
+    for _ in range(20):
+        moved |= np.abs(ends(rng.uniform(lo, hi)) - ref).max(axis=1) > 1e-9
+    assert list(~moved) == list(fixed)
+    assert [s.link for s, f in zip(robot.collision_shapes, fixed) if f] == ["base_link", "turret"]
+    # A rock against the base: every posture breaks a margin, none does without the fixed shapes.
+    base = np.asarray(cfg.robot.base_position_m)
+    wall = np.vstack([_wall(0.6, 1.2, 0.0), base + [0.45, 0.0, 0.1]])
+    octree = _core.WallOctree(wall, 0.05)
+    stow = np.asarray(robot.stow())
+    assert _core.posture_allowance(robot, stow, octree, cfg.clearance) < 0
+    assert _core.posture_allowance(robot, stow, octree, cfg.clearance, without_fixed=True) >= 0

@@ -562,6 +562,25 @@ double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config
   return shape.link.rfind("nozzle", 0) == 0 ? config.nozzle_margin_m : config.link_margin_m;
 }
 
+std::vector<char> fixed_shapes(const Robot& robot) {
+  const auto& shapes = robot.collision_shapes();
+  const Eigen::VectorXd q0 = robot.neutral(), lo = robot.lower_limits(), hi = robot.upper_limits();
+  const auto at_neutral = robot.link_frames(q0);
+  std::vector<char> fixed(shapes.size(), 1);
+  for (int j = 0; j < robot.dof(); ++j)
+    for (int k = 0; k <= 4; ++k) {  // each joint alone over its range, the others at neutral
+      Eigen::VectorXd q = q0;
+      q[j] = lo[j] + 0.25 * k * (hi[j] - lo[j]);
+      const auto frames = robot.link_frames(q);
+      for (std::size_t s = 0; s < shapes.size(); ++s) {
+        const Eigen::Isometry3d& a = at_neutral[shapes[s].frame];
+        const Eigen::Isometry3d& b = frames[shapes[s].frame];
+        if (shape_motion(shapes[s], box_corners(shapes[s]), a, b) > 1e-9) fixed[s] = 0;
+      }
+    }
+  return fixed;
+}
+
 std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot) {
   const auto& shapes = robot.collision_shapes();
   const auto frames = robot.link_frames(robot.neutral());
@@ -578,6 +597,13 @@ std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot) {
 int ClearanceReport::samples_below_margin() const {
   int n = self.samples_below_margin;
   for (const auto& l : links) n += l.samples_below_margin;
+  return n;
+}
+
+int ClearanceReport::moving_samples_below_margin() const {
+  int n = self.samples_below_margin;
+  for (const auto& l : links)
+    if (!l.fixed) n += l.samples_below_margin;
   return n;
 }
 
@@ -617,7 +643,8 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
   rep.octree_leaves = wall.occupied_leaves();
   rep.samples = static_cast<int>(n);
   if (shapes.empty()) throw std::invalid_argument("check_clearance: the robot has no collision shapes");
-  // One entry per link with geometry, in chain order.
+  // One entry per link with geometry, in chain order; fixed when all its shapes are.
+  const std::vector<char> fixed = fixed_shapes(robot);
   std::vector<int> link_of(shapes.size());
   for (std::size_t s = 0; s < shapes.size(); ++s) {
     auto it = std::find_if(rep.links.begin(), rep.links.end(), [&](const LinkClearance& l) { return l.link == shapes[s].link; });
@@ -626,9 +653,11 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
       l.link = shapes[s].link;
       l.margin_m = shape_margin_m(shapes[s], config);
       l.min_m = std::numeric_limits<double>::infinity();
+      l.fixed = true;
       rep.links.push_back(l);
       it = rep.links.end() - 1;
     }
+    it->fixed = it->fixed && fixed[s];
     link_of[s] = static_cast<int>(it - rep.links.begin());
   }
   const auto pairs = self_check_pairs(robot);

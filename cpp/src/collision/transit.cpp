@@ -11,6 +11,7 @@
 #include <limits>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/timing/trajectory.hpp"
@@ -18,11 +19,14 @@
 namespace shotcrete {
 
 double posture_allowance(const Robot& robot, const Eigen::VectorXd& q, const WallOctree& wall,
-                         const ClearanceConfig& config, const std::vector<std::pair<int, int>>& pairs, double cap_m) {
+                         const ClearanceConfig& config, const std::vector<std::pair<int, int>>& pairs, double cap_m,
+                         const std::vector<char>* fixed) {
   const auto& shapes = robot.collision_shapes();
   const auto frames = robot.link_frames(q);
   double least = cap_m;
-  for (const auto& s : shapes) {
+  for (std::size_t k = 0; k < shapes.size(); ++k) {
+    if (fixed && (*fixed)[k]) continue;
+    const CollisionShape& s = shapes[k];
     const double margin = shape_margin_m(s, config);
     // Bounded by the least allowance so far: a shape farther than that cannot lower it.
     least = std::min(least, wall.distance(s, frames[s.frame], nullptr, std::max(0.0, margin + least)) - margin);
@@ -38,7 +42,8 @@ namespace {
 // Least distance less margin over a clearance report (links and the self check).
 double report_allowance(const ClearanceReport& rep, const ClearanceConfig& config) {
   double least = std::numeric_limits<double>::infinity();
-  for (const auto& l : rep.links) least = std::min(least, l.min_m - l.margin_m);
+  for (const auto& l : rep.links)
+    if (!l.fixed) least = std::min(least, l.min_m - l.margin_m);
   if (std::isfinite(rep.self.min_m)) least = std::min(least, rep.self.min_m - config.self_margin_m);
   return least;
 }
@@ -46,7 +51,7 @@ double report_allowance(const ClearanceReport& rep, const ClearanceConfig& confi
 // Every link at least `slack_m` beyond its wall margin and the self check within its margin.
 bool keeps_margins_by(const ClearanceReport& rep, const ClearanceConfig& config, double slack_m) {
   for (const auto& l : rep.links)
-    if (!(l.min_m - l.margin_m >= slack_m)) return false;
+    if (!l.fixed && !(l.min_m - l.margin_m >= slack_m)) return false;
   return !(rep.self.min_m < config.self_margin_m);
 }
 
@@ -55,7 +60,7 @@ std::string worst_of(const ClearanceReport& rep, const ClearanceConfig& config) 
   o.precision(3);
   double least = std::numeric_limits<double>::infinity();
   for (const auto& l : rep.links)
-    if (l.min_m - l.margin_m < least) {
+    if (!l.fixed && l.min_m - l.margin_m < least) {
       least = l.min_m - l.margin_m;
       o.str("");
       o << l.link << " " << l.min_m << " m (margin " << l.margin_m << ")";
@@ -67,6 +72,59 @@ std::string worst_of(const ClearanceReport& rep, const ClearanceConfig& config) 
   return o.str();
 }
 
+// A posture of maximum space allowance from `start`: BOBYQA within the joint limits on the
+// allowance saturated at cap_m, less a small pull toward `ref` (of two postures with enough room,
+// the one nearer `ref`).
+Eigen::VectorXd most_room_posture(const Robot& robot, const Eigen::VectorXd& start, const Eigen::VectorXd& ref,
+                                  const WallOctree& wall, const ClearanceConfig& config,
+                                  const std::vector<std::pair<int, int>>& pairs, double cap_m,
+                                  const std::vector<char>& fixed) {
+  const int n = robot.dof();
+  const Eigen::VectorXd lo = robot.lower_limits(), hi = robot.upper_limits();
+  const Eigen::VectorXd range = (hi - lo).cwiseMax(1e-9);
+  // 5 cm of allowance per unit of normalised joint distance: a tie-breaker past the cap, small
+  // against the allowance below it.
+  constexpr double kPull_m = 0.05;
+  std::function<double(const std::vector<double>&)> objective = [&](const std::vector<double>& x) {
+    const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(x.data(), n);
+    const double a = posture_allowance(robot, q, wall, config, pairs, cap_m, &fixed);
+    return -(a - kPull_m * (q - ref).cwiseQuotient(range).norm());
+  };
+  nlopt::opt opt(nlopt::LN_BOBYQA, static_cast<unsigned>(n));
+  opt.set_lower_bounds(std::vector<double>(lo.data(), lo.data() + n));
+  opt.set_upper_bounds(std::vector<double>(hi.data(), hi.data() + n));
+  opt.set_min_objective(
+      [](const std::vector<double>& x, std::vector<double>&, void* data) {
+        return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
+      },
+      &objective);
+  // A tenth of each joint's range, within half the bound gap as BOBYQA needs.
+  std::vector<double> step(static_cast<std::size_t>(n));
+  for (int j = 0; j < n; ++j) step[static_cast<std::size_t>(j)] = 0.1 * range[j];
+  opt.set_initial_step(step);
+  // A posture needs room, not precision: millimetres and a few hundred evaluations.
+  opt.set_xtol_abs(2e-3);
+  opt.set_ftol_abs(1e-3);
+  opt.set_maxeval(40 * n);
+  const Eigen::VectorXd x0 = start.cwiseMax(lo).cwiseMin(hi);
+  std::vector<double> x(x0.data(), x0.data() + n);
+  double best = 0.0;
+  try {
+    opt.optimize(x, best);
+  } catch (const nlopt::roundoff_limited&) {
+    // x holds BOBYQA's best point.
+  }
+  return Eigen::Map<const Eigen::VectorXd>(x.data(), n).cwiseMax(lo).cwiseMin(hi);
+}
+
+// q with the telescopes (prismatic joints) all the way in.
+Eigen::VectorXd folded(const Robot& robot, const Eigen::VectorXd& q) {
+  Eigen::VectorXd f = q;
+  for (int j = 0; j < robot.dof(); ++j)
+    if (robot.joint_is_prismatic()[static_cast<std::size_t>(j)]) f[j] = robot.lower_limits()[j];
+  return f;
+}
+
 struct Router {
   const Robot& robot;
   const WallOctree& wall;
@@ -74,72 +132,34 @@ struct Router {
   const TimingConfig& timing;
   int region_index;
   std::vector<std::pair<int, int>> pairs;
+  std::vector<char> fixed;  // fixed_shapes: left out of every judgement of a posture or a move
   int optimisations = 0;
 
   // The samples of a move (its start excluded) keep every margin.
   bool clear(const TimedTrajectory& piece) const {
-    return piece.size() == 0 || check_clearance_octree(robot, piece, wall, config).samples_below_margin() == 0;
+    return piece.size() == 0 || check_clearance_octree(robot, piece, wall, config).moving_samples_below_margin() == 0;
   }
   // Posture of the move's sample where a link comes closest to breaking its margin.
   static Eigen::VectorXd worst_posture(const TimedTrajectory& piece, const ClearanceReport& rep, const ClearanceConfig& cfg) {
     double least = std::numeric_limits<double>::infinity(), at = 0.0;
     for (const auto& l : rep.links)
-      if (l.min_m - l.margin_m < least) least = l.min_m - l.margin_m, at = l.at_time_s;
+      if (!l.fixed && l.min_m - l.margin_m < least) least = l.min_m - l.margin_m, at = l.at_time_s;
     if (std::isfinite(rep.self.min_m) && rep.self.min_m - cfg.self_margin_m < least) at = rep.self.at_time_s;
     const auto k = std::lower_bound(piece.t_s.begin(), piece.t_s.end(), at) - piece.t_s.begin();
     return piece.q[static_cast<std::size_t>(std::min<std::ptrdiff_t>(k, static_cast<std::ptrdiff_t>(piece.size()) - 1))];
   }
 
-  // A posture of maximum space allowance from `start`: BOBYQA within the joint limits on the
-  // allowance saturated at cap_m, less a small pull toward `ref` (the straight move's midpoint: of
-  // two postures with enough room, the one nearer the straight move).
+  // posture_allowance without the fixed shapes.
+  double allowance(const Eigen::VectorXd& q, double cap_m) const {
+    return posture_allowance(robot, q, wall, config, pairs, cap_m, &fixed);
+  }
+  // A posture of maximum space allowance from `start` (most_room_posture), counted.
   Eigen::VectorXd via_from(const Eigen::VectorXd& start, const Eigen::VectorXd& ref, double cap_m) {
     ++optimisations;
-    const int n = robot.dof();
-    const Eigen::VectorXd lo = robot.lower_limits(), hi = robot.upper_limits();
-    const Eigen::VectorXd range = (hi - lo).cwiseMax(1e-9);
-    // 5 cm of allowance per unit of normalised joint distance: a tie-breaker past the cap, small
-    // against the allowance below it.
-    constexpr double kPull_m = 0.05;
-    std::function<double(const std::vector<double>&)> objective = [&](const std::vector<double>& x) {
-      const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(x.data(), n);
-      const double a = posture_allowance(robot, q, wall, config, pairs, cap_m);
-      return -(a - kPull_m * (q - ref).cwiseQuotient(range).norm());
-    };
-    nlopt::opt opt(nlopt::LN_BOBYQA, static_cast<unsigned>(n));
-    opt.set_lower_bounds(std::vector<double>(lo.data(), lo.data() + n));
-    opt.set_upper_bounds(std::vector<double>(hi.data(), hi.data() + n));
-    opt.set_min_objective(
-        [](const std::vector<double>& x, std::vector<double>&, void* data) {
-          return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
-        },
-        &objective);
-    // A tenth of each joint's range, within half the bound gap as BOBYQA needs.
-    std::vector<double> step(static_cast<std::size_t>(n));
-    for (int j = 0; j < n; ++j) step[static_cast<std::size_t>(j)] = 0.1 * range[j];
-    opt.set_initial_step(step);
-    // A via needs room, not precision: millimetres and a few hundred evaluations.
-    opt.set_xtol_abs(2e-3);
-    opt.set_ftol_abs(1e-3);
-    opt.set_maxeval(40 * n);
-    const Eigen::VectorXd x0 = start.cwiseMax(lo).cwiseMin(hi);
-    std::vector<double> x(x0.data(), x0.data() + n);
-    double best = 0.0;
-    try {
-      opt.optimize(x, best);
-    } catch (const nlopt::roundoff_limited&) {
-      // x holds BOBYQA's best point.
-    }
-    return Eigen::Map<const Eigen::VectorXd>(x.data(), n).cwiseMax(lo).cwiseMin(hi);
+    return most_room_posture(robot, start, ref, wall, config, pairs, cap_m, fixed);
   }
 
-  // q with the telescopes (prismatic joints) all the way in.
-  Eigen::VectorXd folded(const Eigen::VectorXd& q) const {
-    Eigen::VectorXd f = q;
-    for (int j = 0; j < robot.dof(); ++j)
-      if (robot.joint_is_prismatic()[static_cast<std::size_t>(j)]) f[j] = robot.lower_limits()[j];
-    return f;
-  }
+  Eigen::VectorXd folded(const Eigen::VectorXd& q) const { return shotcrete::folded(robot, q); }
   // Starts of the via search and the posture each pulls toward: the straight move's worst sample
   // pushed out of the wall (a local deflection), its midpoint, the midpoint with the telescopes in,
   // a quarter and three quarters along it, the stow posture.
@@ -156,7 +176,7 @@ struct Router {
     const TimedTrajectory straight = joint_move_through(robot, {qa, qb}, timing, region_index);
     if (straight.size() == 0) return std::vector<Eigen::VectorXd>{qb};
     const ClearanceReport rep = check_clearance_octree(robot, straight, wall, config);
-    if (rep.samples_below_margin() == 0) return std::vector<Eigen::VectorXd>{qb};
+    if (rep.moving_samples_below_margin() == 0) return std::vector<Eigen::VectorXd>{qb};
     if (depth == 0) return std::nullopt;
     const Eigen::VectorXd worst = worst_posture(straight, rep, config);
     // Vias sought with the allowance saturated at via_allowance_m first (the nearest posture with
@@ -167,7 +187,7 @@ struct Router {
       const std::size_t first_new = vias.size();
       for (const auto& [start, ref] : starts(qa, qb, worst)) {
         Eigen::VectorXd v = via_from(start, ref, cap);
-        if (posture_allowance(robot, v, wall, config, pairs, 0.0) < 0.0) continue;
+        if (allowance(v, 0.0) < 0.0) continue;
         const bool seen = std::any_of(vias.begin(), vias.end(), [&](const Eigen::VectorXd& u) { return (u - v).norm() < 1e-3; });
         if (!seen) vias.push_back(std::move(v));
       }
@@ -184,15 +204,14 @@ struct Router {
     {
       const Eigen::VectorXd fa = via_from(folded(qa), folded(qa), config.via_allowance_m);
       const Eigen::VectorXd fb = via_from(folded(qb), folded(qb), config.via_allowance_m);
-      if (posture_allowance(robot, fa, wall, config, pairs, 0.0) >= 0.0 &&
-          posture_allowance(robot, fb, wall, config, pairs, 0.0) >= 0.0 &&
+      if (allowance(fa, 0.0) >= 0.0 && allowance(fb, 0.0) >= 0.0 &&
           clear(joint_move_through(robot, {qa, fa, fb, qb}, timing, region_index)))
         return std::vector<Eigen::VectorXd>{fa, fb, qb};
     }
     if (depth == 1) return std::nullopt;
     // Else each leg re-routed the same way, through the (at most three) vias with the most room.
     std::vector<std::pair<double, std::size_t>> room;
-    for (std::size_t k = 0; k < vias.size(); ++k) room.emplace_back(-posture_allowance(robot, vias[k], wall, config, pairs, 10.0), k);
+    for (std::size_t k = 0; k < vias.size(); ++k) room.emplace_back(-allowance(vias[k], 10.0), k);
     std::sort(room.begin(), room.end());
     if (room.size() > 3) room.resize(3);
     for (const auto& [negative_room, k] : room) {
@@ -222,6 +241,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
   const auto t0 = std::chrono::steady_clock::now();
   TransitReport rep;
   const auto pairs = self_check_pairs(robot);
+  const std::vector<char> fixed = fixed_shapes(robot);
   std::vector<JointMove> moves = joint_moves(trajectory);
   const double leaf_diagonal_m = wall.leaf_diagonal_m();
   rep.moves_checked = static_cast<int>(moves.size());
@@ -234,19 +254,18 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
     // one in both). Only the others are screened as the router screens.
     if (keeps_margins_by(check_clearance(robot, samples, wall, config), config, leaf_diagonal_m)) continue;
     const ClearanceReport straight = check_clearance_octree(robot, samples, wall, config);
-    if (straight.samples_below_margin() == 0) continue;
+    if (straight.moving_samples_below_margin() == 0) continue;
     TransitDetour d;
     d.move = static_cast<int>(i);
     d.region_index = move.region_index;
     d.start_time_s = trajectory.t_s[move.start];
-    d.straight_samples_below = straight.samples_below_margin();
+    d.straight_samples_below = straight.moving_samples_below_margin();
     d.straight_worst = worst_of(straight, config);
     d.straight_min_allowance_m = report_allowance(straight, config);
     d.straight_duration_s = d.duration_s = move.duration_s(trajectory);
     const Eigen::VectorXd qa = trajectory.q[move.start], qb = trajectory.q[move.end];
-    Router router{robot, wall, config, timing, move.region_index, pairs};
-    if (posture_allowance(robot, qa, wall, config, pairs, 0.0) < 0.0 ||
-        posture_allowance(robot, qb, wall, config, pairs, 0.0) < 0.0) {
+    Router router{robot, wall, config, timing, move.region_index, pairs, fixed};
+    if (router.allowance(qa, 0.0) < 0.0 || router.allowance(qb, 0.0) < 0.0) {
       d.reason = "its start or goal posture is itself closer than the margins";
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
@@ -255,7 +274,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       postures.insert(postures.end(), route->begin(), route->end());
       const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
       d.vias.assign(route->begin(), route->end() - 1);
-      for (const auto& v : d.vias) d.via_allowance_m.push_back(posture_allowance(robot, v, wall, config, pairs, 10.0));
+      for (const auto& v : d.vias) d.via_allowance_m.push_back(router.allowance(v, 10.0));
       TimedTrajectory checked = piece;
       checked.t_s.insert(checked.t_s.begin(), 0.0);
       checked.q.insert(checked.q.begin(), qa);
@@ -274,6 +293,45 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
   }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return rep;
+}
+
+StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred, const WallOctree& wall,
+                           const ClearanceConfig& config) {
+  if (preferred.size() != robot.dof()) throw std::invalid_argument("start_posture: the posture does not match the robot");
+  constexpr double kPi = 3.14159265358979323846;
+  const auto pairs = self_check_pairs(robot);
+  const std::vector<char> fixed = fixed_shapes(robot);
+  StartPosture out;
+  out.q = out.preferred = preferred;
+  out.preferred_allowance_m = out.allowance_m = posture_allowance(robot, preferred, wall, config, pairs, 10.0, &fixed);
+  if (out.preferred_allowance_m >= 0.0) return out;
+  const Eigen::VectorXd range = (robot.upper_limits() - robot.lower_limits()).cwiseMax(1e-9);
+  // Starts: the preferred and the neutral postures, each with its telescopes in, and each of
+  // those turned about the first joint (the slew: the boom swung away from what it points into).
+  std::vector<Eigen::VectorXd> starts;
+  for (const Eigen::VectorXd& base : {preferred, robot.neutral()})
+    for (const Eigen::VectorXd& q : {base, folded(robot, base)})
+      for (const double turn : {0.0, 0.5 * kPi, -0.5 * kPi, kPi, -kPi}) {
+        Eigen::VectorXd s = q;
+        s[0] += turn;
+        if (s[0] < robot.lower_limits()[0] || s[0] > robot.upper_limits()[0]) continue;
+        starts.push_back(std::move(s));
+      }
+  double best_distance = std::numeric_limits<double>::infinity();
+  for (const double cap : {config.via_allowance_m, 3.0 * config.via_allowance_m, 10.0}) {
+    for (const auto& s : starts) {
+      ++out.optimisations;
+      const Eigen::VectorXd q = most_room_posture(robot, s, preferred, wall, config, pairs, cap, fixed);
+      const double allowance = posture_allowance(robot, q, wall, config, pairs, 10.0, &fixed);
+      const double distance = (q - preferred).cwiseQuotient(range).norm();
+      if (allowance >= 0.0 && distance < best_distance) {
+        best_distance = distance;
+        out.q = q, out.allowance_m = allowance, out.moved = true;
+      }
+    }
+    if (out.moved) break;  // the nearest posture with room at the smallest saturation that has one
+  }
+  return out;
 }
 
 }  // namespace shotcrete

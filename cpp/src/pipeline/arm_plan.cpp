@@ -175,17 +175,18 @@ namespace {
 // timing.tune_with_pso: the swarm's per-region timing replaces the config's when the whole
 // trajectory comes out shorter and no worse on the joint limits.
 void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regions, const Config& config,
-                        const Robot& robot, const ProgressFn& progress, const NullSpaceObjective& clearance_term) {
+                        const Robot& robot, const Eigen::VectorXd& q_start, const ProgressFn& progress,
+                        const NullSpaceObjective& clearance_term) {
   if (progress) progress("timing swarm", 0.0);
   try {
-    out.tuning = tune_timing(&robot, regions, robot.stow(), config.timing, config.robot,
+    out.tuning = tune_timing(&robot, regions, q_start, config.timing, config.robot,
                              progress ? ProgressFn([&](const std::string&, double f) { progress("timing swarm", 0.8 * f); })
                                       : ProgressFn{},
                              clearance_term);  // the swarm's models track as time_plan does
     const TimedTrajectory& cur = *out.trajectory;
     auto no_worse = [](double tuned_ratio, double ratio) { return tuned_ratio <= std::max(ratio, 1.0) + 1e-9; };
     std::vector<TimingParams> params = out.tuning->params;
-    TimedTrajectory tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params, clearance_term);
+    TimedTrajectory tuned = time_plan(robot, regions, q_start, config.timing, config.robot, params, clearance_term);
     // The swarm judges the leads and turns on its model; elsewhere the arm reaches the passes in
     // slightly other postures than the re-plans saw. Regions that came out worse keep the
     // config's parameters, and that mix is timed once more.
@@ -197,7 +198,7 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
       if (!no_worse(after[r], before[r])) params[r] = TimingParams::from_config(config.timing), used[r] = 0, mixed = true;
     if (mixed) {
       if (progress) progress("timing swarm", 0.9);
-      tuned = time_plan(robot, regions, robot.stow(), config.timing, config.robot, params, clearance_term);
+      tuned = time_plan(robot, regions, q_start, config.timing, config.robot, params, clearance_term);
     }
     if (tuned.duration_s < cur.duration_s && no_worse(tuned.max_velocity_ratio, cur.max_velocity_ratio) &&
         no_worse(tuned.max_acceleration_ratio, cur.max_acceleration_ratio)) {
@@ -441,11 +442,15 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   // the job's end, mean 0.20 m; the check below measures against the wall as sprayed).
   std::unique_ptr<WallOctree> scan_wall;
   NullSpaceObjective clearance_term;
-  if (config.clearance.enabled && config.clearance.null_space_gain > 0.0 && surface.cloud.xyz.rows() > 0) {
+  if (config.clearance.enabled && surface.cloud.xyz.rows() > 0) {
     scan_wall = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
-    clearance_term = clearance_objective(robot, *scan_wall, config.clearance);
+    if (config.clearance.null_space_gain > 0.0) clearance_term = clearance_objective(robot, *scan_wall, config.clearance);
+    // The job starts from the stow posture unless that one is in something the scan holds (the
+    // boom pointing into the face): then from the nearest posture with room.
+    out.start = start_posture(robot, robot.stow(), *scan_wall, config.clearance);
   }
   out.clearance_term_used = clearance_term.active();
+  const Eigen::VectorXd q_start = out.start ? out.start->q : robot.stow();
   std::vector<std::vector<Pass>> regions;
   for (int attempt = 0;; ++attempt) {
     const std::string prefix = attempt == 0 ? "" : "re-plan " + std::to_string(attempt) + ": ";
@@ -461,7 +466,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     out.timing_error.clear();
     if (regions.empty()) break;
     try {
-      out.trajectory = time_plan(robot, regions, robot.stow(), config.timing, config.robot, {}, clearance_term);
+      out.trajectory = time_plan(robot, regions, q_start, config.timing, config.robot, {}, clearance_term);
     } catch (const std::exception& e) {
       out.timing_error = e.what();
       break;
@@ -472,7 +477,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   }
   if (!out.trajectory) return out;
   out.config_duration_s = out.trajectory->duration_s;
-  if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, progress, clearance_term);
+  if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, q_start, progress, clearance_term);
   if (progress) progress("executed deposit", 0.0);
   out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
   if (progress) progress("executed deposit", 1.0);

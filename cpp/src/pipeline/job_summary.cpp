@@ -200,7 +200,7 @@ void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m, const 
   w.field("field_queries", static_cast<long>(c.field_queries)).field("exact_queries", static_cast<long>(c.exact_queries));
   w.field("self_queries", static_cast<long>(c.self_queries)).key("links").begin_array();
   for (const auto& l : c.links) {
-    w.begin_object().field("link", l.link).field("margin_m", l.margin_m).key("min_m");
+    w.begin_object().field("link", l.link).field("fixed", l.fixed).field("margin_m", l.margin_m).key("min_m");
     write_distance(w, l.min_m);
     w.field("at_time_s", l.at_time_s).key("closest_m").begin_array();
     for (int i = 0; i < 3; ++i) w.value(l.closest_m[i]);
@@ -332,6 +332,16 @@ std::string to_json(const TrajectorySummary& t) {
   return w.str();
 }
 
+namespace {
+std::string fmt(double v, int digits) {
+  std::ostringstream o;
+  o.setf(std::ios::fixed);
+  o.precision(digits);
+  o << v;
+  return o.str();
+}
+}  // namespace
+
 JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const Robot& robot, const Config& config,
                          const JobSummaryOptions& options) {
   const Grid& grid = surface.grid;
@@ -426,6 +436,17 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
       if (std::isfinite(td[c]) && level_of_td_mm(td[c] * 1000.0) > 0) ++s.obstructed_above_level_0;
   }
   s.self_margin_m = config.clearance.self_margin_m;
+  if (arm_plan.start) {
+    s.start = arm_plan.start;
+    s.joint_names = robot.joint_names();
+    if (s.start->moved)
+      s.warnings.push_back("the stow posture comes within the clearance margins of the scan (" +
+                           fmt(-s.start->preferred_allowance_m, 2) +
+                           " m short): the job starts from the nearest posture clear of it (report.json start_posture)");
+    else if (s.start->allowance_m < 0.0)
+      s.warnings.push_back("the stow posture comes within the clearance margins of the scan (" +
+                           fmt(-s.start->allowance_m, 2) + " m short) and no posture clear of it was found nearby");
+  }
   s.problems = plan_problems(s);
   s.status = s.problems.empty() ? "ok" : "not_executable";
   return s;
@@ -433,13 +454,6 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
 
 std::vector<PlanProblem> plan_problems(const JobSummary& s) {
   std::vector<PlanProblem> out;
-  auto fmt = [](double v, int digits) {
-    std::ostringstream o;
-    o.setf(std::ios::fixed);
-    o.precision(digits);
-    o << v;
-    return o.str();
-  };
   const int cells_in_grid = s.grid_n_theta * s.grid_n_d;
   if (cells_in_grid > 0 && s.cells < kMinGridCoverage * cells_in_grid)
     out.push_back({"sparse_grid", "the scan covers " + std::to_string(s.cells) + " of the grid's " +
@@ -486,10 +500,21 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
       out.push_back({"nozzle_limits", "the nozzle moves beyond its limits: speed " + fmt(t->max_nozzle_speed_ratio, 3) +
                                           "x, acceleration " + fmt(t->max_nozzle_accel_ratio, 3) + "x"});
   }
-  if (const auto& c = s.clearance; c && c->samples_below_margin() > 0) {
+  if (const auto& c = s.clearance) {
+    // The links no joint moves: their distance is the base's place, the same at every sample.
+    std::string base;
+    for (const auto& l : c->links)
+      if (l.fixed && l.samples_below_margin > 0)
+        base += (base.empty() ? "" : ", ") + l.link + " " + fmt(l.min_m, 2) + " m (margin " + fmt(l.margin_m, 2) + ")";
+    if (!base.empty())
+      out.push_back({"base_clearance", "the arm's base stands closer than its margins to the scan: " + base +
+                                           " (the nearest points: report.json clearance.links); no posture changes that: "
+                                           "place the base elsewhere (robot.base_position_m)"});
+  }
+  if (const auto& c = s.clearance; c && c->moving_samples_below_margin() > 0) {
     std::string worst;
     for (const auto& l : c->links)
-      if (l.samples_below_margin > 0)
+      if (!l.fixed && l.samples_below_margin > 0)
         worst += (worst.empty() ? "" : ", ") + l.link + " " + fmt(l.min_m, 2) + " m (margin " + fmt(l.margin_m, 2) + ")";
     if (c->self.samples_below_margin > 0)
       worst += (worst.empty() ? "" : ", ") + c->self.link_a + "-" + c->self.link_b + " " + fmt(c->self.min_m, 2) + " m";
@@ -501,7 +526,7 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
                   ": " + d.reason + ")";
           break;
         }
-    out.push_back({"clearance", "the arm comes closer than its margins at " + std::to_string(c->samples_below_margin()) +
+    out.push_back({"clearance", "the arm comes closer than its margins at " + std::to_string(c->moving_samples_below_margin()) +
                                     " link-samples: " + worst + moves});
   }
   return out;
@@ -585,6 +610,21 @@ std::string JobSummary::to_json() const {
   if (clearance) {
     w.key("clearance");
     write(w, *clearance, self_margin_m, transits);
+  }
+  if (start) {
+    auto joints = [&](const Eigen::VectorXd& q) {
+      w.begin_object();
+      for (Eigen::Index j = 0; j < q.size(); ++j)
+        w.field(static_cast<std::size_t>(j) < joint_names.size() ? joint_names[static_cast<std::size_t>(j)] : std::to_string(j), q[j]);
+      w.end_object();
+    };
+    w.key("start_posture").begin_object().field("moved_from_stow", start->moved);
+    w.field("allowance_m", start->allowance_m).field("stow_allowance_m", start->preferred_allowance_m);
+    w.key("joints");
+    joints(start->q);
+    w.key("stow");
+    joints(start->preferred);
+    w.end_object();
   }
   if (obstructed) {
     const auto& o = *obstructed;

@@ -96,8 +96,15 @@ double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config
 /// telescope inside its boom; such pairs are allowed contact, as in a MoveIt allowed-collision matrix).
 std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot);
 
+/// Per collision shape (Robot::collision_shapes order): 1 when no joint moves it (each joint alone
+/// over its range from the neutral posture leaves it in place, as shape_motion reads it): the base,
+/// a turret cylinder slewing about its own axis. No posture changes its distance to the wall; where
+/// that is below its margin the base stands too close (robot.base_position_m).
+std::vector<char> fixed_shapes(const Robot& robot);
+
 struct LinkClearance {
   std::string link;
+  bool fixed = false;                // every shape of the link is fixed (fixed_shapes)
   double margin_m = 0.0;             // clearance.link_margin_m or nozzle_margin_m
   double min_m = 0.0;                // least distance to the wall over every sample (see check_clearance)
   double at_time_s = 0.0;            // when (the earliest sample at that distance)
@@ -123,6 +130,7 @@ struct ClearanceReport {
   long long wall_queries = 0, field_queries = 0, exact_queries = 0, self_queries = 0;
   double seconds = 0.0;
   int samples_below_margin() const;  // over the links and the self check
+  int moving_samples_below_margin() const;  // the same without the fixed links (no posture changes those)
 };
 
 /// The space allowance along `trajectory`, by exact distances to the wall's points. Every sample

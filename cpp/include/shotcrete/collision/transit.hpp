@@ -19,9 +19,11 @@ struct TimedTrajectory;
 /// Space allowance of posture q: the least distance of a link shape to the wall less its margin
 /// and of a checked link pair (self_check_pairs) less self_margin_m, over every shape and pair;
 /// negative when a margin is broken. Distances are read up to at most margin + cap_m (the answer
-/// is then at most cap_m), which keeps the octree queries cheap.
+/// is then at most cap_m), which keeps the octree queries cheap. With `fixed` (fixed_shapes), the
+/// shapes no posture moves are left out: what a choice of posture can change.
 double posture_allowance(const Robot& robot, const Eigen::VectorXd& q, const WallOctree& wall,
-                         const ClearanceConfig& config, const std::vector<std::pair<int, int>>& pairs, double cap_m);
+                         const ClearanceConfig& config, const std::vector<std::pair<int, int>>& pairs, double cap_m,
+                         const std::vector<char>* fixed = nullptr);
 
 /// One joint move that came closer than the margins.
 struct TransitDetour {
@@ -57,8 +59,30 @@ struct TransitReport {
 /// (joint_move_through) whose every sample keeps the margins replaces the move
 /// (replace_joint_move). When no single via does, each leg is re-routed once more the same way.
 /// A move whose start or goal posture already breaks a margin (the region's own posture), or
-/// that no route clears, stays as it was and is counted in `failed` with the reason.
+/// that no route clears, stays as it was and is counted in `failed` with the reason. The shapes no
+/// posture moves (fixed_shapes: the base) are left out of every judgement here (a base too close
+/// to the wall is the base's place, not a move's: the clearance check reports it, LinkClearance::fixed).
 TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall,
                              const ClearanceConfig& config, const TimingConfig& timing);
+
+/// The posture a job starts from (the trajectory's first sample).
+struct StartPosture {
+  Eigen::VectorXd q;                   // the posture
+  Eigen::VectorXd preferred;           // the posture asked for (the robot's stow)
+  bool moved = false;                  // q is not `preferred`: that one broke a margin and q keeps them
+  double preferred_allowance_m = 0.0;  // posture_allowance of `preferred` (read up to 10 m)
+  double allowance_m = 0.0;            // posture_allowance of q (read up to 10 m); < 0: no clear posture found
+  int optimisations = 0;               // postures searched (BOBYQA runs)
+};
+
+/// `preferred` when it keeps every margin from `wall` (posture_allowance >= 0, without the fixed shapes). Else the posture
+/// nearest it with room: the transit router's search (maximum space allowance saturated at
+/// config.via_allowance_m, then three times it, then unsaturated, with a pull toward `preferred`)
+/// from `preferred`, from it with the telescopes in, from the neutral posture and from each of
+/// them turned about the first joint by a quarter and a half turn; of the postures that keep the
+/// margins, the nearest to `preferred` (joint distance normalised by the ranges). When none does,
+/// q stays `preferred` (moved false, allowance_m < 0): the clearance check then reports it.
+StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred, const WallOctree& wall,
+                           const ClearanceConfig& config);
 
 }  // namespace shotcrete

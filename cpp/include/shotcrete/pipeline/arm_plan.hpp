@@ -87,10 +87,14 @@ struct ArmPlan {
   std::optional<TransitReport> transits;
   // With clearance.enabled: the grid cells no clear pose can spray (obstructed_cells).
   std::optional<ObstructedCells> obstructed;
+  // With clearance.enabled and a scan: where the trajectory starts (start_posture from the stow
+  // posture against the scan); else it starts from the stow posture.
+  std::optional<StartPosture> start;
 };
 
 /// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the
-/// neutral posture), then time_plan; while spraying samples of the trajectory still break a joint
+/// neutral posture), then time_plan from the stow posture (with clearance.enabled, from
+/// start_posture: the nearest clear posture when the stow one is in something the scan holds); while spraying samples of the trajectory still break a joint
 /// limit (the arm reaches a pass in another posture than the caps assumed), their neighbourhood
 /// gets the speed that would have kept them within the limits and the bay is planned and timed again,
 /// at most timing.max_replans times. The deposit is always simulated at the speeds the trajectory

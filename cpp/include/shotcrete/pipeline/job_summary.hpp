@@ -98,7 +98,8 @@ ExecutedSummary summarise_executed(const ExecutedDeposit& executed);
 
 /// Why a plan is not one the machine can execute as reported (report.json `problems`; the CLI
 /// exits with code 3). code: unreachable_cells | cells_above_level_0 | arm_cannot_follow |
-/// untracked_regions | joint_limits | nozzle_limits | sparse_grid | clearance | obstructed_cells.
+/// untracked_regions | joint_limits | nozzle_limits | sparse_grid | clearance | base_clearance |
+/// obstructed_cells.
 struct PlanProblem {
   std::string code;
   std::string message;  // one line, with the figures
@@ -157,6 +158,8 @@ struct JobSummary {
   std::optional<TransitReport> transits;         // its joint moves checked and re-routed (ArmPlan::transits)
   std::optional<ObstructedCells> obstructed;     // with clearance.enabled: cells no clear pose sprays
   int obstructed_above_level_0 = 0;              // of those, left above level 0 by the deposit (deposit_source)
+  std::optional<StartPosture> start;             // with clearance.enabled: where the trajectory starts (ArmPlan::start)
+  std::vector<std::string> joint_names;          // the robot's, in the order of start's postures
   double self_margin_m = 0.0;                    // clearance.self_margin_m
   // "ok", or "not_executable" when problems is not empty (plan_problems).
   std::string status = "ok";
