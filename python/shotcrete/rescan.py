@@ -267,7 +267,7 @@ def correction_summary(surface, arm_plan, config) -> dict:
 
     s = _core.summarise_job(surface, arm_plan, load_robot(config), config, points_in=len(surface.cloud)).to_dict()
     keys = ("status", "problems", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
-            "total_time_s", "required_volume_m3", "td_before_mm")
+            "total_time_s", "required_volume_m3", "td_before_mm", "warnings", "start_posture")
     out = {k: s[k] for k in keys if k in s}
     out["deposition_peak_rate_mps"] = config.deposition.peak_rate_mps
     out["time_weight_mm2_per_s"] = config.planner.time_weight_mm2_per_s  # rescan.correction_time_weight_mm2_per_s

@@ -345,8 +345,9 @@ def test_plan_of_a_bay_against_its_face_leans_the_nozzle_to_spray_it_all(tmp_pat
     cells = np.genfromtxt(tmp_path / "o" / "cells.csv", delimiter=",", names=True)
     last = cells["d_m"] > face_d - 0.05
     assert last.any() and (cells["deposit_executed_mm"][last] > 5).all()
-    # The trajectory starts where report.json says; here the base stands at the face's plane (its
-    # turret in the face), so no posture is clear: the stow posture stays, and a warning says so.
+    # The trajectory starts where report.json says; here the base stands at the face's plane (the
+    # boom's root within its margin at every slew), so no posture is clear: the stow posture
+    # stays, and a warning says so.
     start = rep["start_posture"]
     q0 = np.load(tmp_path / "o" / "trajectory.npz")["q"][0]
     assert np.allclose(q0, list(start["joints"].values()))
@@ -357,6 +358,7 @@ def test_plan_of_a_bay_against_its_face_leans_the_nozzle_to_spray_it_all(tmp_pat
     # is the problem, named as such and kept out of the moving links' count.
     links = {l["link"]: l for l in rep["clearance"]["links"]}
     assert links["turret"]["fixed"] and links["turret"]["samples_below_margin"] > 0 and not links["boom"]["fixed"]
+    assert links["turret"]["margin_m"] == cfg.clearance.base_margin_m and links["boom"]["margin_m"] == cfg.clearance.link_margin_m
     base = next(p for p in rep["problems"] if p["code"] == "base_clearance")
     assert "turret" in base["message"] and "robot.base_position_m" in base["message"]
     moving = sum(l["samples_below_margin"] for l in links.values() if not l["fixed"])

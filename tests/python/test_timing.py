@@ -183,8 +183,9 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     regions = [list(r.passes) for rnd in arm.plan.rounds for r in rnd.regions]
     tun = arm.tuning
     assert len(tun.params) == len(tun.feasible) == len(tun.pso) == len(regions)
-    # plan_for_arm times from the stow posture (where every job starts).
-    config = _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot)
+    # plan_for_arm times from the job's start: the stow posture, or the nearest clear one.
+    q0 = arm.start.q if arm.start is not None else robot.stow()
+    config = _core.time_plan(robot, regions, q0, cfg.timing, cfg.robot)
     assert arm.config_duration_s == pytest.approx(config.duration_s, rel=1e-9)
     tr = arm.trajectory
     # On this bay the swarm's timing is shorter (measured 1824 s against 2167 s) and kept.
@@ -193,7 +194,7 @@ def test_plan_for_arm_with_the_timing_swarm(small_config, small_cloud):
     assert tr.max_velocity_ratio <= max(config.max_velocity_ratio, 1.0) + 1e-9
     assert tr.max_acceleration_ratio <= max(config.max_acceleration_ratio, 1.0) + 1e-9
     # The kept trajectory is time_plan's with the reported parameters.
-    again = _core.time_plan(robot, regions, robot.stow(), cfg.timing, cfg.robot, tun.params)
+    again = _core.time_plan(robot, regions, q0, cfg.timing, cfg.robot, tun.params)
     assert again.duration_s == pytest.approx(tr.duration_s, rel=1e-12)
     # Regions without a feasible particle keep the config's parameters (one here before the
     # levelling rounds were corrected against their simulated deposit; every region now has one).

@@ -272,6 +272,8 @@ struct ClearanceConfig {
   double link_margin_m = 0.3;         // least distance of a link to the wall
   double nozzle_margin_m = 0.4;       // least distance of the nozzle links (nozzle*) to the wall;
                                       // the tip faces it at the standoff less the layers to come
+  double base_margin_m = 0.05;        // least distance to the wall of the links no joint moves (the base,
+                                      // fixed_shapes): no room for motion, only for the rig's placing
   double self_margin_m = 0.05;        // least distance between two links that are not neighbours
   bool reroute_transits = true;       // joint moves closer than the margins go through a via posture
                                       // of maximum space allowance (clear_transits)

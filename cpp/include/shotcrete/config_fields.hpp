@@ -197,6 +197,7 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("octree_resolution_m", &ClearanceConfig::octree_resolution_m, 0.005, 0.5, "leaf edge of the wall octree [m]");
   f("link_margin_m", &ClearanceConfig::link_margin_m, 0.0, 5.0, "least link-to-wall distance [m]");
   f("nozzle_margin_m", &ClearanceConfig::nozzle_margin_m, 0.0, 5.0, "least nozzle-to-wall distance (links nozzle*) [m]");
+  f("base_margin_m", &ClearanceConfig::base_margin_m, 0.001, 5.0, "least wall distance of the links no joint moves (the base) [m]");
   f("self_margin_m", &ClearanceConfig::self_margin_m, 0.0, 5.0, "least distance between non-neighbouring links [m]");
   f("reroute_transits", &ClearanceConfig::reroute_transits, 0, 0, "re-route joint moves closer than the margins through a via posture of maximum space allowance");
   f("via_allowance_m", &ClearanceConfig::via_allowance_m, 0.0, 5.0, "allowance beyond the margins sought at a via posture [m]");

@@ -660,6 +660,11 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
     it->fixed = it->fixed && fixed[s];
     link_of[s] = static_cast<int>(it - rep.links.begin());
   }
+  // A link no joint moves needs no room for motion (path deviations, a posture's error), only for
+  // the rig's placing and the scan's registration: clearance.base_margin_m. Its distance is the
+  // base's place (the problem base_clearance).
+  for (auto& l : rep.links)
+    if (l.fixed) l.margin_m = config.base_margin_m;
   const auto pairs = self_check_pairs(robot);
   rep.self.min_m = std::numeric_limits<double>::infinity();
   if (n == 0) return rep;

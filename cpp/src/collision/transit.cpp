@@ -22,6 +22,9 @@ double posture_allowance(const Robot& robot, const Eigen::VectorXd& q, const Wal
                          const ClearanceConfig& config, const std::vector<std::pair<int, int>>& pairs, double cap_m,
                          const std::vector<char>* fixed) {
   const auto& shapes = robot.collision_shapes();
+  if (fixed && fixed->size() != shapes.size())
+    throw std::invalid_argument("posture_allowance: `fixed` has " + std::to_string(fixed->size()) + " entries for " +
+                                std::to_string(shapes.size()) + " shapes");
   const auto frames = robot.link_frames(q);
   double least = cap_m;
   for (std::size_t k = 0; k < shapes.size(); ++k) {
@@ -308,14 +311,15 @@ StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred,
   const Eigen::VectorXd range = (robot.upper_limits() - robot.lower_limits()).cwiseMax(1e-9);
   // Starts: the preferred and the neutral postures, each with its telescopes in, and each of
   // those turned about the first joint (the slew: the boom swung away from what it points into).
+  // (Turns clamped to the joint's limits; repeated starts dropped.)
   std::vector<Eigen::VectorXd> starts;
   for (const Eigen::VectorXd& base : {preferred, robot.neutral()})
     for (const Eigen::VectorXd& q : {base, folded(robot, base)})
       for (const double turn : {0.0, 0.5 * kPi, -0.5 * kPi, kPi, -kPi}) {
         Eigen::VectorXd s = q;
-        s[0] += turn;
-        if (s[0] < robot.lower_limits()[0] || s[0] > robot.upper_limits()[0]) continue;
-        starts.push_back(std::move(s));
+        s[0] = std::clamp(s[0] + turn, robot.lower_limits()[0], robot.upper_limits()[0]);
+        const bool seen = std::any_of(starts.begin(), starts.end(), [&](const Eigen::VectorXd& u) { return (u - s).norm() < 1e-6; });
+        if (!seen) starts.push_back(std::move(s));
       }
   double best_distance = std::numeric_limits<double>::infinity();
   for (const double cap : {config.via_allowance_m, 3.0 * config.via_allowance_m, 10.0}) {

@@ -194,7 +194,8 @@ void write(JsonWriter& w, const TransitReport& t) {
 }
 
 void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m, const std::optional<TransitReport>& transits) {
-  w.begin_object().field("samples_below_margin", c.samples_below_margin()).field("samples", c.samples);
+  w.begin_object().field("samples_below_margin", c.samples_below_margin());
+  w.field("moving_samples_below_margin", c.moving_samples_below_margin()).field("samples", c.samples);
   w.field("octree_resolution_m", c.octree_resolution_m).field("wall_points", static_cast<long>(c.wall_points));
   w.field("octree_leaves", static_cast<long>(c.octree_leaves)).field("wall_queries", static_cast<long>(c.wall_queries));
   w.field("field_queries", static_cast<long>(c.field_queries)).field("exact_queries", static_cast<long>(c.exact_queries));
@@ -505,11 +506,11 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
     std::string base;
     for (const auto& l : c->links)
       if (l.fixed && l.samples_below_margin > 0)
-        base += (base.empty() ? "" : ", ") + l.link + " " + fmt(l.min_m, 2) + " m (margin " + fmt(l.margin_m, 2) + ")";
+        base += (base.empty() ? "" : ", ") + l.link + " " + fmt(l.min_m, 2) + " m";
     if (!base.empty())
-      out.push_back({"base_clearance", "the arm's base stands closer than its margins to the scan: " + base +
-                                           " (the nearest points: report.json clearance.links); no posture changes that: "
-                                           "place the base elsewhere (robot.base_position_m)"});
+      out.push_back({"base_clearance", "the arm's base stands in the scan (links no joint moves): " + base +
+                                           " from it (the nearest points: report.json clearance.links); no posture changes "
+                                           "that: place the base elsewhere (robot.base_position_m)"});
   }
   if (const auto& c = s.clearance; c && c->moving_samples_below_margin() > 0) {
     std::string worst;

@@ -105,7 +105,7 @@ std::vector<char> fixed_shapes(const Robot& robot);
 struct LinkClearance {
   std::string link;
   bool fixed = false;                // every shape of the link is fixed (fixed_shapes)
-  double margin_m = 0.0;             // clearance.link_margin_m or nozzle_margin_m
+  double margin_m = 0.0;             // clearance.link_margin_m or nozzle_margin_m; clearance.base_margin_m for a fixed link
   double min_m = 0.0;                // least distance to the wall over every sample (see check_clearance)
   double at_time_s = 0.0;            // when (the earliest sample at that distance)
   Eigen::Vector3d closest_m = Eigen::Vector3d::Zero();  // the wall's closest point then
