@@ -412,6 +412,15 @@ def _problems_from_report(report: dict) -> set:
             codes.add("joint_limits")
         if max(t["max_nozzle_speed_ratio"], t["max_nozzle_accel_ratio"]) > 1.001:
             codes.add("nozzle_limits")
+    c = report.get("clearance")
+    if c:
+        if any(l["fixed"] and l["min_m"] < l["margin_m"] for l in c["links"]):
+            codes.add("base_clearance")
+        if any(not l["fixed"] and l["min_m"] < l["margin_m"] for l in c["links"]) or \
+                c["self"]["samples_below_margin"] > 0:
+            codes.add("clearance")
+    if (report.get("obstructed") or {}).get("cells", 0) > 0:
+        codes.add("obstructed_cells")
     return codes
 
 
