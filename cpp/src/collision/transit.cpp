@@ -301,7 +301,6 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
 StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred, const WallOctree& wall,
                            const ClearanceConfig& config) {
   if (preferred.size() != robot.dof()) throw std::invalid_argument("start_posture: the posture does not match the robot");
-  constexpr double kPi = 3.14159265358979323846;
   const auto pairs = self_check_pairs(robot);
   const std::vector<char> fixed = fixed_shapes(robot);
   StartPosture out;
@@ -315,7 +314,7 @@ StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred,
   std::vector<Eigen::VectorXd> starts;
   for (const Eigen::VectorXd& base : {preferred, robot.neutral()})
     for (const Eigen::VectorXd& q : {base, folded(robot, base)})
-      for (const double turn : {0.0, 0.5 * kPi, -0.5 * kPi, kPi, -kPi}) {
+      for (const double turn : {0.0, 0.5 * M_PI, -0.5 * M_PI, M_PI, -M_PI}) {
         Eigen::VectorXd s = q;
         s[0] = std::clamp(s[0] + turn, robot.lower_limits()[0], robot.upper_limits()[0]);
         const bool seen = std::any_of(starts.begin(), starts.end(), [&](const Eigen::VectorXd& u) { return (u - s).norm() < 1e-6; });
