@@ -39,7 +39,7 @@ if [ ! -f "$stamp" ]; then
   echo "[setup] installing Python dependencies"
   "$VENV/bin/pip" install -q --upgrade pip
   "$VENV/bin/pip" install -q "scikit-build-core>=0.10" "pybind11>=2.12" \
-    numpy pyyaml typer rich matplotlib plotly laspy lazrs pye57 ezdxf pytest
+    numpy pyyaml typer rich matplotlib plotly laspy lazrs pye57 ezdxf scipy pytest
   touch "$stamp"
 fi
 

@@ -1,0 +1,92 @@
+"""What the spot allows on the default synthetic bay, seeds 1-3 (`shotcrete.bound`): whether any
+dwell pattern of the nozzle at the standoff, facing the wall, can bring every cell within +-25 mm
+(issue 15's optimal target) and +-10 mm of flush, and the least spraying time that needs. The
+planner's executed figures on the same seeds are in cycle.json; where the programme reaches a band
+the planner does not, its paths, speeds and the pump are what is left, not the spot's width.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+import shotcrete
+from shotcrete import _core
+from shotcrete.bound import band_programme, deposit_bound, path_family, placement_matrix
+from shotcrete.planning import plan_surface
+from shotcrete.robot import load_robot
+
+
+def run(seed: int, bands: list[float]) -> dict:
+    cfg = shotcrete.load_config()
+    cfg.synth.seed = seed
+    surface = _core.build_surface(shotcrete.synthetic_cloud(cfg), cfg)
+    t0 = time.perf_counter()
+    bound = deposit_bound(surface, cfg, bands_mm=bands)
+    wall_s = time.perf_counter() - t0
+    model = _core.spot_model_from_config(cfg.deposition)
+    deposited_m3ps = model.volume_rate_m3ps() * (1.0 - cfg.deposition.rebound_fraction)
+    physical_limit_s = _core.missing_volume_m3(surface.grid) / deposited_m3ps
+    out = {"seed": seed, "cells": bound.cells, "placements": bound.placements, "nonzeros": bound.nonzeros,
+           "physical_limit_s": physical_limit_s, "matrix_s": bound.matrix_s, "wall_s": wall_s, "bands": []}
+    for b in bound.bands:
+        r = b.residual_mm
+        out["bands"].append({
+            "band_mm": b.band_mm, "reached": b.reached, "cells_past_band": b.cells_past_band,
+            "excess_mm": b.excess_mm, "dwell_s": b.dwell_s, "dwell_over_physical_limit": b.dwell_s / physical_limit_s,
+            "residual_mm": {"min": float(r.min()), "max": float(r.max()), "rms": float(np.sqrt(np.mean(r ** 2)))},
+            "solve_s": b.solve_s})
+    # The same question restricted to the default plan's own spraying paths (its executed trajectory),
+    # with any speeds and pump, and with the flow on all along at no more than planner.max_speed_mps.
+    t0 = time.perf_counter()
+    arm = plan_surface(surface, cfg, robot=load_robot(cfg))
+    s = _core.summarise_job(surface, arm, load_robot(cfg), cfg).to_dict()
+    family, length_m = path_family(arm.trajectory)
+    valid = np.asarray(surface.grid.valid).reshape(-1)
+    td_mm = np.asarray(surface.grid.td_m).reshape(-1)[valid] * 1000.0
+    a_mm = (placement_matrix(surface, cfg, family) * 1000.0).tocsc()
+    path = {"placements": len(length_m), "path_m": float(length_m.sum()), "plan_s": time.perf_counter() - t0,
+            "planner_residual_mm": s["residual_mm"], "planner_spraying_s": s["cycle_time_breakdown_s"]["spraying"],
+            "bands": []}
+    for floor in ("none", "max speed"):
+        min_dwell = None if floor == "none" else length_m / cfg.planner.max_speed_mps
+        b = band_programme(a_mm, td_mm, bands[0], min_dwell_s=min_dwell)
+        r = b.residual_mm
+        path["bands"].append({
+            "band_mm": b.band_mm, "dwell_floor": floor, "reached": b.reached, "cells_past_band": b.cells_past_band,
+            "excess_mm": b.excess_mm, "dwell_s": b.dwell_s,
+            "residual_mm": {"min": float(r.min()), "max": float(r.max()), "rms": float(np.sqrt(np.mean(r ** 2)))},
+            "solve_s": b.solve_s})
+    out["plan_paths"] = path
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", type=Path, default=Path("bench/results"))
+    parser.add_argument("--seeds", type=int, nargs="*", default=[1, 2, 3])
+    parser.add_argument("--bands", type=float, nargs="*", default=[25.0, 10.0])
+    args = parser.parse_args()
+    runs = []
+    for seed in args.seeds:
+        runs.append(run(seed, args.bands))
+        for b in runs[-1]["bands"]:
+            print(f"seed {seed}, +-{b['band_mm']:g} mm: reached {b['reached']}, {b['cells_past_band']} cells past, "
+                  f"dwell {b['dwell_s']:.0f} s ({b['dwell_over_physical_limit']:.3f} x the physical limit), "
+                  f"{b['solve_s']:.0f} s", flush=True)
+        p = runs[-1]["plan_paths"]
+        for b in p["bands"]:
+            print(f"seed {seed}, the plan's paths, floor {b['dwell_floor']}: reached {b['reached']}, "
+                  f"{b['cells_past_band']} cells past, dwell {b['dwell_s']:.0f} s (planner: {p['planner_spraying_s']:.0f} s, "
+                  f"{p['planner_residual_mm']['min']:.1f}..{p['planner_residual_mm']['max']:.1f} mm)", flush=True)
+    result = {"benchmark": "what the spot allows: least excess past a band over every dwell pattern of the "
+                           "placement family (linear programme, HiGHS)", "runs": runs}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "bound.json").write_text(json.dumps(result, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
