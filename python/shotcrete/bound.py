@@ -172,7 +172,7 @@ def placement_matrix(surface, config, family: PlacementFamily):
 
 
 def band_programme(a_mm, td_mm: np.ndarray, band_mm: float, time_weight_mm_per_s: float = 1e-3,
-                   min_dwell_s: np.ndarray | None = None) -> BandResult:
+                   min_dwell_s: np.ndarray | None = None, max_dwell_s: np.ndarray | None = None) -> BandResult:
     """Least excess past +-band_mm, then least dwell: variables (w, u, o) >= 0 with u, o the excess
     above +band / below -band per cell; TD - A w <= band + u, TD - A w >= -band - o; minimise
     sum(u + o) + time_weight * sum(w). The time weight is small enough that excess wins (a second
@@ -199,7 +199,13 @@ def band_programme(a_mm, td_mm: np.ndarray, band_mm: float, time_weight_mm_per_s
         if min_dwell_s.shape != (n_p,) or not np.all(np.isfinite(min_dwell_s)) or (min_dwell_s < 0).any():
             raise ValueError(f"deposit bound: min_dwell_s needs {n_p} finite values >= 0")
         lower[:n_p] = min_dwell_s
-    res = linprog(c, A_ub=a_ub, b_ub=b_ub, bounds=np.column_stack([lower, np.full(len(lower), np.inf)]),
+    upper = np.full(n_p + 2 * n_c, np.inf)
+    if max_dwell_s is not None:
+        max_dwell_s = np.asarray(max_dwell_s, dtype=float)
+        if max_dwell_s.shape != (n_p,) or np.isnan(max_dwell_s).any() or (max_dwell_s < lower[:n_p]).any():
+            raise ValueError(f"deposit bound: max_dwell_s needs {n_p} values, none below min_dwell_s")
+        upper[:n_p] = max_dwell_s
+    res = linprog(c, A_ub=a_ub, b_ub=b_ub, bounds=np.column_stack([lower, upper]),
                   method="highs-ipm")
     if res.status != 0 or res.x is None:
         raise ValueError(f"deposit bound: the programme for +-{band_mm:g} mm did not solve ({res.message})")

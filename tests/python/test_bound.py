@@ -154,3 +154,22 @@ def test_path_family_thins_the_spraying_samples_and_the_floor_holds(bay):
     tr.spraying[:] = False
     with pytest.raises(ValueError, match="never sprays"):
         path_family(tr)
+
+
+def test_a_dwell_ceiling_holds_and_can_make_a_band_unreachable(bay):
+    _, _, _, a_mm = bay
+    rng = np.random.default_rng(11)
+    w0 = np.where(rng.random(a_mm.shape[1]) < 0.05, rng.uniform(0.5, 3.0, a_mm.shape[1]), 0.0)
+    td = a_mm @ w0
+    assert band_programme(a_mm, td, band_mm=0.5).reached
+    # With every dwell at most `cap`, the deepest cell gets at most cap * sum_j A_cj (closed form);
+    # a cap at half of what it needs leaves it that short at least.
+    c = int(np.argmax(td))
+    row_sum = float(a_mm[c, :].sum())
+    cap = 0.5 * (td[c] - 0.5) / row_sum
+    capped = band_programme(a_mm, td, band_mm=0.5, max_dwell_s=np.full(a_mm.shape[1], cap))
+    assert not capped.reached
+    assert capped.residual_mm[c] >= td[c] - cap * row_sum - 1e-6
+    assert capped.dwell_s <= cap * a_mm.shape[1] + 1e-6
+    with pytest.raises(ValueError, match="max_dwell_s"):
+        band_programme(a_mm, td, 0.5, min_dwell_s=np.full(a_mm.shape[1], 1.0), max_dwell_s=np.full(a_mm.shape[1], 0.5))
