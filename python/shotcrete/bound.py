@@ -42,10 +42,13 @@ class BandResult:
     """The least-excess dwells over the family for one band (see module doc)."""
 
     band_mm: float
-    reached: bool                 # every cell within +-band_mm (excess below 1e-6 mm per cell)
-    cells_past_band: int          # cells that optimum leaves past the band
+    reached: bool                 # every cell of the solution within +-band_mm (tol_mm, 1 micron)
+    cells_past_band: int          # cells the solution leaves past the band (one solution's, not the fewest possible)
     excess_mm: float              # its total excess past the band [mm summed over cells]
+    least_excess_mm: float        # programme 1's optimum: no dwell pattern in the bounds has less (if exact)
+    least_excess_exact: bool      # False: HiGHS failed the unweighted check, least_excess_mm is an upper estimate
     dwell_s: float                # its total dwell (the spraying time it needs) [s]
+    dwell: np.ndarray             # per placement [s]
     residual_mm: np.ndarray       # per valid cell (grid order of the valid cells), TD - layer [mm]
     solve_s: float
 
@@ -105,8 +108,8 @@ def placement_family(surface, config, extend_cells: int | None = None) -> Placem
 
 def path_family(trajectory, step_m: float = 0.02) -> tuple[PlacementFamily, np.ndarray]:
     """The placements of a timed trajectory's spraying samples, thinned to one per ``step_m`` of
-    nozzle travel, and the path length [m] each stands for (the distance to the next one kept, the
-    last one's to the end of its spraying stretch). Restricted to these, the programme asks what a
+    nozzle travel, and the path length [m] each stands for (along the path from it to the next one
+    kept, the last one's to the end of its spraying stretch). Restricted to these, the programme asks what a
     plan along this plan's own paths could reach with any speeds and any pump."""
     pos = np.asarray(trajectory.positions)
     axes = np.asarray(trajectory.axes)
@@ -119,12 +122,13 @@ def path_family(trajectory, step_m: float = 0.02) -> tuple[PlacementFamily, np.n
         if not spraying[i]:
             run_start = None
             continue
+        # The segment (i-1, i) belongs to the placement that covers i-1; then i may start the next.
+        if run_start is not None:
+            length[-1] += float(np.linalg.norm(pos[i] - pos[i - 1]))
         if run_start is None or np.linalg.norm(pos[i] - pos[keep[-1]]) >= step_m:
             keep.append(i)
             length.append(0.0)
             run_start = i
-        if i > 0 and spraying[i - 1]:
-            length[-1] += float(np.linalg.norm(pos[i] - pos[i - 1]))
     keep = np.asarray(keep)
     family = PlacementFamily(pos[keep], axes[keep], np.full(len(keep), 2))
     return family, np.asarray(length)
@@ -147,7 +151,9 @@ def placement_matrix(surface, config, family: PlacementFamily):
     for i, p in enumerate(xyz):
         r, theta, d = axis.to_cylindrical(p)
         cell_of_point[i] = grid.cell_at(theta, d)
-    keep = (cell_of_point >= 0)
+    # The grid's own points only (surface.in_grid): its TD and the sprayed wall leave out points
+    # that are not wall (face, floor, a duct) and those facing away.
+    keep = (cell_of_point >= 0) & np.asarray(surface.in_grid, dtype=bool)
     keep[keep] = valid[cell_of_point[keep]]
     col_of_cell = np.full(len(valid), -1)
     col_of_cell[valid] = np.arange(int(valid.sum()))
@@ -171,54 +177,94 @@ def placement_matrix(surface, config, family: PlacementFamily):
     return sparse.csr_matrix((vals, (rows, cols)), shape=(len(counts), len(poses)))
 
 
-def band_programme(a_mm, td_mm: np.ndarray, band_mm: float, time_weight_mm_per_s: float = 1e-3,
-                   min_dwell_s: np.ndarray | None = None, max_dwell_s: np.ndarray | None = None) -> BandResult:
-    """Least excess past +-band_mm, then least dwell: variables (w, u, o) >= 0 with u, o the excess
-    above +band / below -band per cell; TD - A w <= band + u, TD - A w >= -band - o; minimise
-    sum(u + o) + time_weight * sum(w). The time weight is small enough that excess wins (a second
-    of dwell lays at most a few mm on a cell) and picks the shortest dwells among the patterns
-    with the least excess. ``min_dwell_s`` (per placement) floors the dwells: a nozzle that sprays
-    all along a path no faster than v dwells at least step / v at each of its placements.
-    ValueError if HiGHS does not solve it."""
+def band_programme(a_mm, td_mm: np.ndarray, band_mm: float, min_dwell_s: np.ndarray | None = None,
+                   max_dwell_s: np.ndarray | None = None, nearest_flush: bool = True,
+                   time_weight_mm_per_s: float = 1e-3, tol_mm: float = 1e-3) -> BandResult:
+    """Two linear programmes over the dwells w (one per placement, [s]):
+
+    1. least excess past +-band_mm: variables (w, u, o) >= 0 with u, o each cell's excess short of
+       / past the band, TD - A w <= band + u, TD - A w >= -band - o; minimise sum(u + o);
+    2. among the patterns with that excess (plus tol_mm per cell), the one nearest flush:
+       minimise sum |TD - A w| (variables p, m >= 0 with p >= r, m >= -r), so that its dwell and
+       RMS compare with a plan that fills to flush rather than to the band's short edge.
+
+    ``min_dwell_s`` / ``max_dwell_s`` (per placement) bound the dwells: a nozzle that sprays all
+    along a path at speeds within [v_lo, v_hi] dwells step / v_hi .. step / v_lo at each placement.
+    ``nearest_flush=False`` skips programme 2 (several times slower on a whole bay): the result is
+    then programme 1's solution, with its least excess exact but its dwell and residual one of many.
+    ValueError if HiGHS does not solve either programme or a bound is malformed."""
     import time
 
     from scipy import sparse
     from scipy.optimize import linprog
 
     n_c, n_p = a_mm.shape
-    eye = sparse.identity(n_c, format="csr")
-    zero = sparse.csr_matrix((n_c, n_c))
-    a_ub = sparse.vstack([sparse.hstack([-a_mm, -eye, zero]), sparse.hstack([a_mm, zero, -eye])]).tocsc()
-    b_ub = np.concatenate([band_mm - td_mm, band_mm + td_mm])
-    c = np.concatenate([np.full(n_p, time_weight_mm_per_s), np.ones(2 * n_c)])
-    t0 = time.perf_counter()
-    # Interior point: the dual simplex took more than 5 min on the default bay; IPM 35-85 s.
-    lower = np.zeros(n_p + 2 * n_c)
+    lower = np.zeros(n_p)
     if min_dwell_s is not None:
         min_dwell_s = np.asarray(min_dwell_s, dtype=float)
         if min_dwell_s.shape != (n_p,) or not np.all(np.isfinite(min_dwell_s)) or (min_dwell_s < 0).any():
             raise ValueError(f"deposit bound: min_dwell_s needs {n_p} finite values >= 0")
-        lower[:n_p] = min_dwell_s
-    upper = np.full(n_p + 2 * n_c, np.inf)
+        lower = min_dwell_s
+    upper = np.full(n_p, np.inf)
     if max_dwell_s is not None:
         max_dwell_s = np.asarray(max_dwell_s, dtype=float)
-        if max_dwell_s.shape != (n_p,) or np.isnan(max_dwell_s).any() or (max_dwell_s < lower[:n_p]).any():
+        if max_dwell_s.shape != (n_p,) or np.isnan(max_dwell_s).any() or (max_dwell_s < lower).any():
             raise ValueError(f"deposit bound: max_dwell_s needs {n_p} values, none below min_dwell_s")
-        upper[:n_p] = max_dwell_s
-    res = linprog(c, A_ub=a_ub, b_ub=b_ub, bounds=np.column_stack([lower, upper]),
-                  method="highs-ipm")
+        upper = max_dwell_s
+    eye = sparse.identity(n_c, format="csr")
+    zero = sparse.csr_matrix((n_c, n_c))
+    t0 = time.perf_counter()
+    # Interior point: the dual simplex took more than 5 min on the default bay; IPM 13-85 s.
+    a_ub = sparse.vstack([sparse.hstack([-a_mm, -eye, zero]), sparse.hstack([a_mm, zero, -eye])]).tocsc()
+    b_ub = np.concatenate([band_mm - td_mm, band_mm + td_mm])
+    # A small weight on the dwells regularises the interior point (without it HiGHS failed on a
+    # +-10 mm bay); the excess of its solution is then an upper estimate of the least excess,
+    # checked below by the unweighted programme when it is not zero.
+    c = np.concatenate([np.full(n_p, time_weight_mm_per_s), np.ones(2 * n_c)])
+    bounds = np.column_stack([np.concatenate([lower, np.zeros(2 * n_c)]), np.concatenate([upper, np.full(2 * n_c, np.inf)])])
+    res = linprog(c, A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs-ipm")
     if res.status != 0 or res.x is None:
         raise ValueError(f"deposit bound: the programme for +-{band_mm:g} mm did not solve ({res.message})")
-    w = res.x[:n_p]
-    excess = res.x[n_p:]
+    least_excess = float(res.x[n_p:].sum())
+    exact = least_excess <= tol_mm * n_c  # a pattern within the band: nothing to certify
+    if not exact:
+        res0 = linprog(np.concatenate([np.zeros(n_p), np.ones(2 * n_c)]), A_ub=a_ub, b_ub=b_ub, bounds=bounds,
+                       method="highs-ipm")
+        if res0.status == 0 and res0.x is not None:
+            least_excess, exact = min(least_excess, float(res0.x[n_p:].sum())), True
+    if not nearest_flush:
+        w = res.x[:n_p]
+        residual = td_mm - a_mm @ w
+        over = np.maximum(np.abs(residual) - band_mm, 0.0)
+        return BandResult(least_excess_exact=exact, band_mm=band_mm, reached=bool(not (over > tol_mm).any()), cells_past_band=int((over > tol_mm).sum()),
+                          excess_mm=float(over.sum()), least_excess_mm=least_excess, dwell_s=float(w.sum()), dwell=w,
+                          residual_mm=residual, solve_s=time.perf_counter() - t0)
+    # 2: variables (w, u, o, p, m); rows: the band with its excess, the excess held, p >= r, m >= -r.
+    ones = sparse.csr_matrix(np.concatenate([np.zeros(n_p), np.ones(2 * n_c), np.zeros(2 * n_c)])[None, :])
+    a2 = sparse.vstack([
+        sparse.hstack([-a_mm, -eye, zero, zero, zero]),
+        sparse.hstack([a_mm, zero, -eye, zero, zero]),
+        ones,
+        sparse.hstack([-a_mm, zero, zero, -eye, zero]),
+        sparse.hstack([a_mm, zero, zero, zero, -eye]),
+    ]).tocsc()
+    b2 = np.concatenate([band_mm - td_mm, band_mm + td_mm, [least_excess + tol_mm * n_c], -td_mm, td_mm])
+    c2 = np.concatenate([np.zeros(n_p + 2 * n_c), np.ones(2 * n_c)])
+    bounds2 = np.vstack([bounds, np.column_stack([np.zeros(2 * n_c), np.full(2 * n_c, np.inf)])])
+    res2 = linprog(c2, A_ub=a2, b_ub=b2, bounds=bounds2, method="highs-ipm")
+    if res2.status != 0 or res2.x is None:
+        raise ValueError(f"deposit bound: the flush programme for +-{band_mm:g} mm did not solve ({res2.message})")
+    w = res2.x[:n_p]
     residual = td_mm - a_mm @ w
-    past = np.abs(residual) > band_mm + 1e-6
-    return BandResult(band_mm=band_mm, reached=bool(excess.sum() < 1e-6 * n_c), cells_past_band=int(past.sum()),
-                      excess_mm=float(excess.sum()), dwell_s=float(w.sum()), residual_mm=residual,
-                      solve_s=time.perf_counter() - t0)
+    over = np.maximum(np.abs(residual) - band_mm, 0.0)
+    past = over > tol_mm
+    return BandResult(least_excess_exact=exact, band_mm=band_mm, reached=bool(not past.any()), cells_past_band=int(past.sum()),
+                      excess_mm=float(over.sum()), least_excess_mm=least_excess, dwell_s=float(w.sum()), dwell=w,
+                      residual_mm=residual, solve_s=time.perf_counter() - t0)
 
 
-def deposit_bound(surface, config, bands_mm=(25.0,), family: PlacementFamily | None = None) -> DepositBound:
+def deposit_bound(surface, config, bands_mm=(25.0,), family: PlacementFamily | None = None,
+                  nearest_flush: bool = True) -> DepositBound:
     """``band_programme`` for each band over ``family`` (default ``placement_family``) on the
     surface's valid cells. ValueError if the grid has no valid cell or a programme does not solve."""
     import time
@@ -232,6 +278,6 @@ def deposit_bound(surface, config, bands_mm=(25.0,), family: PlacementFamily | N
     t0 = time.perf_counter()
     a_mm = (placement_matrix(surface, config, family) * 1000.0).tocsc()  # mm per second of dwell
     matrix_s = time.perf_counter() - t0
-    bands = [band_programme(a_mm, td_mm, float(b)) for b in bands_mm]
+    bands = [band_programme(a_mm, td_mm, float(b), nearest_flush=nearest_flush) for b in bands_mm]
     return DepositBound(bands=bands, placements=a_mm.shape[1], cells=a_mm.shape[0], nonzeros=int(a_mm.nnz),
                         matrix_s=matrix_s)
