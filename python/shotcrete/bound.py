@@ -232,13 +232,17 @@ def band_programme(a_mm, td_mm: np.ndarray, band_mm: float, min_dwell_s: np.ndar
                        method="highs-ipm")
         if res0.status == 0 and res0.x is not None:
             least_excess, exact = min(least_excess, float(res0.x[n_p:].sum())), True
-    if not nearest_flush:
-        w = res.x[:n_p]
+
+    def result(w: np.ndarray) -> BandResult:
         residual = td_mm - a_mm @ w
         over = np.maximum(np.abs(residual) - band_mm, 0.0)
-        return BandResult(least_excess_exact=exact, band_mm=band_mm, reached=bool(not (over > tol_mm).any()), cells_past_band=int((over > tol_mm).sum()),
-                          excess_mm=float(over.sum()), least_excess_mm=least_excess, dwell_s=float(w.sum()), dwell=w,
-                          residual_mm=residual, solve_s=time.perf_counter() - t0)
+        past = over > tol_mm
+        return BandResult(least_excess_exact=exact, band_mm=band_mm, reached=bool(not past.any()),
+                          cells_past_band=int(past.sum()), excess_mm=float(over.sum()), least_excess_mm=least_excess,
+                          dwell_s=float(w.sum()), dwell=w, residual_mm=residual, solve_s=time.perf_counter() - t0)
+
+    if not nearest_flush:
+        return result(res.x[:n_p])
     # 2: variables (w, u, o, p, m); rows: the band with its excess, the excess held, p >= r, m >= -r.
     ones = sparse.csr_matrix(np.concatenate([np.zeros(n_p), np.ones(2 * n_c), np.zeros(2 * n_c)])[None, :])
     a2 = sparse.vstack([
@@ -254,13 +258,7 @@ def band_programme(a_mm, td_mm: np.ndarray, band_mm: float, min_dwell_s: np.ndar
     res2 = linprog(c2, A_ub=a2, b_ub=b2, bounds=bounds2, method="highs-ipm")
     if res2.status != 0 or res2.x is None:
         raise ValueError(f"deposit bound: the flush programme for +-{band_mm:g} mm did not solve ({res2.message})")
-    w = res2.x[:n_p]
-    residual = td_mm - a_mm @ w
-    over = np.maximum(np.abs(residual) - band_mm, 0.0)
-    past = over > tol_mm
-    return BandResult(least_excess_exact=exact, band_mm=band_mm, reached=bool(not past.any()), cells_past_band=int(past.sum()),
-                      excess_mm=float(over.sum()), least_excess_mm=least_excess, dwell_s=float(w.sum()), dwell=w,
-                      residual_mm=residual, solve_s=time.perf_counter() - t0)
+    return result(res2.x[:n_p])
 
 
 def deposit_bound(surface, config, bands_mm=(25.0,), family: PlacementFamily | None = None,
