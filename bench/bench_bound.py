@@ -21,6 +21,18 @@ from shotcrete.planning import plan_surface
 from shotcrete.robot import load_robot
 
 
+def band_record(b) -> dict:
+    """One BandResult as bound.json stores it."""
+    r = b.residual_mm
+    return {"band_mm": b.band_mm, "reached": b.reached, "cells_past_band": b.cells_past_band,
+            "excess_mm": b.excess_mm, "least_excess_mm": b.least_excess_mm, "least_excess_exact": b.least_excess_exact,
+            "residual_mm": {"min": float(r.min()), "max": float(r.max()), "mean": float(r.mean()),
+                            "rms": float(np.sqrt(np.mean(r ** 2)))},
+            # The programme minimises the excess plus a small weight on the dwell: where the band is
+            # reached (excess 0) this is the least spraying time of any pattern that reaches it.
+            "dwell_s": b.dwell_s, "solve_s": b.solve_s}
+
+
 def run(seed: int, bands: list[float]) -> dict:
     cfg = shotcrete.load_config()
     cfg.synth.seed = seed
@@ -31,16 +43,7 @@ def run(seed: int, bands: list[float]) -> dict:
     wall_s = time.perf_counter() - t0
     out = {"seed": seed, "cells": bound.cells, "placements": bound.placements, "nonzeros": bound.nonzeros,
            "matrix_s": bound.matrix_s, "wall_s": wall_s, "bands": []}
-    for b in bound.bands:
-        r = b.residual_mm
-        out["bands"].append({
-            "band_mm": b.band_mm, "reached": b.reached, "cells_past_band": b.cells_past_band,
-            "excess_mm": b.excess_mm, "least_excess_mm": b.least_excess_mm, "least_excess_exact": b.least_excess_exact,
-            "residual_mm": {"min": float(r.min()), "max": float(r.max()), "mean": float(r.mean()),
-                            "rms": float(np.sqrt(np.mean(r ** 2)))},
-            # The programme minimises the excess plus a small weight on the dwell: where the band is
-            # reached (excess 0) this is the least spraying time of any pattern that reaches it.
-            "dwell_s": b.dwell_s, "solve_s": b.solve_s})
+    out["bands"] = [band_record(b) for b in bound.bands]
     # The same question restricted to the default plan's own spraying paths (its executed trajectory),
     # with any speeds and pump, and with the flow on all along at no more than planner.max_speed_mps.
     t0 = time.perf_counter()
@@ -62,15 +65,9 @@ def run(seed: int, bands: list[float]) -> dict:
         min_dwell = None if floor == "none" else length_m / cfg.planner.max_speed_mps
         max_dwell = length_m / cfg.planner.min_speed_mps if floor == "speed window" else None
         b = band_programme(a_mm, td_mm, bands[0], min_dwell_s=min_dwell, max_dwell_s=max_dwell, nearest_flush=False)
-        r = b.residual_mm
-        path["bands"].append({
-            "band_mm": b.band_mm, "dwell_floor": floor, "reached": b.reached, "cells_past_band": b.cells_past_band,
-            "excess_mm": b.excess_mm, "least_excess_mm": b.least_excess_mm, "least_excess_exact": b.least_excess_exact,
-            "residual_mm": {"min": float(r.min()), "max": float(r.max()), "mean": float(r.mean()),
-                            "rms": float(np.sqrt(np.mean(r ** 2)))},
-            "dwell_s": b.dwell_s, "solve_s": b.solve_s,
-            "past_band_columns": sorted({int(c % surface.grid.n_d) for c in
-                                         np.flatnonzero(valid)[np.abs(r) > b.band_mm + 1e-6]})})
+        path["bands"].append({**band_record(b), "dwell_floor": floor,
+                              "past_band_columns": sorted({int(c % surface.grid.n_d) for c in
+                                                           np.flatnonzero(valid)[np.abs(b.residual_mm) > b.band_mm + 1e-6]})})
     out["plan_paths"] = path
     return out
 
