@@ -34,9 +34,12 @@ ALTERNATIVES = {
     # the optimal mode's cost past its +-20 mm guard band.
     "edge overrun 0.3 m": {"planner.edge_overrun_m": 0.3},
     "levelling guard weight 1000": {"planner.levelling_guard_weight": 1000.0},
+    # The levelling rounds after the first on the first round's close lines and run-on, as before
+    # the wide late rounds became the default.
+    "close late rounds": {"planner.levelling_late_spacing_ratio": 0.5, "planner.levelling_late_edge_overrun_m": 0.1},
 }
 # Alternatives that change only the optimal mode's levelling rounds: not run in graded mode.
-OPTIMAL_ONLY = {"levelling guard weight 1000"}
+OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds"}
 
 
 # Issue 15's residual targets per mode [mm].

@@ -27,17 +27,18 @@ void bind_executed(py::module_& m) {
   m.def(
       "flow_schedule",
       [](const std::vector<double>& t_s, const py::array_t<double, py::array::forcecast>& spraying, const FlowConfig& flow,
-         const std::optional<py::array_t<double, py::array::forcecast>>& blocked) {
+         const std::optional<py::array_t<double, py::array::forcecast>>& blocked, bool ends_blocked) {
         auto flags_of = [](const py::array_t<double, py::array::forcecast>& a) {
           std::vector<char> flags(static_cast<std::size_t>(a.size()));
           for (py::ssize_t i = 0; i < a.size(); ++i) flags[static_cast<std::size_t>(i)] = a.data()[i] != 0.0;
           return flags;
         };
-        return flow_schedule(t_s, flags_of(spraying), flow, blocked ? flags_of(*blocked) : std::vector<char>{});
+        return flow_schedule(t_s, flags_of(spraying), flow, blocked ? flags_of(*blocked) : std::vector<char>{}, ends_blocked);
       },
-      py::arg("t_s"), py::arg("spraying"), py::arg("flow"), py::arg("blocked") = py::none(),
+      py::arg("t_s"), py::arg("spraying"), py::arg("flow"), py::arg("blocked") = py::none(), py::arg("ends_blocked") = false,
         "The pump's schedule for the spraying flags of samples at t_s (FlowConfig); `blocked`: samples where the flow "
-        "must be off, ramps included (joint moves); ValueError on bad input.");
+        "must be off, ramps included (joint moves); `ends_blocked`: so is the time before the first and after the last "
+        "sample (a whole trajectory, or one region between its transits); ValueError on bad input.");
   m.def(
       "region_spray",
       [](const std::vector<Pass>& passes, const Config& config) {

@@ -178,6 +178,8 @@ void bind_timing(py::module_& m) {
       .def_readwrite("speed_change_accel_mps2", &TimingParams::speed_change_accel_mps2)
       .def_readwrite("min_turn_s", &TimingParams::min_turn_s,
                      "least duration of a turn at its own speed (the pump's off spell) [s]; 0 = none")
+      .def_readwrite("min_lead_s", &TimingParams::min_lead_s,
+                     "least duration of a lead-in or lead-out (the pump's ramp runs on it) [s]; 0 = none")
       .def("to_dict", [](const TimingParams& p) {
         py::dict d;
         d["k1"] = p.k1;

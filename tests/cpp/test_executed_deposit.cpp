@@ -386,10 +386,11 @@ TEST(ExecutedDeposit, MatchesABruteForceIntegrationRoundByRound) {
   EXPECT_NEAR(ex.flow.bridged_s, 0.3, 1e-9);
   EXPECT_EQ(ex.flow.switches(), 4);
 
-  // The test's own flow: spells from the flags (midpoints), the 0.3 s gap bridged.
+  // The test's own flow: spells from the flags (midpoints), the 0.3 s gap bridged, the first spell
+  // starting half a ramp after the first sample's share (the pump is off before it).
   const double t_end1 = 0.5 * (tr.t_s[114] + tr.t_s[115]), t_on2 = 0.5 * (tr.t_s[174] + tr.t_s[175]);
   ASSERT_TRUE(tr.spraying[114] && !tr.spraying[115] && !tr.spraying[174] && tr.spraying[175]);
-  const KinkFlow ref({{0.0, t_end1}, {t_on2, 0.5 * (tr.t_s[254] + tr.t_s[255])}}, cfg.flow.ramp_s);
+  const KinkFlow ref({{0.5 * (tr.t_s[0] + tr.t_s[1]) + 0.5 * cfg.flow.ramp_s, t_end1}, {t_on2, 0.5 * (tr.t_s[254] + tr.t_s[255])}}, cfg.flow.ramp_s);
   const std::vector<double> dwell = ref.dwells(tr.t_s);
   const SpotModel model = spot_model_from_config(cfg.deposition);
   const double rb = cfg.deposition.rebound_fraction;
@@ -411,6 +412,7 @@ TEST(ExecutedDeposit, MatchesABruteForceIntegrationRoundByRound) {
 
 TEST(ExecutedDeposit, MassBalanceWithinOnePercent) {
   Config cfg;
+  cfg.flow = flow(0.2, 0.5, 0.5);  // short ramps: the 3 s move keeps its spell between the ends
   const Surface surface = test::analytic_bay([](double d, double th) { return 0.03 * std::cos(5 * d) * std::sin(3 * th); },
                                              cfg, 0.9, 1.7, 1.2, 3);
   const SpotModel model = spot_model_from_config(cfg.deposition);
@@ -481,4 +483,34 @@ TEST(ExecutedDeposit, SpeedStepFollowsTheClosedFormStroke) {
   EXPECT_GT(far1, 50);
   EXPECT_GT(far2, 50);
   EXPECT_GT(near, 20);
+}
+
+// A region of a trajectory lies between two joint moves: with ends_blocked its first and last
+// spells start and end half a ramp inside its ends, and one that then has no room for min_on is
+// switched off, as a joint move inside the samples would do (by hand below).
+TEST(FlowSchedule, EndsBlockedKeepsTheRampsOffTheTransitsAround) {
+  const std::vector<double> t = times(101, 0.1);  // 0 .. 10 s
+  std::vector<char> spraying(t.size(), 0);
+  for (int i = 3; i <= 30; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [0.25, 3.05]
+  for (int i = 91; i <= 100; ++i) spraying[static_cast<std::size_t>(i)] = 1;  // [9.05, 10]: 0.95 s
+  const FlowConfig f = flow(2.0, 2.0, 2.0);
+  const FlowSchedule open = flow_schedule(t, spraying, f);
+  // Open ends: the first spell as flagged, the last grown to 2 s back from the end.
+  expect_spells(open, {{0.25, 3.05}, {8.0, 10.0}});
+  const FlowSchedule closed = flow_schedule(t, spraying, f, {}, /*ends_blocked=*/true);
+  // Blocked up to 0.05 s (sample 0's share) and from 10.05 s (a sample after the last): free time
+  // [1.05, 9.05]; the first spell clipped to start at 1.05 s, the last has no free time left.
+  expect_spells(closed, {{1.05, 3.05}});
+  EXPECT_NEAR(closed.dropped_s, 0.8 + 0.95, 1e-9);
+  // The same as the trajectory has it: sample 0 on the joint move before, one after the last.
+  std::vector<double> tp = t;
+  tp.push_back(10.1);
+  std::vector<char> sp = spraying, blocked(tp.size(), 0);
+  sp.push_back(0);
+  blocked.front() = blocked.back() = 1;
+  const FlowSchedule padded = flow_schedule(tp, sp, f, blocked);
+  expect_spells(padded, {{1.05, 3.05}});
+  // Nothing flows up to sample 0's share or past the last sample's.
+  EXPECT_DOUBLE_EQ(closed.flow_at(0.05), 0.0);
+  EXPECT_DOUBLE_EQ(closed.flow_at(10.05), 0.0);
 }

@@ -752,3 +752,57 @@ TEST(Planner, ExecutedCorrectionsBringTheBayCloserToFlush) {
     EXPECT_NEAR(corrected.spray_time_s, on, 1e-6 * on) << "seed " << seed;
   }
 }
+
+// The rounds after the first take the wide lines and the longer run-on exactly when 95 % of the
+// cells still open miss no more than such a round lays at the slowest speed (computed here from
+// the spot model); the others keep the first round's lines and run-on. Seen on the passes: how
+// far past the bay's ends they run, and how many lines a round lays.
+TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
+  Config cfg = small_synthetic_bay_config();
+  cfg.planner.mode = PlannerMode::optimal;
+  cfg.planner.levelling_late_edge_overrun_m = 0.25;  // well apart from the first round's 0.1 m
+  const SpotModel model = spot_model_from_config(cfg.deposition);
+  const double spacing_m = pass_spacing(model, 0.07).spacing_m;
+  int wide_rounds = 0, close_rounds = 0;
+  // A faster slowest speed lays less a round: the later rounds then keep the close lines.
+  for (auto [seed, min_speed] : {std::pair<std::uint64_t, double>{1, 0.05}, {2, 0.05}, {3, 0.05}, {1, 0.3}}) {
+    cfg.synth.seed = seed;
+    cfg.planner.min_speed_mps = min_speed;
+    const double layer_m = model.volume_rate_m3ps() * (1.0 - cfg.deposition.rebound_fraction) /
+                           (cfg.planner.min_speed_mps * cfg.planner.levelling_late_spacing_ratio * spacing_m);
+    const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
+    const Plan plan = plan_bay(s, cfg);
+    const Grid& g = s.grid;
+    const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
+    ASSERT_GE(plan.rounds.size(), 2u) << "seed " << seed;
+    for (std::size_t k = 1; k < plan.rounds.size(); ++k) {
+      // The 95th percentile of the open cells' TD before round k (after round k - 1).
+      std::vector<double> open;
+      for (int c = 0; c < g.size(); ++c)
+        if (g.valid[static_cast<std::size_t>(c)] && plan.rounds[k - 1].td_after_m[c] > cfg.planner.finish_tolerance_m)
+          open.push_back(plan.rounds[k - 1].td_after_m[c]);
+      if (open.empty()) continue;
+      std::sort(open.begin(), open.end());
+      const bool wide = open[static_cast<std::size_t>(0.95 * static_cast<double>(open.size() - 1))] <= layer_m;
+      double run_on = -1.0;  // furthest any pass runs past a bay end
+      for (const auto& region : plan.rounds[k].regions)
+        for (const auto& pass : region.passes)
+          for (const auto& w : pass.waypoints) {
+            const double d = g.axis.to_cylindrical(w.position_m)[2];
+            run_on = std::max({run_on, d_lo - d, d - d_hi});
+          }
+      // The knots sit at the end cells' centres, half a cell inside the bay (a one-cell line's at
+      // its edges).
+      const double overrun = wide ? cfg.planner.levelling_late_edge_overrun_m : cfg.planner.edge_overrun_m;
+      EXPECT_LE(run_on, overrun + 1e-3) << "seed " << seed << ", round " << k + 1;
+      if (wide) {
+        EXPECT_GT(run_on, cfg.planner.edge_overrun_m + 0.01) << "seed " << seed << ", round " << k + 1;
+        ++wide_rounds;
+      } else {
+        ++close_rounds;
+      }
+    }
+  }
+  EXPECT_GT(wide_rounds, 0);  // both cases are exercised
+  EXPECT_GT(close_rounds, 0);
+}

@@ -694,6 +694,39 @@ TEST(RegionSpray, PumpSpellsAndRampsKeepTheVolume) {
   EXPECT_GE(ramping, spray.flow.switches() * static_cast<int>(0.9 * cfg.flow.ramp_s / dt));
 }
 
+// The leads last at least timing.min_lead_s at any pass speed (lead_lengths' closed forms), so the
+// pump's ramps run on them: the flow is 0 at the region's first and last samples (the transits
+// around it are dry) and no commanded flow is cut at its ends (dropped_s 0), also for a fast
+// pass whose leads the acceleration limit and the config's 0.1 m alone make 0.67 s long.
+TEST(RegionSpray, LeadsCarryThePumpRampsWithinTheRegion) {
+  Config cfg;  // default pump: 2 s ramps and spells; min_lead_s = 1 s
+  ASSERT_GE(cfg.timing.min_lead_s, 0.5 * cfg.flow.ramp_s);
+  for (double v : {0.05, 0.2, 0.5}) {
+    const std::vector<Pass> passes = axial_region(2, 1.2, 0.3, 0.0, 1.0, {v});
+    const RegionSpray spray = region_spray(passes, cfg);
+    // Lead durations from the sampled flags: the first and last sprayed samples.
+    const TimingParams params = TimingParams::from_config(cfg.timing);
+    const auto [lead_in, lead_out] =
+        lead_lengths(passes, params, cfg.timing.nozzle_max_accel_mps2, cfg.timing.nozzle_max_accel_mps2);
+    const double t_in = 2.0 * lead_in / (v * (2.0 - params.k1)), t_out = 2.0 * lead_out / (v * (1.0 + params.k2));
+    EXPECT_GE(t_in, cfg.timing.min_lead_s - 1e-9) << v;
+    EXPECT_GE(t_out, cfg.timing.min_lead_s - 1e-9) << v;
+    ASSERT_FALSE(spray.flow.on_s.empty()) << v;
+    const double dt = 1.0 / cfg.timing.trajectory_rate_hz;
+    // The first spell starts at the pass's start, one lead-in after the region's; the ramp fits.
+    EXPECT_NEAR(spray.flow.on_s.front(), t_in, 2 * dt) << v;
+    EXPECT_NEAR(spray.t_s.back() - spray.flow.off_s.back(), t_out, 2 * dt) << v;
+    EXPECT_NEAR(spray.flow.dropped_s, 0.0, 1e-9) << v;
+    EXPECT_DOUBLE_EQ(spray.flow.flow_at(spray.t_s.front()), 0.0) << v;
+    EXPECT_DOUBLE_EQ(spray.flow.flow_at(spray.t_s.back()), 0.0) << v;
+  }
+  // Without the minimum a fast pass's leads are shorter than the half ramp: its spell's ends are
+  // cut where the ramps would reach the transits.
+  cfg.timing.min_lead_s = 0.0;
+  const RegionSpray short_leads = region_spray(axial_region(2, 1.2, 0.3, 0.0, 1.0, {0.2}), cfg);
+  EXPECT_GT(short_leads.flow.dropped_s, 0.1);
+}
+
 // The profile of a region's pieces (library-internal, timing/detail.hpp).
 #include "../../cpp/src/timing/detail.hpp"
 

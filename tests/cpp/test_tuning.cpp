@@ -112,6 +112,7 @@ TEST(Tuning, CartesianOnlySwarmBeatsDefaultsWithinNozzleLimits) {
   for (double amax : {2.0, 1.2}) {
     TimingConfig tc;
     tc.nozzle_max_accel_mps2 = amax;
+    tc.min_lead_s = 0.0;  // the config's 0.1 m leads as they are (the pump's 1 s floor lengthens them)
     const TimingTuning t = tune_timing(nullptr, {passes}, Eigen::VectorXd(), tc, RobotConfig{});
     // Defaults: start peak 2 v / t1 = 1.875 m/s^2 at 0.25 m/s, end 1.2 at 0.2 -> feasible at 2.0 only.
     EXPECT_EQ(t.initial_feasible, amax == 2.0);

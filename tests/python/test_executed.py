@@ -55,11 +55,12 @@ def test_first_round_against_numpy_integration(job):
     cfg, surface, _, arm = job
     tr, plan = arm.trajectory, arm.plan
     t = np.asarray(tr.t_s)
-    # Stop-and-go joint moves inside a region (SegmentKind.Transit, region >= 0): the pump is off there.
-    moving = (np.asarray(tr.kind) == 4) & (np.asarray(tr.region_index) >= 0)
-    sched = _core.flow_schedule(t, tr.spraying, cfg.flow, moving)
+    # Joint moves (SegmentKind.Transit: between regions, from the start posture, stop-and-go inside
+    # a region) and the time past the trajectory's ends: the pump is off there.
+    moving = np.asarray(tr.kind) == 4
+    sched = _core.flow_schedule(t, tr.spraying, cfg.flow, moving, ends_blocked=True)
     assert list(sched.on_s) == list(arm.executed.flow.on_s) and list(sched.off_s) == list(arm.executed.flow.off_s)
-    # Dry through every stop-and-go move, ramps included: no sample of one gets any flow.
+    # Dry through every joint move, ramps included: no sample of one gets any flow.
     assert np.all(np.asarray(_core.flow_dwells(sched, t))[moving] == pytest.approx(0.0, abs=1e-12))
     # The flow's dwells by our own integration: piecewise-linear flow through its kinks, trapezoid rule.
     r = cfg.flow.ramp_s
@@ -125,8 +126,16 @@ def test_planner_region_spray_matches_the_trajectory(job):
             continue  # re-timed by the arm (eased): not the planner's timing
         moving = kind[idx] == 4  # stop-and-go joint moves inside the region
         moving[0] = False
-        own = _core.flow_schedule(tt, np.asarray(tr.spraying)[idx], cfg.flow, moving)
+        # Transits before and after the region: dry, as the whole trajectory's schedule has them.
+        own = _core.flow_schedule(tt, np.asarray(tr.spraying)[idx], cfg.flow, moving, ends_blocked=True)
         assert len(own.on_s) == len(flow.on_s)
         assert np.allclose(own.on_s, flow.on_s, atol=1e-6) and np.allclose(own.off_s, flow.off_s, atol=1e-6)
+        # And the executed schedule (the whole trajectory's) runs the same spells over the region:
+        # what the planner deposited is what the pump sprays there.
+        ex_on, ex_off = np.asarray(arm.executed.flow.on_s), np.asarray(arm.executed.flow.off_s)
+        inside = (ex_off > t[idx[0]]) & (ex_on < t[idx[-1]])
+        assert inside.sum() == len(flow.on_s)
+        assert np.allclose(ex_on[inside] - t[idx[0]], flow.on_s, atol=1e-6)
+        assert np.allclose(ex_off[inside] - t[idx[0]], flow.off_s, atol=1e-6)
         compared += 1
     assert compared >= 1

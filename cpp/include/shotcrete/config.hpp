@@ -193,6 +193,8 @@ struct PlannerConfig {
   double finish_tolerance_m = 0.02;    // optimal mode: stop when every cell is within this of flush
   double edge_overrun_m = 0.1;     // passes run on this far past the bay's ends (the arches)
   double levelling_spacing_ratio = 0.5;  // optimal mode: pass spacing as a share of the two-pass spacing
+  double levelling_late_spacing_ratio = 1.0;  // optimal mode: levelling_spacing_ratio once the layer left is thin
+  double levelling_late_edge_overrun_m = 0.15;  // optimal mode: edge_overrun_m once the layer left is thin [m]
   double levelling_guard_band_m = 0.02;  // optimal mode: residual band (+-) past which the guard counts
   double levelling_guard_weight = 100.0;  // optimal mode: cost of a mm past the band per mm off target, squared (0: no guard)
   int levelling_lookahead_rounds = 3;  // optimal mode: rounds a round's dwells are solved for (it sprays one)
@@ -238,6 +240,9 @@ struct TimingConfig {
   double end_fraction_k2 = 0.5;      // share of the end segment spent cruising
   double start_length_m = 0.1;       // nozzle path length of the start segment
   double end_length_m = 0.1;         // nozzle path length of the end segment
+  double min_lead_s = 1.0;           // least duration of a lead-in or lead-out [s]: half the pump's
+                                     // ramp (flow.ramp_s), which runs on it (the ramps stay off the
+                                     // joint moves around a region)
   int pso_particles = 15;
   int pso_iterations = 30;
   double pso_time_budget_s = 600.0;  // wall clock of the whole swarm tuning; swarms stop iterating once spent

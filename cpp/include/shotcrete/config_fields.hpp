@@ -127,6 +127,8 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("finish_tolerance_m", &PlannerConfig::finish_tolerance_m, 0.001, 0.05, "optimal mode: flush tolerance [m]");
   f("edge_overrun_m", &PlannerConfig::edge_overrun_m, 0.0, 0.5, "pass run-on past the bay ends [m]");
   f("levelling_spacing_ratio", &PlannerConfig::levelling_spacing_ratio, 0.2, 1.0, "optimal mode: pass spacing / two-pass spacing");
+  f("levelling_late_spacing_ratio", &PlannerConfig::levelling_late_spacing_ratio, 0.2, 1.0, "optimal mode: levelling_spacing_ratio of the rounds after the first once the layer left is thin (fewer, longer pump spells)");
+  f("levelling_late_edge_overrun_m", &PlannerConfig::levelling_late_edge_overrun_m, 0.0, 0.5, "optimal mode: edge_overrun_m of those rounds [m]");
   f("levelling_guard_band_m", &PlannerConfig::levelling_guard_band_m, 0.0, 0.1, "optimal mode: residual band (+-) past which a cell's error costs levelling_guard_weight more [m]");
   f("levelling_guard_weight", &PlannerConfig::levelling_guard_weight, 0.0, 1e6, "optimal mode: squared error past the guard band per squared error off target (0: least squares only)");
   f("levelling_lookahead_rounds", &PlannerConfig::levelling_lookahead_rounds, 1, 10, "optimal mode: a round's dwells are solved as if this many rounds could spray them, then clipped to one round's (1: no look-ahead)");
@@ -169,6 +171,7 @@ template <class F> void visit(TimingConfig*, F&& f) {
   f("end_fraction_k2", &TimingConfig::end_fraction_k2, 0.0, 0.99, "cruising share of the end");
   f("start_length_m", &TimingConfig::start_length_m, 0.0, 5.0, "start segment length [m]");
   f("end_length_m", &TimingConfig::end_length_m, 0.0, 5.0, "end segment length [m]");
+  f("min_lead_s", &TimingConfig::min_lead_s, 0.0, 10.0, "least duration of a lead-in or lead-out; default half of flow.ramp_s, whose ramp runs on it [s]");
   f("pso_particles", &TimingConfig::pso_particles, 2, 1000, "swarm size");
   f("pso_iterations", &TimingConfig::pso_iterations, 1, 10000, "swarm iterations");
   f("pso_time_budget_s", &TimingConfig::pso_time_budget_s, 0.0, 604800.0, "wall clock of the swarm tuning; swarms stop iterating once spent [s]");

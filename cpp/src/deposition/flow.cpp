@@ -42,7 +42,8 @@ void commanded_spells(const std::vector<double>& t, const std::vector<char>& spr
 }
 
 // Free stretches of time between blocked samples (joint moves), each shrunk by half a ramp at a
-// blocked end so that no ramp reaches into a joint move; the trajectory's own ends stay.
+// blocked end so that no ramp reaches into a joint move; the samples' own ends stay unless
+// ends_blocked (a region of a trajectory between two joint moves).
 struct Windows {
   std::vector<double> lo, hi;
   // Index of the window holding time t (-1: none).
@@ -53,14 +54,17 @@ struct Windows {
   }
 };
 
-Windows free_windows(const std::vector<double>& t, const std::vector<char>& blocked, double ramp_s) {
+Windows free_windows(const std::vector<double>& t, const std::vector<char>& blocked, double ramp_s, bool ends_blocked) {
   const std::size_t n = t.size();
   Windows w;
   const double half = 0.5 * std::max(0.0, ramp_s);
-  double start = t.front();
-  bool start_blocked = false;
+  // ends_blocked: the first sample is the joint move's last (time_plan joins them at the lead's
+  // start), and the next joint move starts one sample interval after the last sample.
+  const double dt_end = n > 1 ? t[n - 1] - t[n - 2] : 0.0;
+  double start = ends_blocked && n > 1 ? 0.5 * (t[0] + t[1]) : t.front();
+  bool start_blocked = ends_blocked;
   for (std::size_t i = 0; i < n;) {
-    if (!blocked[i]) {
+    if (blocked.empty() || !blocked[i]) {
       ++i;
       continue;
     }
@@ -73,8 +77,8 @@ Windows free_windows(const std::vector<double>& t, const std::vector<char>& bloc
     start = b_hi, start_blocked = true;
     i = j + 1;
   }
-  const double lo = start + (start_blocked ? half : 0.0);
-  if (t.back() > lo) w.lo.push_back(lo), w.hi.push_back(t.back());
+  const double lo = start + (start_blocked ? half : 0.0), hi = ends_blocked ? t.back() + 0.5 * dt_end - half : t.back();
+  if (hi > lo) w.lo.push_back(lo), w.hi.push_back(hi);
   return w;
 }
 
@@ -235,7 +239,7 @@ double FlowSchedule::integral_to(double t) const {
 }
 
 FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
-                           const std::vector<char>& blocked) {
+                           const std::vector<char>& blocked, bool ends_blocked) {
   Config c;
   c.flow = flow;
   validate(c);
@@ -253,8 +257,8 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
   s.commanded_on_s = s.on_time_s();
   s.commanded_switches = s.switches();
   std::optional<Windows> windows;
-  if (std::find(blocked.begin(), blocked.end(), 1) != blocked.end()) {
-    windows = free_windows(t_s, blocked, flow.ramp_s);
+  if (ends_blocked || std::find(blocked.begin(), blocked.end(), 1) != blocked.end()) {
+    windows = free_windows(t_s, blocked, flow.ramp_s, ends_blocked);
     clip_to_windows(s, *windows);
   }
   const Windows* w = windows ? &*windows : nullptr;

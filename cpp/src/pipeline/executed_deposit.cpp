@@ -132,7 +132,7 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
   const std::vector<int> round_of = sample_rounds(tr, regions_per_round);
   ExecutedDeposit out{Eigen::VectorXd::Zero(surface.cloud.size()), {}, {}, {},
                       unsprayed_wall(surface, config.profile.max_deviation_m),
-                      flow_schedule(tr.t_s, tr.spraying, config.flow, joint_move_samples(tr)), {}};
+                      flow_schedule(tr.t_s, tr.spraying, config.flow, joint_move_samples(tr), /*ends_blocked=*/true), {}};
   const std::vector<double> dwell = flow_dwells(out.flow, tr.t_s);
   double missed = 0.0;  // full-flow seconds whose spray lands off the scanned cells
   for (std::size_t k = 0; k < regions_per_round.size(); ++k) {

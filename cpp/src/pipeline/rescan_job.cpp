@@ -124,6 +124,9 @@ RescanOutcome rescan_job(const Grid& grid, const Eigen::VectorXd& predicted_depo
   out.correction_config->planner.levelling_spacing_ratio = config.rescan.correction_spacing_ratio;
   // Its end cells need too little for a spell of their own: the lines run on further past the ends.
   out.correction_config->planner.edge_overrun_m = config.rescan.correction_edge_overrun_m;
+  // Every round of the correction alike (its layer is thin from the first).
+  out.correction_config->planner.levelling_late_spacing_ratio = config.rescan.correction_spacing_ratio;
+  out.correction_config->planner.levelling_late_edge_overrun_m = config.rescan.correction_edge_overrun_m;
   const Cloud wall = wall_points(grid, after_reg, out.thickness.residual_td_m, kRescanWallBand_m);
   out.correction_surface = build_surface(wall, *out.correction_config);
   out.correction = plan_for_arm(*out.correction_surface, *out.correction_config, *robot, progress);

@@ -200,6 +200,9 @@ TimingParams TimingParams::from_config(const TimingConfig& c) {
   p.k2 = c.end_fraction_k2;
   p.start_length_m = c.start_length_m;
   p.end_length_m = c.end_length_m;
+  // One sample interval more: a region's first sample is the transit's last (flow_schedule's
+  // ends_blocked), so the ramp has the lead less half a sample before the pass.
+  p.min_lead_s = c.min_lead_s > 0.0 ? c.min_lead_s + 1.0 / c.trajectory_rate_hz : 0.0;
   p.turn_speed_mps = c.turn_speed_mps;
   p.speed_change_accel_mps2 = c.speed_change_accel_mps2;
   p.turn_accel_mps2 = c.turn_accel_mps2;
@@ -217,6 +220,8 @@ std::pair<double, double> lead_lengths(const std::vector<Pass>& passes, const Ti
     const double k1 = params.k1, k2 = params.k2;
     lead_in = std::max(lead_in, v0 * v0 * (2.0 - k1) / (k1 * start_accel_mps2));
     lead_out = std::max(lead_out, v1 * v1 * (1.0 + k2) / ((1.0 - k2) * end_accel_mps2));
+    lead_in = std::max(lead_in, 0.5 * v0 * params.min_lead_s * (2.0 - k1));
+    lead_out = std::max(lead_out, 0.5 * v1 * params.min_lead_s * (1.0 + k2));
   }
   return {lead_in, lead_out};
 }

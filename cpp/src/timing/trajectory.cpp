@@ -614,7 +614,7 @@ TimedTrajectory time_path(const Robot& robot, const CartesianPath& path, const S
 std::vector<char> joint_move_samples(const TimedTrajectory& tr) {
   std::vector<char> out(tr.size(), 0);
   for (std::size_t i = 0; i < tr.size(); ++i)
-    out[i] = tr.kind[i] == static_cast<char>(SegmentKind::Transit) && tr.region_index[i] >= 0;
+    out[i] = tr.kind[i] == static_cast<char>(SegmentKind::Transit);
   return out;
 }
 

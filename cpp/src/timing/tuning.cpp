@@ -8,6 +8,7 @@
 #include <limits>
 #include <optional>
 #include <stdexcept>
+#include <tuple>
 
 #include "detail.hpp"
 #include "shotcrete/robot/joint_tracking.hpp"
@@ -19,12 +20,13 @@ namespace shotcrete {
 using namespace timing_detail;
 
 // The config's bound, or more where fast end passes need it: room for k1, k2 down to 0.5 at the
-// nozzle acceleration limit (start peak v^2 (2 - k1) / (k1 s)).
+// nozzle acceleration limit (start peak v^2 (2 - k1) / (k1 s)), and for leads of min_lead_s at
+// any k1, k2 (lead_lengths).
 double timing_detail::swarm_max_lead(const std::vector<Pass>& passes, const TimingConfig& timing) {
   double v_end = 0.0;
   if (!passes.empty() && !passes.front().waypoints.empty() && !passes.back().waypoints.empty())
     v_end = std::max(passes.front().speed_at(0), passes.back().speed_at(passes.back().waypoints.size() - 1));
-  return std::max(timing.max_lead_length_m, 3.0 * v_end * v_end / timing.nozzle_max_accel_mps2);
+  return std::max({timing.max_lead_length_m, 3.0 * v_end * v_end / timing.nozzle_max_accel_mps2, v_end * timing.min_lead_s});
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -275,10 +277,22 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
     if (robot) model.emplace(region_model(ctx, regions[r], r, q_prev, max_lead));
     const double min_lead = std::min(0.02, max_lead);
     const RegionCost cost{ctx, regions[r], q_prev, model};
+    // A particle's leads at least as long as time_plan makes them for the pump's ramps
+    // (lead_lengths' min_lead_s; its acceleration floor is the swarm's own nozzle check).
+    auto with_lead_floor = [&](TimingParams p) {
+      const double inf = std::numeric_limits<double>::infinity();
+      std::tie(p.start_length_m, p.end_length_m) = lead_lengths(regions[r], p, inf, inf);
+      return p;
+    };
     TimingParams p0_region = p0;
     p0_region.start_length_m = std::clamp(p0.start_length_m, min_lead, max_lead);
     p0_region.end_length_m = std::clamp(p0.end_length_m, min_lead, max_lead);
-    const double initial_region = cost(p0_region, nullptr);
+    p0_region = with_lead_floor(p0_region);
+    // Leads the model does not reach (its max_lead halved to stay within the reach): infeasible.
+    auto modelled = [&](const TimingParams& p) {
+      return !model || (p.start_length_m <= max_lead + 1e-12 && p.end_length_m <= max_lead + 1e-12);
+    };
+    const double initial_region = modelled(p0_region) ? cost(p0_region, nullptr) : 2e6;
     out.initial_feasible = out.initial_feasible && initial_region < 1e6;
     initial += initial_region;
     const SearchBox box = search_box(regions[r], timing, min_lead, max_lead);
@@ -289,14 +303,18 @@ TimingTuning tune_timing(const Robot* robot, const std::vector<std::vector<Pass>
     const double share = timing.pso_time_budget_s * static_cast<double>(r + 1) / static_cast<double>(regions.size());
     opt.deadline = t_start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(share));
     if (progress) progress("tuning timing", static_cast<double>(r) / static_cast<double>(regions.size()));
-    out.pso.push_back(pso_minimize([&](const Eigen::VectorXd& x) { return cost(params_of(x, timing), nullptr); },
+    out.pso.push_back(pso_minimize([&](const Eigen::VectorXd& x) {
+                                     const TimingParams p = with_lead_floor(params_of(x, timing));
+                                     return modelled(p) ? cost(p, nullptr) : 2e6;
+                                   },
                                    box.lo, box.hi, opt, {box.x0}));
     out.regions_cut_by_budget += out.pso.back().stopped_by_deadline ? 1 : 0;
     // No feasible particle: the config's parameters, which time_plan eases where the arm needs it.
     out.feasible.push_back(out.pso.back().best_f < 1e6);
-    out.params.push_back(out.feasible.back() ? params_of(out.pso.back().best_x, timing) : p0);
+    out.params.push_back(out.feasible.back() ? with_lead_floor(params_of(out.pso.back().best_x, timing)) : p0);
     out.duration_s += out.feasible.back() ? out.pso.back().best_f : initial_region;
-    if (model) cost(out.feasible.back() ? out.params.back() : p0_region, &q_prev);
+    const TimingParams& used = out.feasible.back() ? out.params.back() : p0_region;
+    if (model && modelled(used)) cost(used, &q_prev);
   }
   out.initial_duration_s = out.initial_feasible ? initial : std::numeric_limits<double>::infinity();
   if (progress) progress("tuning timing", 1.0);

@@ -46,10 +46,12 @@ struct FlowSchedule {
 /// where it stands and streaks it across the wall). Spells are clipped to end and start half a ramp
 /// clear of them, are never bridged across one and grow only within the free time between two; a
 /// spell that cannot reach min_on_s there, or the shorter of two spells closer than min_off_s
-/// around one, is switched off (dropped_s). Throws std::invalid_argument for unequal sizes,
-/// non-increasing times or a config that validate rejects.
+/// around one, is switched off (dropped_s). `ends_blocked`: the samples lie between two joint
+/// moves as time_plan joins a region to its transits: the first sample is the last of the move
+/// before (its share blocked), the move after starts one sample interval after the last. Throws
+/// std::invalid_argument for unequal sizes, non-increasing times or a config that validate rejects.
 FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
-                           const std::vector<char>& blocked = {});
+                           const std::vector<char>& blocked = {}, bool ends_blocked = false);
 
 /// Full-flow dwell of every sample: the schedule's flow integrated over the sample's share of
 /// time (midpoints with its neighbours; the first and last samples take everything before / after),

@@ -69,6 +69,7 @@ struct TimingParams {
   double k2 = 0.5;                // end: share of Te spent cruising
   double start_length_m = 0.1;    // lead-in length
   double end_length_m = 0.1;      // lead-out length
+  double min_lead_s = 0.0;        // least duration of a lead (lead_lengths; not tuned)
   double turn_speed_mps = 0.0;    // speed in the middle of a turn-around; 0 = pass speeds
   double speed_change_accel_mps2 = 0.5;  // peak of speed changes inside a pass and of the
                                          // centripetal acceleration on turn arcs (not tuned)
@@ -81,7 +82,9 @@ struct TimingParams {
 
 /// Lead-in and lead-out lengths [m] of a region: at least params' start / end lengths, and long
 /// enough for the paper's start and end profiles to stay within the accelerations at the first and
-/// last pass speeds (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)).
+/// last pass speeds (start peak v^2 (2 - k1) / (k1 s), end peak v^2 (1 + k2) / ((1 - k2) s)), and
+/// for them to last at least params.min_lead_s (a start of length s lasts 2 s / (v (2 - k1)), an
+/// end 2 s / (v (1 + k2))): the pump's ramp runs on the leads, clear of the joint moves around.
 std::pair<double, double> lead_lengths(const std::vector<Pass>& passes, const TimingParams& params,
                                        double start_accel_mps2, double end_accel_mps2);
 

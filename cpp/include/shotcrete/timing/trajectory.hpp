@@ -118,11 +118,12 @@ struct JointMove {
 /// The trajectory's joint moves in time order: every run of Transit samples.
 std::vector<JointMove> joint_moves(const TimedTrajectory& tr);
 
-/// Per sample, 1 on a stop-and-go joint move inside a region (kind Transit, region index >= 0),
-/// where the nozzle stands still at both ends: the pump's flow must be off there (flow_schedule's
-/// `blocked`). The transits between regions are left to the pump's minimum off spell as before: the
-/// planner deposits each region alone and cannot see the transit's timing (blocking them left the
-/// region ends up to 25 mm short of the plan: 1.8 mm RMS planned vs executed on the default bay).
+/// Per sample, 1 on a joint move (kind Transit: between regions, from the start posture, or a
+/// stop-and-go inside a region), where the arm swings the nozzle from rest to rest: the pump's flow
+/// must be off there, ramps included (flow_schedule's `blocked`). The planner deposits each region
+/// as if joint moves came before and after it (region_spray), so both see the same spells. (Leaving
+/// the transits between regions to the minimum off spell let a ramp reach into a transit and kept a
+/// short first spell the region's own schedule had dropped: 25 mm over the plan on a cell.)
 std::vector<char> joint_move_samples(const TimedTrajectory& tr);
 
 /// Rest-to-rest joint quintics through `postures` in turn (at least two), each leg as time_plan
