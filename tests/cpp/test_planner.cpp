@@ -776,14 +776,14 @@ TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
     const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
     ASSERT_GE(plan.rounds.size(), 2u) << "seed " << seed;
     for (std::size_t k = 1; k < plan.rounds.size(); ++k) {
-      // The 95th percentile of the open cells' TD before round k (after round k - 1).
+      // The quantile (95th percentile by default) of the open cells' TD before round k.
       std::vector<double> open;
       for (int c = 0; c < g.size(); ++c)
         if (g.valid[static_cast<std::size_t>(c)] && plan.rounds[k - 1].td_after_m[c] > cfg.planner.finish_tolerance_m)
           open.push_back(plan.rounds[k - 1].td_after_m[c]);
       if (open.empty()) continue;
       std::sort(open.begin(), open.end());
-      const bool wide = open[static_cast<std::size_t>(0.95 * static_cast<double>(open.size() - 1))] <= layer_m;
+      const bool wide = open[static_cast<std::size_t>(cfg.planner.levelling_late_td_quantile * static_cast<double>(open.size() - 1))] <= layer_m;
       double run_on = -1.0;  // furthest any pass runs past a bay end
       for (const auto& region : plan.rounds[k].regions)
         for (const auto& pass : region.passes)

@@ -330,9 +330,10 @@ class GradedRounds : public RoundStages {
 // One set of pass lines over every cell still short of flush (even spacing across the crown), then
 // split into the right and left walls so each side is sprayed bottom-up. The rounds after the
 // first lay their lines at planner.levelling_late_spacing_ratio with levelling_late_edge_overrun_m
-// once the layer left is thin: 95 % of the open cells miss no more than those lines lay in a round
-// at the slowest speed (the first round leaves a few pits deeper; a small slice whose first round
-// left 100 mm broadly ended its three rounds with 67 cells at level 1 on the wide lines).
+// once the layer left is thin: levelling_late_td_quantile (95 %) of the open cells miss no more
+// than those lines lay in a round at the slowest speed (the first round leaves a few pits deeper;
+// a small slice whose first round left 100 mm broadly ended its three rounds with 67 cells at
+// level 1 on the wide lines).
 std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<int>& open_cells, RoundContext& ctx) {
   PlannerConfig pc = ctx.config.planner;
   if (in.number >= 2 && !open_cells.empty()) {
@@ -340,7 +341,7 @@ std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<
                                 (pc.min_speed_mps * pc.levelling_late_spacing_ratio * ctx.spacing_m);
     std::vector<double> td;
     for (int c : open_cells) td.push_back(in.wall.surface.grid.td_m[c]);
-    const auto q = td.begin() + static_cast<long>(0.95 * static_cast<double>(td.size() - 1));
+    const auto q = td.begin() + static_cast<long>(pc.levelling_late_td_quantile * static_cast<double>(td.size() - 1));
     std::nth_element(td.begin(), q, td.end());
     if (*q <= late_layer_m) {
       pc.levelling_spacing_ratio = pc.levelling_late_spacing_ratio;
