@@ -37,8 +37,9 @@ void bind_executed(py::module_& m) {
       },
       py::arg("t_s"), py::arg("spraying"), py::arg("flow"), py::arg("blocked") = py::none(), py::arg("ends_blocked") = false,
         "The pump's schedule for the spraying flags of samples at t_s (FlowConfig); `blocked`: samples where the flow "
-        "must be off, ramps included (joint moves); `ends_blocked`: so is the time before the first and after the last "
-        "sample (a whole trajectory, or one region between its transits); ValueError on bad input.");
+        "must be off, ramps included (joint moves); `ends_blocked`: the samples lie between two joint moves as a "
+        "trajectory joins a region to its transits (the first sample is the last of the move before, the next move "
+        "starts a sample interval after the last); ValueError on bad input.");
   m.def(
       "region_spray",
       [](const std::vector<Pass>& passes, const Config& config) {
