@@ -756,7 +756,7 @@ TEST(Planner, ExecutedCorrectionsBringTheBayCloserToFlush) {
 // The rounds after the first take the wide lines and the longer run-on exactly when 95 % of the
 // cells still open miss no more than such a round lays at the slowest speed (computed here from
 // the spot model); the others keep the first round's lines and run-on. Seen on the passes: how
-// far past the bay's ends they run, and how many lines a round lays.
+// far past the bay's ends they run.
 TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
   Config cfg = small_synthetic_bay_config();
   cfg.planner.mode = PlannerMode::optimal;

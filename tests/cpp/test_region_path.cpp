@@ -704,7 +704,7 @@ TEST(RegionSpray, LeadsCarryThePumpRampsWithinTheRegion) {
   for (double v : {0.05, 0.2, 0.5}) {
     const std::vector<Pass> passes = axial_region(2, 1.2, 0.3, 0.0, 1.0, {v});
     const RegionSpray spray = region_spray(passes, cfg);
-    // Lead durations from the sampled flags: the first and last sprayed samples.
+    // Lead durations by the profile's closed forms; the spells below check them on the samples.
     const TimingParams params = TimingParams::from_config(cfg.timing);
     const auto [lead_in, lead_out] =
         lead_lengths(passes, params, cfg.timing.nozzle_max_accel_mps2, cfg.timing.nozzle_max_accel_mps2);
