@@ -33,7 +33,8 @@ StrokeFit measured_fit() {
 }
 
 std::string write_tmp(const std::string& name, const std::string& text) {
-  const std::string path = ::testing::TempDir() + "/" + name;
+  // Prefixed: other test binaries write their own bad.csv into TempDir at the same time (ctest -j).
+  const std::string path = ::testing::TempDir() + "/deposition_" + name;
   std::ofstream(path) << text;
   return path;
 }

@@ -35,7 +35,8 @@ double polyline_distance(const DesignProfile& prof, const Eigen::Vector2d& p) {
 }
 
 std::string write_temp(const std::string& name, const std::string& text) {
-  const std::string path = testing::TempDir() + name;
+  // Prefixed: other test binaries write their own bad.csv into TempDir at the same time (ctest -j).
+  const std::string path = testing::TempDir() + "profile_" + name;
   std::ofstream(path) << text;
   return path;
 }
