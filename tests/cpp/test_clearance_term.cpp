@@ -119,3 +119,61 @@ TEST(ClearanceTerm, TheSwarmsRegionModelTracksWithTheTerm) {
   EXPECT_GT(c_on, c_off + 0.05);
   EXPECT_NEAR(c_on, c_plan, 0.02);
 }
+
+// The term's gradient: dU/dq_j = sum over the key points within the influence d0 of
+// -(d0 - d) / d0 g . dx/dq_j (d the field distance less the key's radius, g the field's gradient
+// as field_distance gives it). Against the same sum with the point velocities dx/dq_j taken as
+// central differences through link_frames (the term takes them from the joints' axes), at
+// postures of a region low on the narrow wall, where the links come within the influence. The key
+// points are rebuilt as clearance_objective places them (cylinders split every 0.25 m).
+TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const WallOctree wall(narrow_wall(-1.5, 3.5), 0.05);
+  ClearanceConfig cc;
+  const NullSpaceObjective term = clearance_objective(robot, wall, cc);
+  ASSERT_TRUE(term.active());
+  const double d0 = cc.null_space_influence_m;
+  struct Key {
+    int frame;
+    Eigen::Vector3d p;
+    double radius_m;
+  };
+  std::vector<Key> keys;
+  for (const CollisionShape& s : robot.collision_shapes()) {
+    if (s.link.rfind("nozzle", 0) == 0) continue;
+    if (s.kind == CollisionShape::Kind::cylinder) {
+      const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / 0.25)));
+      for (int k = 0; k < m; ++k)
+        keys.push_back({s.frame, s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m + (k + 0.5) * s.length_m / m), s.radius_m});
+    } else {
+      keys.push_back({s.frame, s.origin.translation(), s.kind == CollisionShape::Kind::sphere ? s.radius_m : 0.5 * s.size_m.minCoeff()});
+    }
+  }
+  const std::vector<Pass> region = test::axial_region(2, 1.2, 0.2, 0.2, 2.6, {0.4}, kR - 1.0, kR);
+  const TimedTrajectory tr = time_plan(robot, {region}, robot.stow(), TimingConfig{}, RobotConfig{});
+  int checked = 0;
+  for (std::size_t i = 0; i < tr.size(); i += tr.size() / 12) {
+    const Eigen::VectorXd& q = tr.q[i];
+    Eigen::VectorXd grad;
+    term.gradient(q, grad);
+    ASSERT_EQ(grad.size(), q.size());
+    const auto frames = robot.link_frames(q);
+    Eigen::VectorXd ref = Eigen::VectorXd::Zero(q.size());
+    const double h = 1e-6;
+    for (Eigen::Index j = 0; j < q.size(); ++j) {
+      Eigen::VectorXd qp = q, qm = q;
+      qp[j] += h;
+      qm[j] -= h;
+      const auto fp = robot.link_frames(qp), fm = robot.link_frames(qm);
+      for (const Key& k : keys) {
+        const auto f = static_cast<std::size_t>(k.frame);
+        Eigen::Vector3d g;
+        const double d = wall.field_distance(frames[f] * k.p, &g) - k.radius_m;
+        if (d < d0) ref[j] += -(d0 - d) / d0 * g.dot((fp[f] * k.p - fm[f] * k.p) / (2.0 * h));
+      }
+    }
+    if (ref.norm() > 0.0) ++checked;
+    EXPECT_LT((grad - ref).norm(), 1e-6 * (1.0 + ref.norm())) << "sample " << i << "\n" << grad.transpose() << "\n" << ref.transpose();
+  }
+  EXPECT_GE(checked, 6);
+}

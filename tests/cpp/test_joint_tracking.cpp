@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <random>
 #include <utility>
 #include <vector>
 
@@ -128,4 +130,51 @@ TEST(Joint, SpeedLimitsPutTheBindingJointAtItsLimit) {
   for (std::size_t k = 0; k < none.size(); ++k) ASSERT_EQ(none[k], 0.0) << k;
   EXPECT_THROW(joint_speed_limits(robot, poses, q0, 0.0, 0.0), std::invalid_argument);
   EXPECT_THROW(joint_speed_limits(robot, poses, q0, -1.0, 1.0), std::invalid_argument);
+}
+
+// timing_joint_path solves the whole path on a second thread while it tracks from the first pose's
+// own solution, and tracks again from the path's start when that differs. The result must be the
+// one of solving first and tracking after: compared, bit for bit, with the same call made inside a
+// parallel loop (where it runs one after the other), over a pass across the crown from random
+// seeds, some of which start the path on a branch the whole path does not keep.
+TEST(Joint, TimingPathTrackedWhileThePathIsSolvedEqualsOneAfterTheOther) {
+  const Robot robot = Robot::load(RobotConfig{});
+  std::vector<NozzlePose> poses;
+  for (int k = 0; k <= 400; ++k) {  // 2 m along the axis, then around the crown from 1.2 to 1.9 rad
+    const double th = k <= 200 ? 1.2 : 1.2 + 0.7 * (k - 200) / 200.0, x = k <= 200 ? 0.01 * k : 2.0;
+    NozzlePose p;
+    p.position_m = Eigen::Vector3d(x, 4.6 * std::cos(th), 4.6 * std::sin(th));
+    p.axis = Eigen::Vector3d(0, std::cos(th), std::sin(th));
+    poses.push_back(p);
+  }
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0, 1);
+  int other_start = 0, compared = 0;
+  for (int s = 0; s < 24; ++s) {
+    Eigen::VectorXd seed = robot.neutral();
+    if (s > 0)
+      for (int i = 0; i < robot.dof(); ++i)
+        seed(i) = robot.lower_limits()(i) + u(rng) * (robot.upper_limits()(i) - robot.lower_limits()(i));
+    std::vector<Eigen::VectorXd> alone, serial;
+    bool ok_alone = false, ok_serial = false;
+    try {
+      alone = timing_joint_path(robot, poses, seed, RobotConfig{}, &ok_alone);
+    } catch (const std::exception&) {
+      continue;  // no start from this seed: nothing to compare
+    }
+#pragma omp parallel num_threads(2)
+    {
+#pragma omp single
+      serial = timing_joint_path(robot, poses, seed, RobotConfig{}, &ok_serial);
+    }
+    ++compared;
+    EXPECT_EQ(ok_alone, ok_serial) << s;
+    ASSERT_EQ(alone.size(), serial.size()) << s;
+    for (std::size_t k = 0; k < alone.size(); ++k) ASSERT_EQ(alone[k], serial[k]) << "seed " << s << " sample " << k;
+    const Eigen::VectorXd first = solve_path(robot, {poses.front()}, seed, RobotConfig{}).q.front();
+    if (first != solve_path(robot, poses, seed, RobotConfig{}).q.front()) ++other_start;
+  }
+  std::printf("%d seeds compared, %d with the path starting off the first pose's own solution\n", compared, other_start);
+  EXPECT_GE(compared, 12);
+  EXPECT_GE(other_start, 1);
 }

@@ -189,6 +189,43 @@ TEST(Robot, JacobianMatchesFiniteDifferences) {
   }
 }
 
+// The joint axes link_frames gives beside the frames (what the clearance term's gradient uses):
+// the velocity of a point fixed on any link, per unit joint rate, equals the central difference
+// of its position through link_frames, and the frames are those of the plain call.
+TEST(Robot, JointAxesGiveEveryLinkPointsVelocity) {
+  RobotConfig c = cfg();
+  c.base_position_m = Eigen::Vector3d(0.6, 0.1, -1.3);
+  const Robot r = Robot::load(c);
+  std::mt19937 rng(7);
+  const Eigen::Vector3d local(0.13, -0.07, 0.21);  // a point off every link's origin
+  for (int s = 0; s < 20; ++s) {
+    const Eigen::VectorXd q = random_q(r, rng);
+    std::vector<JointAxis> joints;
+    const auto frames = r.link_frames(q, joints);
+    ASSERT_EQ(joints.size(), static_cast<std::size_t>(r.dof()));
+    const auto plain = r.link_frames(q);
+    ASSERT_EQ(frames.size(), plain.size());
+    for (std::size_t f = 0; f < frames.size(); ++f) EXPECT_EQ(frames[f].matrix(), plain[f].matrix());
+    const double h = 1e-6;
+    for (int j = 0; j < r.dof(); ++j) {
+      Eigen::VectorXd qp = q, qm = q;
+      qp(j) += h;
+      qm(j) -= h;
+      const auto fp = r.link_frames(qp), fm = r.link_frames(qm);
+      const JointAxis& ja = joints[static_cast<std::size_t>(j)];
+      EXPECT_EQ(ja.rotational, !r.joint_is_prismatic()[static_cast<std::size_t>(j)]);
+      for (std::size_t f = 0; f < frames.size(); ++f) {
+        const Eigen::Vector3d x = frames[f] * local;
+        const Eigen::Vector3d fd = (fp[f] * local - fm[f] * local) / (2 * h);
+        const Eigen::Vector3d v = static_cast<int>(f) < ja.first_frame ? Eigen::Vector3d::Zero()
+                                  : ja.rotational ? Eigen::Vector3d(ja.axis.cross(x - ja.point_m))
+                                                  : ja.axis;
+        EXPECT_LT((fd - v).norm(), 1e-6) << r.joint_names()[static_cast<std::size_t>(j)] << " frame " << f;
+      }
+    }
+  }
+}
+
 TEST(Robot, KinematicsFromSeveralThreadsEqualsOneThread) {
   // fk, jacobian and link_frames are called from parallel loops (clearance checks, the deposit's
   // stages): the same answers, bit for bit, as one after another.

@@ -926,28 +926,30 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
   const WallOctree* w = &wall;
   out.gradient = [rb, w, keys, d0](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
     grad.setZero(q.size());
-    const auto frames = rb->link_frames(q);
+    std::vector<JointAxis> joints;
+    const auto frames = rb->link_frames(q, joints);
     // dU/dx at each key point inside the influence distance: -(d0 - d) / d0 times the field's gradient.
     std::vector<std::pair<std::size_t, Eigen::Vector3d>> active;
     for (std::size_t k = 0; k < keys.size(); ++k) {
       const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].p;
-      Eigen::Vector3d g;
-      const double d = w->field_distance(x, &g) - keys[k].radius_m;
-      if (d < d0) active.emplace_back(k, -(d0 - d) / d0 * g);
+      const double d = w->field_distance(x) - keys[k].radius_m;
+      if (!(d < d0)) continue;
+      Eigen::Vector3d g;  // the field's gradient only where the key is within the influence
+      w->field_distance(x, &g);
+      active.emplace_back(k, -(d0 - d) / d0 * g);
     }
     if (active.empty()) return;
-    // Point Jacobians by forward differences of the frames (1e-6 per joint unit).
-    constexpr double kStep = 1e-6;
-    for (Eigen::Index j = 0; j < q.size(); ++j) {
-      Eigen::VectorXd qj = q;
-      qj[j] += kStep;
-      const auto fj = rb->link_frames(qj);
+    // dU/dq_j = sum of dU/dx . dx/dq_j over the key points the joint moves (the point Jacobians
+    // from the joints' axes at q).
+    for (std::size_t j = 0; j < joints.size(); ++j) {
+      const JointAxis& ja = joints[j];
       double sum = 0.0;
       for (const auto& [k, dudx] : active) {
-        const auto fr = static_cast<std::size_t>(keys[k].frame);
-        sum += dudx.dot((fj[fr] * keys[k].p - frames[fr] * keys[k].p) / kStep);
+        if (keys[k].frame < ja.first_frame) continue;
+        const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].p;
+        sum += dudx.dot(ja.rotational ? Eigen::Vector3d(ja.axis.cross(x - ja.point_m)) : ja.axis);
       }
-      grad[j] = sum;
+      grad[static_cast<Eigen::Index>(j)] = sum;
     }
   };
   return out;

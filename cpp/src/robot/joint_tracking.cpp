@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <future>
 #include <iomanip>
 #include <limits>
 #include <sstream>
@@ -11,6 +12,10 @@
 #include <string>
 
 #include "shotcrete/robot/robot.hpp"
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 namespace shotcrete {
 
@@ -150,29 +155,55 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
 std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                                const Eigen::VectorXd& seed, const RobotConfig& rc, bool* tracked,
                                                const NullSpaceObjective& objective) {
-  const JointPath jp = solve_path(robot, poses, seed, rc);
   // The default limit avoidance is gentle, so q(s) stays close to the minimal-norm path; where it
   // lets a joint run past its limit (the telescope at the edge of the reach, late in a long
   // region: 0.4 mm over on the default bay's graded springline), stronger avoidance is tried before
   // falling back to solve_path's staircase, whose finite differences break the acceleration limits.
-  std::vector<Eigen::VectorXd> q;
-  bool ok = false;
   // With a second objective (the clearance term) every limit gain is tried with it first, then
   // with a quarter of its gain (over a long region its drift can take a joint past a limit the
   // full gain's does not come back from: a 93 k-sample region of the narrow bay), then without
   // it: the term never costs a region its exact tracking.
-  for (const double share : {1.0, 0.25, 0.0}) {
-    NullSpaceObjective used = objective;
-    used.gain *= share;
-    if (share > 0.0 && !used.active()) continue;
-    for (const double limit_gain : {0.02, 0.1, 0.3}) {
-      double em = 0.0, ea = 0.0;
-      q = track_joint_path(robot, poses, jp.q.front(), limit_gain, &em, &ea, share > 0.0 ? used : NullSpaceObjective{});
-      ok = em <= rc.ik_position_tolerance_m && ea <= rc.ik_angle_tolerance_rad;
-      for (const auto& x : q) ok = ok && robot.within_limits(x);
-      if (ok) break;
+  const auto track_from = [&](const Eigen::VectorXd& q0, std::vector<Eigen::VectorXd>& q) {
+    for (const double share : {1.0, 0.25, 0.0}) {
+      NullSpaceObjective used = objective;
+      used.gain *= share;
+      if (share > 0.0 && !used.active()) continue;
+      for (const double limit_gain : {0.02, 0.1, 0.3}) {
+        double em = 0.0, ea = 0.0;
+        q = track_joint_path(robot, poses, q0, limit_gain, &em, &ea, share > 0.0 ? used : NullSpaceObjective{});
+        bool ok = em <= rc.ik_position_tolerance_m && ea <= rc.ik_angle_tolerance_rad;
+        for (const auto& x : q) ok = ok && robot.within_limits(x);
+        if (ok) return true;
+      }
     }
-    if (ok) break;
+    return false;
+  };
+  // Only solve_path's start is tracked from (its whole path is the fallback), and that start is
+  // nearly always the first pose's own solution from the seed (the path's first try, kept when it
+  // runs smoothly). So, outside a parallel loop, the path is solved on a second thread while the
+  // tracking runs from that solution, and tracked again should the path start elsewhere: the same
+  // result as one after the other, in about the tracking's time.
+  bool speculate = poses.size() > 1;
+#ifdef _OPENMP
+  speculate = speculate && !omp_in_parallel();
+#endif
+  std::vector<Eigen::VectorXd> q;
+  bool ok = false;
+  JointPath jp;
+  if (speculate) {
+    std::future<JointPath> whole = std::async(std::launch::async, [&] { return solve_path(robot, poses, seed, rc); });
+    Eigen::VectorXd guess;
+    try {
+      guess = solve_path(robot, {poses.front()}, seed, rc).q.front();
+    } catch (const std::exception&) {
+      // The first pose alone fails: the whole path's error says why (it fails there too).
+    }
+    if (guess.size() > 0) ok = track_from(guess, q);
+    jp = whole.get();
+    if (guess.size() == 0 || guess != jp.q.front()) ok = track_from(jp.q.front(), q);
+  } else {
+    jp = solve_path(robot, poses, seed, rc);
+    ok = track_from(jp.q.front(), q);
   }
   if (tracked) *tracked = ok;
   return ok ? q : jp.q;

@@ -280,20 +280,44 @@ Eigen::Isometry3d Robot::fk(const Eigen::VectorXd& q) const {
   return impl_->base * f;
 }
 
-std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q) const {
-  check_q(*this, q, "q");
+namespace {
+std::vector<Eigen::Isometry3d> compose_frames(const Robot::Impl& r, const Eigen::VectorXd& q, std::vector<JointAxis>* joints) {
   std::vector<Eigen::Isometry3d> out;
-  out.reserve(impl_->link_names.size());
-  out.push_back(impl_->base);
+  out.reserve(r.link_names.size());
+  out.push_back(r.base);
+  if (joints) joints->clear();
   KDL::Frame f = KDL::Frame::Identity();
   int j = 0;
-  for (std::size_t i = 0; i < impl_->chain.segments.size(); ++i) {
-    const KDL::Joint& joint = impl_->chain.segments[i].getJoint();
-    const double qi = joint.getType() != KDL::Joint::None ? q[j++] : 0.0;
-    f = f * joint_pose(joint, qi) * impl_->segment_tip[i];
-    out.push_back(impl_->base * to_eigen(f));
+  for (std::size_t i = 0; i < r.chain.segments.size(); ++i) {
+    const KDL::Joint& joint = r.chain.segments[i].getJoint();
+    const bool moves = joint.getType() != KDL::Joint::None;
+    if (moves && joints) {
+      // As Kin::compose: the axis through the joint's origin, both in the parent's frame.
+      const KDL::Vector a = f.M * joint.JointAxis(), o = f * joint.JointOrigin();
+      const auto t = joint.getType();
+      JointAxis ja;
+      ja.axis = r.base.linear() * Eigen::Vector3d(a.x(), a.y(), a.z()).normalized();
+      ja.point_m = r.base * Eigen::Vector3d(o.x(), o.y(), o.z());
+      ja.rotational = t == KDL::Joint::RotAxis || t == KDL::Joint::RotX || t == KDL::Joint::RotY || t == KDL::Joint::RotZ;
+      ja.first_frame = static_cast<int>(i) + 1;
+      joints->push_back(ja);
+    }
+    const double qi = moves ? q[j++] : 0.0;
+    f = f * joint_pose(joint, qi) * r.segment_tip[i];
+    out.push_back(r.base * to_eigen(f));
   }
   return out;
+}
+}  // namespace
+
+std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q) const {
+  check_q(*this, q, "q");
+  return compose_frames(*impl_, q, nullptr);
+}
+
+std::vector<Eigen::Isometry3d> Robot::link_frames(const Eigen::VectorXd& q, std::vector<JointAxis>& joints) const {
+  check_q(*this, q, "q");
+  return compose_frames(*impl_, q, &joints);
 }
 
 const std::vector<std::string>& Robot::link_names() const { return impl_->link_names; }

@@ -29,6 +29,15 @@ struct CollisionShape {
   Eigen::Vector3d size_m = Eigen::Vector3d::Zero();           // box edges
 };
 
+/// A moving joint at a posture, in the tunnel frame: a point p of link frame f (f >= first_frame)
+/// moves at axis x (p - point_m) per unit of a turning joint, axis per unit of a sliding one.
+struct JointAxis {
+  Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();  // unit
+  Eigen::Vector3d point_m = Eigen::Vector3d::Zero();
+  bool rotational = true;
+  int first_frame = 1;  // the first link_frames() entry the joint moves
+};
+
 /// Serial chain base_link -> nozzle_tip read from a URDF. Joint order is the chain order.
 /// Acceleration limits (URDF has none) come from `<shotcrete:limits joint=".." acceleration=".."
 /// [neutral=".."]/>` elements of the same file; every movable joint must have one.
@@ -66,6 +75,9 @@ class Robot {
   /// World pose of base_link (index 0) and of the link at the tip of every chain segment (index k
   /// = segment k, the last one nozzle_tip): the frames CollisionShape::frame refers to.
   std::vector<Eigen::Isometry3d> link_frames(const Eigen::VectorXd& q) const;
+  /// The same, and every moving joint's axis at q (in joint order): the Jacobian of any point on
+  /// a link in the same pass, without a forward-kinematics call per joint.
+  std::vector<Eigen::Isometry3d> link_frames(const Eigen::VectorXd& q, std::vector<JointAxis>& joints) const;
   const std::vector<std::string>& link_names() const;  // one per link_frames() entry
   /// The <collision> shapes of base_link and of every link on the chain (unsupported geometry,
   /// such as meshes, is an error at load time).
