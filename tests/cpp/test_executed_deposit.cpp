@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -513,4 +515,59 @@ TEST(FlowSchedule, EndsBlockedKeepsTheRampsOffTheTransitsAround) {
   // Nothing flows up to sample 0's share or past the last sample's.
   EXPECT_DOUBLE_EQ(closed.flow_at(0.05), 0.0);
   EXPECT_DOUBLE_EQ(closed.flow_at(10.05), 0.0);
+}
+
+// SpotOnGridBound settles spot_miss_fraction's zeros without casting rays: wherever it answers
+// "surely on the grid", the 128 rays find no miss (checked ray by ray, through spot_miss_fraction),
+// over random nozzle poses in front of a slice with a TD of -40..+200 mm and a hole, at standoffs
+// of 0.5-1.6 m, tilted up to 35 deg along and around the axis; and it does answer for most poses
+// whose spot lies well inside the slice (else it would save nothing). A section profile gets no
+// answer.
+TEST(ExecutedDeposit, SpotOnGridBoundOnlyAnswersWhereNoRayMisses) {
+  Config cfg;
+  const test::TdFunction td = [](double d, double theta) {
+    if (std::hypot(d - 1.1, theta - 1.45) < 0.03) return std::numeric_limits<double>::quiet_NaN();  // a hole
+    return 0.08 + 0.12 * std::sin(3.0 * d) * std::cos(5.0 * theta) - 0.04 * (theta > 1.3);
+  };
+  const Surface s = test::analytic_bay(td, cfg, 0.8, 2.0, 2.4, 2);
+  const SpotModel model = spot_model_from_config(cfg.deposition);
+  const Grid& g = s.grid;
+  const SpotOnGridBound bound(model, g);
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double R = cfg.profile.design_radius_m;
+  int answered = 0, interior = 0, interior_answered = 0, missing = 0;
+  for (int k = 0; k < 4000; ++k) {
+    const double theta = 0.7 + 1.4 * u(rng), d = -0.2 + 2.8 * u(rng), standoff = 0.5 + 1.1 * u(rng);
+    const double tilt_d = (u(rng) - 0.5) * 1.2, tilt_t = (u(rng) - 0.5) * 1.2;  // +-0.6 rad
+    NozzlePose p;
+    const Eigen::Vector3d radial(0, std::cos(theta), std::sin(theta)), along(1, 0, 0),
+        around(0, -std::sin(theta), std::cos(theta));
+    p.position_m = Eigen::Vector3d(d, 0, 0) + (R - standoff) * radial;
+    p.axis = (radial + std::tan(tilt_d) * along + std::tan(tilt_t) * around).normalized();
+    const bool sure = bound.surely_on_grid(p);
+    const double miss = spot_miss_fraction(model, g, p);
+    if (miss > 0.0) ++missing;
+    if (sure) {
+      ++answered;
+      ASSERT_EQ(miss, 0.0) << "pose " << k << " d " << d << " theta " << theta << " standoff " << standoff;
+    }
+    const bool well_inside = d > 0.6 && d < 1.8 && theta > 1.05 && theta < 1.75 && std::abs(tilt_d) < 0.3 &&
+                             std::abs(tilt_t) < 0.3 && std::hypot(d - 1.1, theta - 1.45) > 0.25;
+    if (well_inside) ++interior, interior_answered += sure;
+  }
+  std::printf("bound answered %d of 4000 poses (%d of %d well inside); %d poses miss some rays\n", answered,
+              interior_answered, interior, missing);
+  EXPECT_GT(missing, 1000);  // the poses reach past the slice and into the hole
+  EXPECT_GT(interior, 100);
+  EXPECT_GT(interior_answered, 0.8 * interior);
+  // A section design line: no answer.
+  Grid section = g;
+  section.profile = DesignProfile::circle(R);
+  section.profile.polyline_m = {Eigen::Vector2d(R, 0.0), Eigen::Vector2d(0.0, R)};
+  NozzlePose centre;
+  centre.position_m = Eigen::Vector3d(1.2, 0, 0) + (R - 1.0) * Eigen::Vector3d(0, std::cos(1.4), std::sin(1.4));
+  centre.axis = Eigen::Vector3d(0, std::cos(1.4), std::sin(1.4));
+  EXPECT_TRUE(bound.surely_on_grid(centre));
+  EXPECT_FALSE(SpotOnGridBound(model, section).surely_on_grid(centre));
 }

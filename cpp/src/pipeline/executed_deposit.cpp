@@ -97,10 +97,13 @@ int cell_on_wall(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector
   return grid.cell_at(cyl[1], cyl[2]);
 }
 
+
+}  // namespace
+
 // Share of the spot's volume whose rays meet the wall off every valid cell: the disc at H0 split
 // into rings of equal volume (1 - (1 - r^2/R^2)^beta = (k + 1/2) / rings) and directions; each ray
 // meets the design surface, then the surface through the TD of the cell it met there.
-double miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose& nozzle) {
+double spot_miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose& nozzle) {
   constexpr int kRings = 8, kDirections = 16;
   const Eigen::Vector3d a = nozzle.axis.normalized();
   const Eigen::Vector3d e1 = a.unitOrthogonal(), e2 = a.cross(e1);
@@ -121,7 +124,73 @@ double miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose&
   return static_cast<double>(missed) / (kRings * kDirections);
 }
 
-}  // namespace
+
+SpotOnGridBound::SpotOnGridBound(const SpotModel& model, const Grid& grid) : grid_(&grid) {
+  const int nt = grid.n_theta, nd = grid.n_d;
+  invalid_sum_.assign(static_cast<std::size_t>((nt + 1) * (nd + 1)), 0);
+  double td_lo = 0.0, td_hi = 0.0;
+  for (int r = 0; r < nt; ++r)
+    for (int c = 0; c < nd; ++c) {
+      const int cell = grid.index(r, c);
+      const bool ok = grid.valid[static_cast<std::size_t>(cell)];
+      if (ok) td_lo = std::min(td_lo, grid.td_m[cell]), td_hi = std::max(td_hi, grid.td_m[cell]);
+      invalid_sum_[static_cast<std::size_t>((r + 1) * (nd + 1) + c + 1)] =
+          (ok ? 0 : 1) + invalid_sum_[static_cast<std::size_t>(r * (nd + 1) + c + 1)] +
+          invalid_sum_[static_cast<std::size_t>((r + 1) * (nd + 1) + c)] - invalid_sum_[static_cast<std::size_t>(r * (nd + 1) + c)];
+    }
+  cone_rad_ = model.cone_half_angle_rad();
+  rho_lo_ = grid.profile.radius_m + td_lo;
+  rho_hi_ = grid.profile.radius_m + td_hi;
+  usable_ = grid.profile.is_circle() && nt > 0 && nd > 0 && rho_lo_ > 0.0 && std::isfinite(rho_hi_) && cone_rad_ < 0.5;
+}
+
+bool SpotOnGridBound::surely_on_grid(const NozzlePose& nozzle) const {
+  if (!usable_) return false;
+  const Grid& g = *grid_;
+  const TunnelAxis& ax = g.axis;
+  const Eigen::Vector3d c = nozzle.position_m - ax.origin_m;
+  const Eigen::Vector3d a = nozzle.axis.normalized();
+  const double cy = c.dot(ax.ey), cz = c.dot(ax.ez), cx = c.dot(ax.ex), r_c = std::hypot(cy, cz);
+  if (!(r_c > 1e-6 && r_c < rho_lo_ - 1e-6)) return false;
+  // Elevation e (out of the cross-section) of the rays: within the cone of a, |e - e_a| <= cone.
+  const double e_a = std::asin(std::clamp(a.dot(ax.ex), -1.0, 1.0)), cone = cone_rad_;
+  const double e_max = std::abs(e_a) + cone;
+  if (e_max >= 0.5 * M_PI - 0.05) return false;
+  const double ux_lo = std::sin(e_a - cone), ux_hi = std::sin(e_a + cone), perp_min = std::cos(e_max);
+  // Azimuth about the axis, against the outward radial at the nozzle: two directions at angle
+  // <= cone with elevations e1, e2 differ in azimuth by dpsi, sin(dpsi / 2) <= sin(cone / 2) /
+  // sqrt(cos e1 cos e2).
+  const double s = std::sin(0.5 * cone) / std::sqrt(std::cos(e_a) * perp_min);
+  if (s >= 1.0) return false;
+  const double dpsi = 2.0 * std::asin(s);
+  const Eigen::Vector2d radial(cy / r_c, cz / r_c), a_perp(a.dot(ax.ey), a.dot(ax.ez));
+  if (a_perp.norm() < 1e-9) return false;
+  const double phi_a = std::acos(std::clamp(radial.dot(a_perp.normalized()), -1.0, 1.0));
+  const double phi_max = phi_a + dpsi;
+  if (phi_max >= 0.5 * M_PI) return false;  // a ray may run along the wall: cast them
+  // Travel in the cross-section from the nozzle to the circle of radius rho at azimuth phi grows
+  // with both: d = -r_c cos phi + sqrt(rho^2 - r_c^2 sin^2 phi); the ray's length is d / cos e.
+  const double sp = std::sin(phi_max);
+  const double d_max = -r_c * std::cos(phi_max) + std::sqrt(rho_hi_ * rho_hi_ - r_c * r_c * sp * sp);
+  const double t_min = rho_lo_ - r_c, t_max = d_max / perp_min;
+  const double dx_lo = std::min(t_min * ux_lo, t_max * ux_lo), dx_hi = std::max(t_min * ux_hi, t_max * ux_hi);
+  // The hit's angle about the axis from the nozzle's: sin(dtheta) = d sin(phi) / rho.
+  const double sin_dt = d_max * sp / rho_lo_;
+  if (sin_dt >= 1.0) return false;
+  const double dt = std::asin(sin_dt);
+  double theta_c = std::atan2(cz, cy);
+  if (theta_c < -0.5 * M_PI) theta_c += 2.0 * M_PI;  // as TunnelAxis::to_cylindrical
+  if (theta_c - dt < -0.5 * M_PI || theta_c + dt >= 1.5 * M_PI) return false;  // across the cut
+  // The window's rows and columns, one more each side for rounding.
+  const int r0 = static_cast<int>(std::floor((theta_c - dt - g.theta0_rad) / g.dtheta_rad)) - 1;
+  const int r1 = static_cast<int>(std::floor((theta_c + dt - g.theta0_rad) / g.dtheta_rad)) + 1;
+  const int c0 = static_cast<int>(std::floor((cx + dx_lo - g.d0_m) / g.cell_size_m)) - 1;
+  const int c1 = static_cast<int>(std::floor((cx + dx_hi - g.d0_m) / g.cell_size_m)) + 1;
+  if (r0 < 0 || c0 < 0 || r1 >= g.n_theta || c1 >= g.n_d) return false;
+  const int w = g.n_d + 1;
+  const auto at = [&](int r, int col) { return invalid_sum_[static_cast<std::size_t>(r * w + col)]; };
+  return at(r1 + 1, c1 + 1) - at(r0, c1 + 1) - at(r1 + 1, c0) + at(r0, c0) == 0;
+}
 
 ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& regions_per_round,
                                 const TimedTrajectory& tr, const Config& config) {
@@ -142,9 +211,12 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
       if (round_of[i] == static_cast<int>(k) && dwell[i] > 0.0) poses.push_back(tr.nozzle[i]), dwells.push_back(dwell[i]);
     Eigen::VectorXd deposit = Eigen::VectorXd::Zero(out.wall.surface.cloud.size());
     std::vector<double> miss(poses.size());  // per pose, summed in order below: the same sum on any thread count
-#pragma omp parallel for schedule(static)
-    for (long j = 0; j < static_cast<long>(poses.size()); ++j)
-      miss[static_cast<std::size_t>(j)] = miss_fraction(model, out.wall.surface.grid, poses[static_cast<std::size_t>(j)]);
+    const SpotOnGridBound on_grid(model, out.wall.surface.grid);
+#pragma omp parallel for schedule(dynamic, 256)
+    for (long j = 0; j < static_cast<long>(poses.size()); ++j) {
+      const NozzlePose& p = poses[static_cast<std::size_t>(j)];
+      miss[static_cast<std::size_t>(j)] = on_grid.surely_on_grid(p) ? 0.0 : spot_miss_fraction(model, out.wall.surface.grid, p);
+    }
     for (std::size_t j = 0; j < poses.size(); ++j) missed += dwells[j] * miss[j];
     if (!poses.empty()) {
       const SurfaceIndex index(out.wall.surface.cloud, 0.05);  // the wall as moved so far, as plan_bay

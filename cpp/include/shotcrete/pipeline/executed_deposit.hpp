@@ -49,6 +49,29 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
 ExecutedDeposit execute_deposit(const Surface& surface, const Plan& plan, const TimedTrajectory& trajectory,
                                 const Config& config);
 
+/// Share of the spot's volume at `nozzle` that lands off every valid cell of `grid`: the disc at
+/// H0 split into 8 rings of equal volume x 16 directions; each ray meets the design surface, then
+/// the surface through the TD of the cell it met there (DepositVolumes::outside_m3).
+double spot_miss_fraction(const SpotModel& model, const Grid& grid, const NozzlePose& nozzle);
+
+/// A bound that settles most of spot_miss_fraction's zeros without casting its rays: on a circle
+/// design line, every ray of a spot whose nozzle points outward lands between the cylinders of the
+/// grid's least and greatest TD, within an axial and angular window around the nozzle (closed-form
+/// bounds on the ray's elevation, azimuth and length); when every cell of that window is valid,
+/// none misses. False (no answer) on a section profile or where the window leaves the grid.
+class SpotOnGridBound {
+ public:
+  SpotOnGridBound(const SpotModel& model, const Grid& grid);
+  /// True only when spot_miss_fraction(model, grid, nozzle) is 0.
+  bool surely_on_grid(const NozzlePose& nozzle) const;
+
+ private:
+  const Grid* grid_;
+  double cone_rad_ = 0.0, rho_lo_ = 0.0, rho_hi_ = 0.0;
+  bool usable_ = false;
+  std::vector<int> invalid_sum_;  // 2-D prefix sums of the invalid cells, (n_theta + 1) x (n_d + 1)
+};
+
 /// Per-cell comparison of two TD maps over the valid cells [mm] (a - b).
 struct DepositDifferenceMm {
   double rms = 0.0, max_abs = 0.0, mean = 0.0;
