@@ -124,8 +124,7 @@ TEST(ClearanceTerm, TheSwarmsRegionModelTracksWithTheTerm) {
 // -(d0 - d) / d0 g . dx/dq_j (d the field distance less the key's radius, g the field's gradient
 // as field_distance gives it). Against the same sum with the point velocities dx/dq_j taken as
 // central differences through link_frames (the term takes them from the joints' axes), at
-// postures of a region low on the narrow wall, where the links come within the influence. The key
-// points are rebuilt as clearance_objective places them (cylinders split every 0.25 m).
+// postures of a region low on the narrow wall, where the links come within the influence.
 TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
   const Robot robot = Robot::load(RobotConfig{});
   const WallOctree wall(narrow_wall(-1.5, 3.5), 0.05);
@@ -133,22 +132,8 @@ TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
   const NullSpaceObjective term = clearance_objective(robot, wall, cc);
   ASSERT_TRUE(term.active());
   const double d0 = cc.null_space_influence_m;
-  struct Key {
-    int frame;
-    Eigen::Vector3d p;
-    double radius_m;
-  };
-  std::vector<Key> keys;
-  for (const CollisionShape& s : robot.collision_shapes()) {
-    if (s.link.rfind("nozzle", 0) == 0) continue;
-    if (s.kind == CollisionShape::Kind::cylinder) {
-      const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / 0.25)));
-      for (int k = 0; k < m; ++k)
-        keys.push_back({s.frame, s.origin * Eigen::Vector3d(0, 0, -0.5 * s.length_m + (k + 0.5) * s.length_m / m), s.radius_m});
-    } else {
-      keys.push_back({s.frame, s.origin.translation(), s.kind == CollisionShape::Kind::sphere ? s.radius_m : 0.5 * s.size_m.minCoeff()});
-    }
-  }
+  const std::vector<ClearanceKeyPoint> keys = clearance_key_points(robot);
+  ASSERT_GT(keys.size(), 8u);
   const std::vector<Pass> region = test::axial_region(2, 1.2, 0.2, 0.2, 2.6, {0.4}, kR - 1.0, kR);
   const TimedTrajectory tr = time_plan(robot, {region}, robot.stow(), TimingConfig{}, RobotConfig{});
   int checked = 0;
@@ -165,11 +150,11 @@ TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
       qp[j] += h;
       qm[j] -= h;
       const auto fp = robot.link_frames(qp), fm = robot.link_frames(qm);
-      for (const Key& k : keys) {
+      for (const ClearanceKeyPoint& k : keys) {
         const auto f = static_cast<std::size_t>(k.frame);
         Eigen::Vector3d g;
-        const double d = wall.field_distance(frames[f] * k.p, &g) - k.radius_m;
-        if (d < d0) ref[j] += -(d0 - d) / d0 * g.dot((fp[f] * k.p - fm[f] * k.p) / (2.0 * h));
+        const double d = wall.field_distance(frames[f] * k.point_m, &g) - k.radius_m;
+        if (d < d0) ref[j] += -(d0 - d) / d0 * g.dot((fp[f] * k.point_m - fm[f] * k.point_m) / (2.0 * h));
       }
     }
     if (ref.norm() > 0.0) ++checked;

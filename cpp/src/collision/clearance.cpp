@@ -900,17 +900,8 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
 
 }  // namespace
 
-NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
-  NullSpaceObjective out;
-  out.gain = config.null_space_gain;
-  if (!(out.gain > 0.0)) return out;
-  // Key points in their link frames, with the radius the shape reaches past them.
-  struct Key {
-    int frame;
-    Eigen::Vector3d p;
-    double radius_m;
-  };
-  std::vector<Key> keys;
+std::vector<ClearanceKeyPoint> clearance_key_points(const Robot& robot) {
+  std::vector<ClearanceKeyPoint> keys;
   for (const CollisionShape& s : robot.collision_shapes()) {
     if (s.link.rfind("nozzle", 0) == 0) continue;  // placed by the task: the null space cannot move them
     if (s.kind == CollisionShape::Kind::cylinder) {
@@ -921,6 +912,14 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
       keys.push_back({s.frame, s.origin.translation(), s.kind == CollisionShape::Kind::sphere ? s.radius_m : 0.5 * s.size_m.minCoeff()});
     }
   }
+  return keys;
+}
+
+NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
+  NullSpaceObjective out;
+  out.gain = config.null_space_gain;
+  if (!(out.gain > 0.0)) return out;
+  const std::vector<ClearanceKeyPoint> keys = clearance_key_points(robot);
   const double d0 = config.null_space_influence_m;
   const Robot* rb = &robot;
   const WallOctree* w = &wall;
@@ -931,7 +930,7 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
     // dU/dx at each key point inside the influence distance: -(d0 - d) / d0 times the field's gradient.
     std::vector<std::pair<std::size_t, Eigen::Vector3d>> active;
     for (std::size_t k = 0; k < keys.size(); ++k) {
-      const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].p;
+      const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].point_m;
       const double d = w->field_distance(x) - keys[k].radius_m;
       if (!(d < d0)) continue;
       Eigen::Vector3d g;  // the field's gradient only where the key is within the influence
@@ -946,7 +945,7 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
       double sum = 0.0;
       for (const auto& [k, dudx] : active) {
         if (keys[k].frame < ja.first_frame) continue;
-        const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].p;
+        const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].point_m;
         sum += dudx.dot(ja.rotational ? Eigen::Vector3d(ja.axis.cross(x - ja.point_m)) : ja.axis);
       }
       grad[static_cast<Eigen::Index>(j)] = sum;

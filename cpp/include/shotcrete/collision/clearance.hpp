@@ -152,12 +152,22 @@ struct ClearanceReport {
 ClearanceReport check_clearance(const Robot& robot, const TimedTrajectory& trajectory, const WallOctree& wall,
                                 const ClearanceConfig& config, const ProgressFn& progress = {});
 
+/// A key point of the clearance term: fixed on link frame `frame` (Robot::link_frames), with the
+/// radius its shape reaches past it.
+struct ClearanceKeyPoint {
+  int frame = 0;
+  Eigen::Vector3d point_m = Eigen::Vector3d::Zero();  // in the link's frame
+  double radius_m = 0.0;
+};
+/// The term's key points: along each cylinder's axis at most 0.25 m apart, a sphere's or box's
+/// centre (half the box's shortest edge), on every link but the nozzle* ones (the task sets where
+/// the nozzle is).
+std::vector<ClearanceKeyPoint> clearance_key_points(const Robot& robot);
+
 /// The tracking's clearance term (clearance.null_space_gain, null_space_influence_m d0): the
-/// gradient in joint space of U(q) = sum over key points of 0.5 (d0 - d)^2 / d0 where d < d0, d the
-/// field's smooth reading at the point less the shape's radius. Key points: along each cylinder's
-/// axis at most 0.25 m apart, a sphere's or box's centre, on every link but the nozzle* ones
-/// (the task sets where the nozzle is). Point Jacobians by forward differences of link_frames.
-/// `wall` must outlive the objective. gain 0: an inactive objective.
+/// gradient in joint space of U(q) = sum over the key points of 0.5 (d0 - d)^2 / d0 where d < d0,
+/// d the field's smooth reading at the point less its radius. Point Jacobians from the joints' axes
+/// (Robot::link_frames(q, joints)). `wall` must outlive the objective. gain 0: an inactive objective.
 NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config);
 
 /// The transit router's screen (transit.cpp): the same check on the octree's reading alone (no
