@@ -519,8 +519,8 @@ TEST(FlowSchedule, EndsBlockedKeepsTheRampsOffTheTransitsAround) {
 
 // SpotOnGridBound settles spot_miss_fraction's zeros without casting rays: wherever it answers
 // "surely on the grid", the 128 rays find no miss (checked ray by ray, through spot_miss_fraction),
-// over random nozzle poses in front of a slice with a TD of -40..+200 mm and a hole, at standoffs
-// of 0.5-1.6 m, tilted up to 35 deg along and around the axis; and it does answer for most poses
+// over random nozzle poses in front of a slice with a TD of -80..+200 mm and a hole, at standoffs
+// of 0.5-1.6 m, tilted up to 34 deg along and around the axis; and it does answer for most poses
 // whose spot lies well inside the slice (else it would save nothing). A section profile gets no
 // answer.
 TEST(ExecutedDeposit, SpotOnGridBoundOnlyAnswersWhereNoRayMisses) {

@@ -97,7 +97,6 @@ int cell_on_wall(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector
   return grid.cell_at(cyl[1], cyl[2]);
 }
 
-
 }  // namespace
 
 // Share of the spot's volume whose rays meet the wall off every valid cell: the disc at H0 split
@@ -123,7 +122,6 @@ double spot_miss_fraction(const SpotModel& model, const Grid& grid, const Nozzle
   }
   return static_cast<double>(missed) / (kRings * kDirections);
 }
-
 
 SpotOnGridBound::SpotOnGridBound(const SpotModel& model, const Grid& grid) : grid_(&grid) {
   const int nt = grid.n_theta, nd = grid.n_d;
