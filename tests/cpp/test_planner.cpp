@@ -806,3 +806,38 @@ TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
   EXPECT_GT(wide_rounds, 0);  // both cases are exercised
   EXPECT_GT(close_rounds, 0);
 }
+
+// Graded mode: the level-1 rounds' lines run on graded_last_edge_overrun_m past the bay's ends,
+// the higher levels' edge_overrun_m (read off the passes: the furthest any waypoint lies past a
+// bay end along the axis; the knots sit at the end cells' centres, half a cell inside, and a pass
+// shorter than the spot's radius is lengthened about its middle, by up to half the radius each way).
+TEST(Planner, GradedLastRoundsRunOnFurtherPastTheBayEnds) {
+  Config cfg = small_synthetic_bay_config();
+  cfg.planner.mode = PlannerMode::graded;
+  cfg.planner.graded_last_edge_overrun_m = 0.25;  // well apart from edge_overrun_m's 0.1 m
+  int last_rounds = 0, other_rounds = 0;
+  for (std::uint64_t seed : {1, 2}) {
+    cfg.synth.seed = seed;
+    const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
+    const Plan plan = plan_bay(s, cfg);
+    const Grid& g = s.grid;
+    const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
+    for (std::size_t k = 0; k < plan.rounds.size(); ++k) {
+      double run_on = -1.0;
+      for (const auto& region : plan.rounds[k].regions)
+        for (const auto& pass : region.passes)
+          for (const auto& w : pass.waypoints) {
+            const double d = g.axis.to_cylindrical(w.position_m)[2];
+            run_on = std::max({run_on, d_lo - d, d - d_hi});
+          }
+      const bool last = plan.rounds[k].level == 1;
+      const double lengthened = 0.5 * cfg.deposition.spot_radius_m;
+      EXPECT_LE(run_on, (last ? cfg.planner.graded_last_edge_overrun_m : cfg.planner.edge_overrun_m) + lengthened + 1e-3)
+          << "seed " << seed << ", round " << k + 1;
+      if (last && run_on > cfg.planner.edge_overrun_m + lengthened + 0.01) ++last_rounds;
+      if (!last && run_on > 0.0) ++other_rounds;
+    }
+  }
+  EXPECT_GT(last_rounds, 0);  // a level-1 round reached a bay end, and ran on further
+  EXPECT_GT(other_rounds, 0);
+}
