@@ -176,9 +176,9 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   rp.target_thickness_m = top == 1 ? std::max(rp.region.td_mean_m, rp.region.td_max_m - 0.045)
                                    : rp.region.td_max_m - level_floor_mm(top) / 1000.0 + 0.005;
   rp.spacing_m = ctx.spacing_m;
-  // The level-1 rounds lay the last layer: their lines run on graded_last_edge_overrun_m past the
-  // bay's ends, so the end columns get the spot's whole width (at edge_overrun_m they ended up to
-  // 50 mm short, 15-34 of a seed's 26-48 cells above +40 mm).
+  // The level-1 rounds lay the last layer: with graded_last_edge_overrun_m their lines run on that
+  // far past the bay's ends, so the end columns get more of the spot (at edge_overrun_m they hold
+  // 15-34 of a seed's 26-48 cells above +40 mm). Off by default: docs/architecture.md §5.
   PlannerConfig lines = pc;
   if (top == 1 && pc.graded_last_edge_overrun_m > 0.0) lines.edge_overrun_m = pc.graded_last_edge_overrun_m;
   rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, lines, ctx.lean);
