@@ -927,15 +927,19 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
     grad.setZero(q.size());
     std::vector<JointAxis> joints;
     const auto frames = rb->link_frames(q, joints);
-    // dU/dx at each key point inside the influence distance: -(d0 - d) / d0 times the field's gradient.
-    std::vector<std::pair<std::size_t, Eigen::Vector3d>> active;
-    for (std::size_t k = 0; k < keys.size(); ++k) {
-      const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].point_m;
-      const double d = w->field_distance(x) - keys[k].radius_m;
+    // dU/dx at each key point x inside the influence distance: -(d0 - d) / d0 times the field's gradient.
+    struct Active {
+      int frame;
+      Eigen::Vector3d x, dudx;
+    };
+    std::vector<Active> active;
+    for (const ClearanceKeyPoint& key : keys) {
+      const Eigen::Vector3d x = frames[static_cast<std::size_t>(key.frame)] * key.point_m;
+      const double d = w->field_distance(x) - key.radius_m;
       if (!(d < d0)) continue;
       Eigen::Vector3d g;  // the field's gradient only where the key is within the influence
       w->field_distance(x, &g);
-      active.emplace_back(k, -(d0 - d) / d0 * g);
+      active.push_back({key.frame, x, -(d0 - d) / d0 * g});
     }
     if (active.empty()) return;
     // dU/dq_j = sum of dU/dx . dx/dq_j over the key points the joint moves (the point Jacobians
@@ -943,10 +947,9 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
     for (std::size_t j = 0; j < joints.size(); ++j) {
       const JointAxis& ja = joints[j];
       double sum = 0.0;
-      for (const auto& [k, dudx] : active) {
-        if (keys[k].frame < ja.first_frame) continue;
-        const Eigen::Vector3d x = frames[static_cast<std::size_t>(keys[k].frame)] * keys[k].point_m;
-        sum += dudx.dot(ja.rotational ? Eigen::Vector3d(ja.axis.cross(x - ja.point_m)) : ja.axis);
+      for (const Active& a : active) {
+        if (a.frame < ja.first_frame) continue;
+        sum += a.dudx.dot(ja.rotational ? Eigen::Vector3d(ja.axis.cross(a.x - ja.point_m)) : ja.axis);
       }
       grad[static_cast<Eigen::Index>(j)] = sum;
     }

@@ -146,9 +146,9 @@ bool SpotOnGridBound::surely_on_grid(const NozzlePose& nozzle) const {
   if (!usable_) return false;
   const Grid& g = *grid_;
   const TunnelAxis& ax = g.axis;
-  const Eigen::Vector3d c = nozzle.position_m - ax.origin_m;
+  const Eigen::Vector3d cyl = ax.to_cylindrical(nozzle.position_m);  // the nozzle's (r, theta, d)
+  const double r_c = cyl[0], theta_c = cyl[1], cx = cyl[2];
   const Eigen::Vector3d a = nozzle.axis.normalized();
-  const double cy = c.dot(ax.ey), cz = c.dot(ax.ez), cx = c.dot(ax.ex), r_c = std::hypot(cy, cz);
   if (!(r_c > 1e-6 && r_c < rho_lo_ - 1e-6)) return false;
   // Elevation e (out of the cross-section) of the rays: within the cone of a, |e - e_a| <= cone.
   const double e_a = std::asin(std::clamp(a.dot(ax.ex), -1.0, 1.0)), cone = cone_rad_;
@@ -161,7 +161,7 @@ bool SpotOnGridBound::surely_on_grid(const NozzlePose& nozzle) const {
   const double s = std::sin(0.5 * cone) / std::sqrt(std::cos(e_a) * perp_min);
   if (s >= 1.0) return false;
   const double dpsi = 2.0 * std::asin(s);
-  const Eigen::Vector2d radial(cy / r_c, cz / r_c), a_perp(a.dot(ax.ey), a.dot(ax.ez));
+  const Eigen::Vector2d radial(std::cos(theta_c), std::sin(theta_c)), a_perp(a.dot(ax.ey), a.dot(ax.ez));
   if (a_perp.norm() < 1e-9) return false;
   const double phi_a = std::acos(std::clamp(radial.dot(a_perp.normalized()), -1.0, 1.0));
   const double phi_max = phi_a + dpsi;
@@ -176,8 +176,6 @@ bool SpotOnGridBound::surely_on_grid(const NozzlePose& nozzle) const {
   const double sin_dt = d_max * sp / rho_lo_;
   if (sin_dt >= 1.0) return false;
   const double dt = std::asin(sin_dt);
-  double theta_c = std::atan2(cz, cy);
-  if (theta_c < -0.5 * M_PI) theta_c += 2.0 * M_PI;  // as TunnelAxis::to_cylindrical
   if (theta_c - dt < -0.5 * M_PI || theta_c + dt >= 1.5 * M_PI) return false;  // across the cut
   // The window's rows and columns, one more each side for rounding.
   const int r0 = static_cast<int>(std::floor((theta_c - dt - g.theta0_rad) / g.dtheta_rad)) - 1;

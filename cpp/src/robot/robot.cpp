@@ -294,11 +294,10 @@ std::vector<Eigen::Isometry3d> compose_frames(const Robot::Impl& r, const Eigen:
     if (moves && joints) {
       // As Kin::compose: the axis through the joint's origin, both in the parent's frame.
       const KDL::Vector a = f.M * joint.JointAxis(), o = f * joint.JointOrigin();
-      const auto t = joint.getType();
       JointAxis ja;
       ja.axis = r.base.linear() * Eigen::Vector3d(a.x(), a.y(), a.z()).normalized();
       ja.point_m = r.base * Eigen::Vector3d(o.x(), o.y(), o.z());
-      ja.rotational = t == KDL::Joint::RotAxis || t == KDL::Joint::RotX || t == KDL::Joint::RotY || t == KDL::Joint::RotZ;
+      ja.rotational = !r.prismatic[static_cast<std::size_t>(j)];  // URDF: revolute or prismatic, in q's order
       ja.first_frame = static_cast<int>(i) + 1;
       joints->push_back(ja);
     }
