@@ -37,9 +37,12 @@ ALTERNATIVES = {
     # The levelling rounds after the first on the first round's close lines and run-on, as before
     # the wide late rounds became the default.
     "close late rounds": {"planner.levelling_late_spacing_ratio": 0.5, "planner.levelling_late_edge_overrun_m": 0.1},
+    # graded mode before the last rounds ran on past the bay's ends and lines were cut at gaps
+    "graded lines whole, no last run-on": {"planner.graded_last_edge_overrun_m": 0.0, "planner.graded_split_gap_m": 0.0},
 }
 # Alternatives that change only the optimal mode's levelling rounds: not run in graded mode.
 OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds"}
+GRADED_ONLY = {"graded lines whole, no last run-on"}
 
 
 # Issue 15's residual targets per mode [mm].
@@ -90,7 +93,7 @@ def main() -> None:
     args = parser.parse_args()
     runs = []
     for name in args.alternatives:
-        for mode in [m for m in args.modes if m == "optimal" or name not in OPTIMAL_ONLY]:
+        for mode in [m for m in args.modes if (m == "optimal" or name not in OPTIMAL_ONLY) and (m == "graded" or name not in GRADED_ONLY)]:
             for seed in args.seeds:
                 runs.append(run(mode, seed, name))
                 r = runs[-1]

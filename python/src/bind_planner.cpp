@@ -70,11 +70,13 @@ void bind_planner(py::module_& m) {
   m.def(
       "plan_passes",
       [](const Grid& grid, const std::vector<int>& cells, double spacing_m, const PlannerConfig& config,
-         const std::vector<Eigen::Vector3d>& lean) { return plan_passes(grid, cells, spacing_m, config, &lean); },
+         const std::vector<Eigen::Vector3d>& lean,
+         double split_gap_m) { return plan_passes(grid, cells, spacing_m, config, &lean, split_gap_m); },
       py::arg("grid"), py::arg("cells"), py::arg("spacing_m"), py::arg("config"),
-      py::arg("lean") = std::vector<Eigen::Vector3d>{},
+      py::arg("lean") = std::vector<Eigen::Vector3d>{}, py::arg("split_gap_m") = 0.0,
       "Pass lines over grid cells: slicing planes, crossing points, standoff offset, spline. lean (empty,\n"
       "or one 3-vector per grid cell): the nozzle's lean off square there, tangent to the wall, length =\n"
-      "angle [rad] (ObstructedCells.lean).");
+      "angle [rad] (ObstructedCells.lean). split_gap_m > 0: a line is cut into several passes where more\n"
+      "than that length of wall [m] along it holds none of the cells.");
   m.def("clamped_cubic_spline", &clamped_cubic_spline, py::arg("points"), py::arg("step_m"));
 }

@@ -87,6 +87,53 @@ TEST(Passes, StandoffAndAxisOnACylinder) {
   }
 }
 
+// split_gap_m: a line over cells at both ends of the bay (d 0-0.1 and 0.7-0.8 m, a 0.6 m gap) is
+// cut into one pass per end, none of whose waypoints lies over the gap; a gap no longer than
+// split_gap_m (or split_gap_m 0) leaves the one pass across it, the same as without the option.
+// The pieces keep the serpentine: those of one line run the same way, in order along it, and the
+// next line's run back in reverse order.
+TEST(Passes, ALineIsCutWhereItsCellsLeaveAGap) {
+  Surface s = analytic_bay(uniform_100mm);
+  const Grid& g = s.grid;
+  PlannerConfig pc;
+  std::vector<int> ends;
+  for (int i = 20; i < 28; ++i)
+    for (int j : {0, 1, 14, 15}) ends.push_back(g.index(i, j));
+  auto d_of = [&](const NozzlePose& w) { return g.axis.to_cylindrical(w.position_m)[2]; };
+  const auto whole = plan_passes(g, ends, 0.2, pc);
+  ASSERT_EQ(whole.size(), 2u);  // two lines 0.2 m apart over the 0.4 m of rows
+  EXPECT_GT(whole[0].length_m, 0.8);
+  const auto split = plan_passes(g, ends, 0.2, pc, nullptr, 0.3);
+  ASSERT_EQ(split.size(), 4u);
+  for (const auto& p : split) {
+    EXPECT_EQ(p.line, split[0].line == p.line ? whole[0].line : whole[1].line);
+    for (const auto& w : p.waypoints) {
+      const double d = d_of(w);
+      EXPECT_TRUE(d < 0.1 + 0.01 || d > 0.7 - 0.01) << "waypoint over the gap at d = " << d;
+    }
+  }
+  // In order along the first line (toward +d), then back along the second.
+  auto dir = [&](const Pass& p) { return d_of(p.waypoints.back()) - d_of(p.waypoints.front()); };
+  EXPECT_GT(dir(split[0]), 0);
+  EXPECT_GT(dir(split[1]), 0);
+  EXPECT_LT(dir(split[2]), 0);
+  EXPECT_LT(dir(split[3]), 0);
+  EXPECT_LT(d_of(split[0].waypoints.back()), d_of(split[1].waypoints.front()));
+  EXPECT_GT(d_of(split[2].waypoints.back()), d_of(split[3].waypoints.front()));
+  EXPECT_EQ(split[0].line, split[1].line);
+  EXPECT_EQ(split[2].line, split[3].line);
+  EXPECT_NE(split[1].line, split[2].line);
+  // A gap within split_gap_m: the same passes as without it.
+  const auto kept = plan_passes(g, ends, 0.2, pc, nullptr, 0.65);
+  ASSERT_EQ(kept.size(), whole.size());
+  for (std::size_t k = 0; k < kept.size(); ++k) {
+    ASSERT_EQ(kept[k].waypoints.size(), whole[k].waypoints.size());
+    for (std::size_t i = 0; i < kept[k].waypoints.size(); ++i)
+      EXPECT_EQ(kept[k].waypoints[i].position_m, whole[k].waypoints[i].position_m);
+  }
+  EXPECT_THROW(plan_passes(g, ends, 0.2, pc, nullptr, -0.1), std::invalid_argument);
+}
+
 TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   // Axial passes over a uniform 100 mm bay (wall radius 5.7 m, d in [0, 0.8]) with a lean toward +d
   // that ramps from 0 at d = 0.4 m to 0.3 rad at the end: every waypoint's spray axis meets the wall

@@ -328,17 +328,29 @@ void add_edge_overrun(LineKnots& k, int n_u, double overrun_m) {
   }
 }
 
-// Knots of the pass on the slicing plane w = wk over the cells within half a spacing of it
-// (none when no such cell has data on the plane).
-LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double wk, double spacing_m,
-                     const PlannerConfig& config) {
-  LineKnots k;
-  int u_lo = f.n_u, u_hi = -1;
+// The u ranges of a pass line over the cells within half a spacing of the slicing plane w = wk:
+// one range from the first such cell to the last, or, with split_gap_m > 0, one per run of them,
+// cut where more than split_gap_m of wall holds none of them (the line would otherwise spray the
+// cells between, which need nothing, as much as its own).
+std::vector<std::pair<int, int>> line_ranges(const PassFrame& f, const std::vector<int>& cells, double wk,
+                                             double spacing_m, double split_gap_m) {
+  std::vector<int> us;
   for (int c : cells)
-    if (std::abs(f.w_center(f.w_of(c)) - wk) <= 0.5 * spacing_m + 0.5 * f.cs) {
-      u_lo = std::min(u_lo, f.u_of(c));
-      u_hi = std::max(u_hi, f.u_of(c));
-    }
+    if (std::abs(f.w_center(f.w_of(c)) - wk) <= 0.5 * spacing_m + 0.5 * f.cs) us.push_back(f.u_of(c));
+  if (us.empty()) return {};
+  std::sort(us.begin(), us.end());
+  std::vector<std::pair<int, int>> ranges{{us.front(), us.front()}};
+  for (int u : us) {
+    if (split_gap_m > 0 && (u - ranges.back().second - 1) * f.cs > split_gap_m) ranges.push_back({u, u});
+    ranges.back().second = u;
+  }
+  return ranges;
+}
+
+// Knots of the pass on the slicing plane w = wk over u = u_lo..u_hi (none when no cell there has
+// data on the plane).
+LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const PlannerConfig& config) {
+  LineKnots k;
   for (int iu = u_lo; iu <= u_hi; ++iu) {
     const auto crossing = crossing_point(f, iu, wk);
     if (!crossing) continue;
@@ -363,9 +375,11 @@ LineKnots line_knots(const PassFrame& f, const std::vector<int>& cells, double w
 }  // namespace
 
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
-                              const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean) {
+                              const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean,
+                              double split_gap_m) {
   if (cells.empty()) return {};
   if (!(spacing_m > 0)) throw std::invalid_argument("plan_passes: spacing_m must be > 0");
+  if (!(split_gap_m >= 0)) throw std::invalid_argument("plan_passes: split_gap_m must be >= 0");
   if (lean && !lean->empty() && lean->size() != static_cast<std::size_t>(grid.size()))
     throw std::invalid_argument("plan_passes: lean has " + std::to_string(lean->size()) + " entries for " +
                                 std::to_string(grid.size()) + " grid cells");
@@ -386,22 +400,31 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
   const bool step_down_w = f.axial && left_side;
 
   std::vector<Pass> passes;
+  int n_sprayed_lines = 0;
   for (int k = 0; k < n_lines; ++k) {
     const int line = step_down_w ? n_lines - 1 - k : k;
     const double wk = mid + (line - 0.5 * (n_lines - 1)) * spacing_m;
-    LineKnots knots = line_knots(f, cells, wk, spacing_m, config);
-    if (knots.poses.empty()) continue;
-    const bool leaned = std::any_of(knots.leaned.begin(), knots.leaned.end(), [](char l) { return l != 0; });
-    smooth_knot_radii(grid.axis, knots.poses, leaned, config.standoff_m);
-    if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m);
-    Pass pass;
-    pass.line = line;
-    pass.waypoints = spline_poses(knots.poses, config.sample_step_m);
-    pass.length_m = polyline_length(pass.waypoints);
-    passes.push_back(std::move(pass));
+    std::vector<Pass> pieces;
+    for (const auto& [u_lo, u_hi] : line_ranges(f, cells, wk, spacing_m, split_gap_m)) {
+      LineKnots knots = line_knots(f, u_lo, u_hi, wk, config);
+      if (knots.poses.empty()) continue;
+      const bool leaned = std::any_of(knots.leaned.begin(), knots.leaned.end(), [](char l) { return l != 0; });
+      smooth_knot_radii(grid.axis, knots.poses, leaned, config.standoff_m);
+      if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m);
+      Pass pass;
+      pass.line = line;
+      pass.waypoints = spline_poses(knots.poses, config.sample_step_m);
+      pass.length_m = polyline_length(pass.waypoints);
+      pieces.push_back(std::move(pass));
+    }
+    if (pieces.empty()) continue;
+    // Serpentine: every other line runs back, its pieces in reverse order.
+    if (n_sprayed_lines++ % 2 == 1) {
+      std::reverse(pieces.begin(), pieces.end());
+      for (auto& p : pieces) reverse_pass(p);
+    }
+    for (auto& p : pieces) passes.push_back(std::move(p));
   }
-  for (std::size_t i = 0; i < passes.size(); ++i)
-    if (i % 2 == 1) reverse_pass(passes[i]);  // serpentine
   return passes;
 }
 

@@ -181,7 +181,7 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   // 15-34 of a seed's 26-48 cells above +40 mm). Off by default: docs/architecture.md §5.
   PlannerConfig lines = pc;
   if (top == 1 && pc.graded_last_edge_overrun_m > 0.0) lines.edge_overrun_m = pc.graded_last_edge_overrun_m;
-  rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, lines, ctx.lean);
+  rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, lines, ctx.lean, pc.graded_split_gap_m);
   if (rp.passes.empty()) return std::nullopt;
   for (auto& p : rp.passes) lengthen_short_pass(p, ctx.model.radius_m, pc.sample_step_m);
   const std::string where = round_name(in.number) + ", region " + std::to_string(ri);

@@ -44,8 +44,11 @@ void reverse_pass(Pass& pass);
 /// tangent to the wall whose direction the spray axis tips toward and whose length is the lean
 /// angle [rad]; the nozzle then stands at the standoff back along the leaned axis (the pose that
 /// keeps it off a face or a duct: nozzle_lean). Interpolated between cells like the crossing points.
+/// split_gap_m > 0: a line is cut into several passes where more than that length of wall [m]
+/// along it holds none of `cells` (0: one pass from the line's first cell to its last).
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
-                              const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean = nullptr);
+                              const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean = nullptr,
+                              double split_gap_m = 0.0);
 
 /// The spray axis `square_axis` (unit) tipped by `lean` (its component tangent to the axis gives
 /// the direction, its length the angle [rad]); `square_axis` itself when that is zero. The one
