@@ -37,8 +37,10 @@ ALTERNATIVES = {
     # The levelling rounds after the first on the first round's close lines and run-on, as before
     # the wide late rounds became the default.
     "close late rounds": {"planner.levelling_late_spacing_ratio": 0.5, "planner.levelling_late_edge_overrun_m": 0.1},
-    # graded mode before the last rounds ran on past the bay's ends and lines were cut at gaps
-    "graded lines whole, no last run-on": {"planner.graded_last_edge_overrun_m": 0.0, "planner.graded_split_gap_m": 0.0},
+    # graded mode before the last rounds ran on past the bay's ends with end speeds of their own
+    # and lines were cut at gaps
+    "graded lines whole, no last run-on": {"planner.graded_last_edge_overrun_m": 0.0, "planner.graded_split_gap_m": 0.0,
+                                           "planner.graded_end_zone_m": 0.0},
 }
 # Alternatives that change only the optimal mode's levelling rounds: not run in graded mode.
 OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds"}

@@ -578,6 +578,30 @@ TEST(GradedSpeeds, ABackgroundDepositCountsAsLaidAlready) {
   EXPECT_THROW(graded_deposit_cost(t, Eigen::VectorXd::Zero(5)), std::invalid_argument);
 }
 
+TEST(GradedSpeeds, ATiedSpeedIsSearchedWithItsLeaderThenPolishedOnItsOwn) {
+  // The two passes as the two speeds of one pass (its middle and an end, graded_end_zone_m): with
+  // the end tied to the middle, BOBYQA searches one speed and the polish frees the end; the
+  // result is the two-speed optimum of the brute-force search, not the best common speed.
+  const TwoBells p;
+  const auto& [unit, cfg, v_max] = std::tie(p.unit, p.cfg, p.v_max);
+  SpeedTargets t;
+  for (int c = 2; c <= 9; ++c) t.slots.push_back(c), t.target_m.push_back(c < 6 ? 0.060 : 0.030);
+  double best = 1e300, best_common = 1e300;
+  for (double w0 = 1.0; w0 <= 20.0; w0 += 0.01) {
+    best_common = std::min(best_common, graded_objective(unit, t, {1 / w0, 1 / w0}));
+    for (double w1 = 1.0; w1 <= 20.0; w1 += 0.01) best = std::min(best, graded_objective(unit, t, {1 / w0, 1 / w1}));
+  }
+  ASSERT_LT(best, 0.8 * best_common);  // the two speeds matter
+  const std::vector<PassPart> parts = {{0, 0.0, unit[0]}, {1, 0.0, unit[1]}};
+  const PassSpeeds tied = optimise_speeds(parts, 2, t, cfg, v_max, {}, {0, 0});
+  EXPECT_NEAR(graded_objective(unit, t, tied.speeds_mps), best, 0.01 * best);
+  EXPECT_GT(tied.speeds_mps[1], tied.speeds_mps[0]);  // the right needs less: faster
+  // A tie to a tied speed, or a tie list of the wrong length, is an error.
+  EXPECT_THROW(optimise_speeds(parts, 2, t, cfg, v_max, {}, {1, 0}), std::invalid_argument);
+  EXPECT_THROW(optimise_speeds(parts, 2, t, cfg, v_max, {}, {0}), std::invalid_argument);
+  EXPECT_THROW(optimise_speeds(parts, 2, t, cfg, v_max, {}, {0, 2}), std::invalid_argument);
+}
+
 TEST(GradedSpeeds, IllPosedProblemsAreErrors) {
   PlannerConfig cfg;
   const std::vector<Eigen::VectorXd> unit = {bell(5, 2.0, 0.004)};
@@ -887,4 +911,45 @@ TEST(Planner, GradedLastRoundsRunOnFurtherPastTheBayEnds) {
   }
   EXPECT_GT(last_rounds, 0);  // a level-1 round reached a bay end, and ran on further
   EXPECT_GT(other_rounds, 0);
+}
+
+// Graded mode, graded_end_zone_m: a level-1 pass that runs on past a bay end may change speed only
+// within that zone of the end (and the short ramp the arm's speed-change limit adds); every other
+// waypoint of every pass keeps the pass's speed (no speed cap here: the plan is without the arm).
+// Some end is sprayed at a speed of its own; no pass of a higher level has one.
+TEST(Planner, GradedLastRoundsHaveEndSpeedsOnlyAtTheBayEnds) {
+  Config cfg = small_synthetic_bay_config();
+  cfg.planner.mode = PlannerMode::graded;
+  ASSERT_GT(cfg.planner.graded_end_zone_m, 0.0);
+  const double zone = cfg.planner.graded_end_zone_m;
+  int end_speeds = 0;
+  for (std::uint64_t seed : {1, 2}) {
+    cfg.synth.seed = seed;
+    const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
+    const Plan plan = plan_bay(s, cfg);
+    const Grid& g = s.grid;
+    const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
+    for (const auto& round : plan.rounds)
+      for (const auto& region : round.regions)
+        for (const auto& pass : region.passes) {
+          if (round.level != 1) {
+            EXPECT_TRUE(pass.speed_profile_mps.empty()) << "seed " << seed << ", a level-" << round.level << " pass";
+            continue;
+          }
+          // The ramp between the pass's slowest and fastest speed at the speed-change acceleration.
+          double v_lo = pass.speed_mps, v_hi = pass.speed_mps;
+          for (std::size_t i = 0; i < pass.waypoints.size(); ++i)
+            v_lo = std::min(v_lo, pass.speed_at(i)), v_hi = std::max(v_hi, pass.speed_at(i));
+          const double ramp = (v_hi * v_hi - v_lo * v_lo) / (2 * cfg.timing.speed_change_accel_mps2) + 0.01;
+          bool differs = false;
+          for (std::size_t i = 0; i < pass.waypoints.size(); ++i) {
+            const double d = g.axis.to_cylindrical(pass.waypoints[i].position_m)[2];
+            const bool in_zone = d < d_lo + zone + ramp || d > d_hi - zone - ramp;
+            if (!in_zone) EXPECT_DOUBLE_EQ(pass.speed_at(i), pass.speed_mps) << "seed " << seed << ", d = " << d;
+            differs = differs || std::abs(pass.speed_at(i) - pass.speed_mps) > 1e-3;
+          }
+          end_speeds += differs;
+        }
+  }
+  EXPECT_GT(end_speeds, 0);
 }

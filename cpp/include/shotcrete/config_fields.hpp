@@ -138,6 +138,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("graded_thesis_objective", &PlannerConfig::graded_thesis_objective, 0, 0, "graded mode: the thesis's speed objective as written (one target per region, no over-fill guard)");
   f("graded_last_edge_overrun_m", &PlannerConfig::graded_last_edge_overrun_m, 0.0, 1.0, "graded mode: edge_overrun_m of the level-1 rounds, whose passes lay the last layer on the bay's end columns (0: edge_overrun_m) [m]");
   f("graded_split_gap_m", &PlannerConfig::graded_split_gap_m, 0.0, 100.0, "graded mode: a region's pass line is cut into several passes where more than this length of wall along it holds none of the region's cells, instead of spraying the cells between at the pass's speed (0: never) [m]");
+  f("graded_end_zone_m", &PlannerConfig::graded_end_zone_m, 0.0, 0.6, "graded mode: a level-1 pass that runs on past a bay end has a speed of its own over this much of the bay's end and the run-on, so the end columns, short by what every earlier round left them, can be filled (0: one speed per pass, the thesis) [m]");
   f("graded_overfill_allowance_m", &PlannerConfig::graded_overfill_allowance_m, 0.0, 0.05, "graded mode: fill past flush a cell may take before it counts as over-filled [m]");
   f("graded_guard_weight", &PlannerConfig::graded_guard_weight, 0.0, 1e4, "graded mode: cost of over-fill past the allowance per unit off target (0: no guard)");
 }

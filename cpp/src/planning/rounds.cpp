@@ -123,16 +123,24 @@ void limit_profile_changes(Pass& p, double accel_mps2) {
 }
 
 // The passes at the solved speeds: slower where the machine's cap binds (the speed profile the
-// arm follows, its changes within speed_change_accel_mps2).
+// arm follows, its changes within speed_change_accel_mps2). var_of[j][i]: the speed variable of
+// pass j's waypoint i (the pass's own, j, or one of its ends'); empty: one per pass.
 std::vector<Pass> passes_at(std::vector<Pass> passes, const PassSpeeds& speeds, const std::vector<std::vector<double>>& caps,
-                            const RoundContext& ctx) {
-  for (std::size_t j = 0; j < speeds.speeds_mps.size(); ++j) {
+                            const RoundContext& ctx, const std::vector<std::vector<std::size_t>>& var_of = {}) {
+  for (std::size_t j = 0; j < passes.size(); ++j) {
     Pass& p = passes[j];
     p.speed_mps = speeds.speeds_mps[j];
     p.speed_profile_mps.clear();
-    if (*std::min_element(caps[j].begin(), caps[j].end()) < p.speed_mps) {
-      p.speed_profile_mps.resize(p.waypoints.size());
-      for (std::size_t i = 0; i < p.waypoints.size(); ++i) p.speed_profile_mps[i] = std::min(p.speed_mps, caps[j][i]);
+    std::vector<double> v(p.waypoints.size(), p.speed_mps);
+    if (!var_of.empty())
+      for (std::size_t i = 0; i < v.size(); ++i) v[i] = speeds.speeds_mps[var_of[j][i]];
+    bool varies = false;
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      v[i] = std::min(v[i], caps[j][i]);
+      varies = varies || v[i] != p.speed_mps;
+    }
+    if (varies) {
+      p.speed_profile_mps = std::move(v);
       limit_profile_changes(p, ctx.config.timing.speed_change_accel_mps2);
     }
   }
@@ -199,6 +207,35 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
     for (std::size_t j = 0; j < rp.passes.size(); ++j) all.push_back(&rp.passes[j]), names.push_back(where + ", pass " + std::to_string(j));
     caps = ctx.caps(all, names);
   }
+  // The level-1 rounds lay the last layer, and one speed per pass leaves the bay's end columns
+  // short by what every earlier round left them short (seed 2: the level-2 round laid 63 mm on
+  // column 0 and 75 mm inside): with graded_end_zone_m, a pass that runs on past a bay end has its
+  // own speed over the last graded_end_zone_m of the bay and the run-on (speed variables
+  // n_passes.., var_of per waypoint).
+  std::vector<std::vector<std::size_t>> var_of(rp.passes.size());
+  std::vector<std::size_t> owner;  // per speed variable: its pass
+  for (std::size_t j = 0; j < rp.passes.size(); ++j) owner.push_back(j), var_of[j].assign(rp.passes[j].waypoints.size(), j);
+  if (top == 1 && pc.graded_end_zone_m > 0.0 && pc.pass_direction == PassDirection::axial) {
+    const Grid& g = in.wall.surface.grid;
+    const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
+    for (std::size_t j = 0; j < rp.passes.size(); ++j) {
+      const auto& w = rp.passes[j].waypoints;
+      std::vector<double> d(w.size());
+      for (std::size_t i = 0; i < w.size(); ++i) d[i] = g.axis.to_cylindrical(w[i].position_m)[2];
+      const auto [lo, hi] = std::minmax_element(d.begin(), d.end());
+      const bool at_lo = *lo < d_lo, at_hi = *hi > d_hi;  // runs on past that end
+      std::size_t n_mid = 0;
+      for (double x : d) n_mid += x >= d_lo + pc.graded_end_zone_m && x <= d_hi - pc.graded_end_zone_m;
+      if (n_mid < 2) continue;
+      std::size_t lo_var = 0, hi_var = 0;
+      if (at_lo) lo_var = owner.size(), owner.push_back(j);
+      if (at_hi) hi_var = owner.size(), owner.push_back(j);
+      for (std::size_t i = 0; i < d.size(); ++i) {
+        if (at_lo && d[i] < d_lo + pc.graded_end_zone_m) var_of[j][i] = lo_var;
+        if (at_hi && d[i] > d_hi - pc.graded_end_zone_m) var_of[j][i] = hi_var;
+      }
+    }
+  }
   for (std::size_t j = 0; j < rp.passes.size(); ++j) {
     const Pass& p = rp.passes[j];
     const auto& cap = caps[j];
@@ -207,17 +244,20 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
     Pass unit_pass = p;
     unit_pass.speed_mps = 1.0;
     const std::vector<double> dwell = unit_pass.dwell_s();
-    std::map<long, std::vector<std::size_t>> groups;  // cap bin -> waypoints (bin -1: no cap binds)
+    // (speed variable, cap bin) -> waypoints (bin -1: no cap binds)
+    std::map<std::pair<std::size_t, long>, std::vector<std::size_t>> groups;
     for (std::size_t i = 0; i < cap.size(); ++i)
-      groups[cap[i] >= pc.max_speed_mps ? -1L : static_cast<long>(std::floor(std::log(pc.max_speed_mps / cap[i]) / std::log(1.05)))]
+      groups[{var_of[j][i],
+              cap[i] >= pc.max_speed_mps ? -1L : static_cast<long>(std::floor(std::log(pc.max_speed_mps / cap[i]) / std::log(1.05)))}]
           .push_back(i);
     unit.push_back(Eigen::VectorXd::Zero(static_cast<Eigen::Index>(cells.cell_ids.size())));
-    for (const auto& [bin, idx] : groups) {
+    for (const auto& [key, idx] : groups) {
+      const auto [var, bin] = key;
       std::vector<NozzlePose> w;
       std::vector<double> d;
       double lowest = pc.max_speed_mps;
       for (std::size_t i : idx) w.push_back(p.waypoints[i]), d.push_back(dwell[i]), lowest = std::min(lowest, cap[i]);
-      PassPart part{j, bin < 0 ? 0.0 : 1.0 / lowest, unit_deposit(ctx.model, cells, w, d, rebound)};
+      PassPart part{var, bin < 0 ? 0.0 : 1.0 / lowest, unit_deposit(ctx.model, cells, w, d, rebound)};
       unit.back() += part.unit;
       parts.push_back(std::move(part));
     }
@@ -230,6 +270,7 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
     v_max.push_back(std::max(std::min(*std::max_element(cap.begin(), cap.end()), v_spell), pc.min_speed_mps * (1.0 + 1e-6)));
     if (*std::min_element(cap.begin(), cap.end()) < pc.max_speed_mps) ++ctx.plan.speed_capped;
   }
+  for (std::size_t k = rp.passes.size(); k < owner.size(); ++k) v_max.push_back(v_max[owner[k]]);
   SpeedTargets targets = region_targets(in, cells, ctx, rp, unit);
   // Beyond the thesis, the speeds see what the round's other regions lay (their passes reach
   // into this one: 101 mm laid where 69 were asked) and what the timed passes lay beyond the
@@ -240,14 +281,14 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   const bool executed = pc.graded_executed_corrections > 0 && !pc.graded_thesis_objective;
   auto solve = [&](const SpeedTargets& t, const std::vector<double>& v_start) {
     try {
-      return optimise_speeds(parts, rp.passes.size(), t, pc, v_max, v_start);
+      return optimise_speeds(parts, owner.size(), t, pc, v_max, v_start, owner);
     } catch (const std::runtime_error& e) {
       throw std::runtime_error(where + ": " + e.what());
     }
   };
   if (executed) targets.background_m = round_deposit_m;
   PassSpeeds speeds = solve(targets, {});
-  std::vector<Pass> passes = passes_at(rp.passes, speeds, caps, ctx);
+  std::vector<Pass> passes = passes_at(rp.passes, speeds, caps, ctx, var_of);
   if (executed) {
     Eigen::VectorXd sprayed = sprayed_passes(passes, cells, ctx).deposit_m;
     double best = graded_deposit_cost(targets, round_deposit_m + sprayed);
@@ -255,7 +296,7 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
       SpeedTargets corrected = targets;
       corrected.background_m = round_deposit_m + sprayed - solved_deposit_m(parts, speeds);
       PassSpeeds speeds_next = solve(corrected, speeds.speeds_mps);
-      std::vector<Pass> passes_next = passes_at(rp.passes, speeds_next, caps, ctx);
+      std::vector<Pass> passes_next = passes_at(rp.passes, speeds_next, caps, ctx, var_of);
       Eigen::VectorXd sprayed_next = sprayed_passes(passes_next, cells, ctx).deposit_m;
       const double c = graded_deposit_cost(targets, round_deposit_m + sprayed_next);
       if (!(c < best)) break;

@@ -230,12 +230,28 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
 }  // namespace
 
 PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_passes, const SpeedTargets& targets,
-                           const PlannerConfig& cfg, const std::vector<double>& v_max, const std::vector<double>& v_start) {
+                           const PlannerConfig& cfg, const std::vector<double>& v_max, const std::vector<double>& v_start,
+                           const std::vector<std::size_t>& tied_to) {
   check_speed_problem(parts, n_passes, targets, cfg, v_max);
   if (!v_start.empty() && v_start.size() != n_passes)
     throw std::invalid_argument("speed optimisation: " + std::to_string(v_start.size()) + " start speeds for " +
                                 std::to_string(n_passes) + " passes");
-  const int n = static_cast<int>(n_passes);
+  // The speeds BOBYQA searches: every variable, or those no other is tied to (the rest follow).
+  std::vector<std::size_t> lead(n_passes);
+  for (std::size_t j = 0; j < n_passes; ++j) lead[j] = j;
+  if (!tied_to.empty()) {
+    if (tied_to.size() != n_passes) throw std::invalid_argument("speed optimisation: one tie per speed variable is needed");
+    for (std::size_t j = 0; j < n_passes; ++j) {
+      if (tied_to[j] >= n_passes || tied_to[tied_to[j]] != tied_to[j])
+        throw std::invalid_argument("speed optimisation: speed " + std::to_string(j) + " is tied to one that is tied itself");
+      lead[j] = tied_to[j];
+    }
+  }
+  std::vector<int> leaders;  // the searched variables
+  for (std::size_t j = 0; j < n_passes; ++j)
+    if (lead[j] == j) leaders.push_back(static_cast<int>(j));
+  const int n_all = static_cast<int>(n_passes);
+  const int n = static_cast<int>(leaders.size());
   const int m = static_cast<int>(targets.slots.size());
   GradedObjective obj;
   obj.A = unit_matrix(parts, targets.slots);
@@ -248,11 +264,14 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
     for (Eigen::Index i = 0; i < obj.hi.size(); ++i) obj.hi[i] -= targets.background_m[targets.guard_slots[i]];
   }
   for (const auto& p : parts) obj.pass_of.push_back(p.pass), obj.floor_of.push_back(p.w_floor_s_per_m);
-  Objective objective = [&](const std::vector<double>& v) {
-    Eigen::VectorXd w(n);
-    for (int j = 0; j < n; ++j) w[j] = 1.0 / v[j];
-    return obj(w) / m;
+  std::vector<int> slot_of(n_passes);  // variable -> index among the searched ones
+  for (int k = 0; k < n; ++k) slot_of[static_cast<std::size_t>(leaders[k])] = k;
+  auto dwells = [&](const std::vector<double>& v) {  // every variable's dwell from the searched speeds
+    Eigen::VectorXd w(n_all);
+    for (int j = 0; j < n_all; ++j) w[j] = 1.0 / v[static_cast<std::size_t>(slot_of[lead[j]])];
+    return w;
   };
+  Objective objective = [&](const std::vector<double>& v) { return obj(dwells(v)) / m; };
   // Start: one common speed that gives the median target on the median cell.
   std::vector<double> sums(m), tt(obj.t.data(), obj.t.data() + m);
   const Eigen::VectorXd row_sums = obj.A * Eigen::VectorXd::Ones(obj.A.cols());
@@ -263,25 +282,28 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
   double v0 = sums[m / 2] > 0 ? sums[m / 2] / t_mid : cfg.min_speed_mps;
   PassSpeeds out;
   std::vector<double>& v = out.speeds_mps;
-  v.resize(n);
-  std::vector<double> step(n);
+  std::vector<double> vs(n), step(n), vs_max(n);  // the searched speeds
   const bool warm_start = !v_start.empty();
-  for (int j = 0; j < n; ++j) {
+  for (int k = 0; k < n; ++k) {
+    const std::size_t j = static_cast<std::size_t>(leaders[k]);
     const bool warm = warm_start && std::isfinite(v_start[j]);
-    v[j] = std::clamp(warm ? v_start[j] : v0, cfg.min_speed_mps, v_max[j]);
-    step[j] = std::min((warm ? 0.1 : 0.25) * v[j], 0.45 * (v_max[j] - cfg.min_speed_mps));
+    vs_max[k] = v_max[j];
+    vs[k] = std::clamp(warm ? v_start[j] : v0, cfg.min_speed_mps, v_max[j]);
+    step[k] = std::min((warm ? 0.1 : 0.25) * vs[k], 0.45 * (v_max[j] - cfg.min_speed_mps));
   }
   if (n >= 2)
-    bobyqa_speeds(objective, v, step, v_max, cfg.min_speed_mps);
+    bobyqa_speeds(objective, vs, step, vs_max, cfg.min_speed_mps);
   else
-    v[0] = golden_speed(objective, v_max[0], cfg.min_speed_mps);
-  for (int j = 0; j < n; ++j) v[j] = std::clamp(v[j], cfg.min_speed_mps, v_max[j]);
-  if (n >= 2) {
-    Eigen::VectorXd w(n);
-    std::vector<double> w_lo(n), w_hi(n, 1.0 / cfg.min_speed_mps);
-    for (int j = 0; j < n; ++j) w[j] = 1.0 / v[j], w_lo[j] = 1.0 / v_max[j];
+    vs[0] = golden_speed(objective, vs_max[0], cfg.min_speed_mps);
+  v.resize(n_passes);
+  for (int j = 0; j < n_all; ++j) v[j] = std::clamp(vs[static_cast<std::size_t>(slot_of[lead[j]])], cfg.min_speed_mps, v_max[j]);
+  // The polish frees the tied speeds too (coordinate steps are cheap where BOBYQA's are not).
+  if (n_all >= 2) {
+    Eigen::VectorXd w(n_all);
+    std::vector<double> w_lo(n_all), w_hi(n_all, 1.0 / cfg.min_speed_mps);
+    for (int j = 0; j < n_all; ++j) w[j] = 1.0 / v[j], w_lo[j] = 1.0 / v_max[j];
     polish_dwells(obj, w_lo, w_hi, w);
-    for (int j = 0; j < n; ++j) v[j] = std::clamp(1.0 / w[j], cfg.min_speed_mps, v_max[j]);
+    for (int j = 0; j < n_all; ++j) v[j] = std::clamp(1.0 / w[j], cfg.min_speed_mps, v_max[j]);
   }
   // Can the slowest passes reach the targets at all?
   const Eigen::VectorXd slowest = obj.A * Eigen::VectorXd::Constant(obj.A.cols(), 1.0 / cfg.min_speed_mps);

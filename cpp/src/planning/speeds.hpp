@@ -57,9 +57,12 @@ struct PassPart {
 /// The same with passes given as parts (each pass needs at least one).
 /// v_start (empty: one common speed): where the search starts, e.g. the speeds of the same region
 /// solved with another background (BOBYQA's first steps then a tenth of the speeds, not a quarter).
+/// tied_to (empty: none): per speed variable, the one it follows while BOBYQA searches (itself for
+/// a searched one; a pass's end speeds follow the pass's own); the polish that finishes the search
+/// then moves every variable on its own. Keeps BOBYQA's dimension at the passes' count.
 PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_passes, const SpeedTargets& targets,
                            const PlannerConfig& cfg, const std::vector<double>& v_max,
-                           const std::vector<double>& v_start = {});
+                           const std::vector<double>& v_start = {}, const std::vector<std::size_t>& tied_to = {});
 
 // ---------------------------------------------------------------------------------------------
 // Levelling rounds: one dwell per segment
