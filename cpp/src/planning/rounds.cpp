@@ -186,7 +186,9 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   rp.spacing_m = ctx.spacing_m;
   // The level-1 rounds lay the last layer: with graded_last_edge_overrun_m their lines run on that
   // far past the bay's ends, so the end columns get more of the spot (at edge_overrun_m they hold
-  // 15-34 of a seed's 26-48 cells above +40 mm). Off by default: docs/architecture.md §5.
+  // 15-34 of a seed's 26-48 cells above +40 mm). A line is cut where the region leaves more than
+  // graded_split_gap_m of it without a cell (else a straggler region at both ends of a row is
+  // sprayed across the flush middle). docs/architecture.md §5.
   PlannerConfig lines = pc;
   if (top == 1 && pc.graded_last_edge_overrun_m > 0.0) lines.edge_overrun_m = pc.graded_last_edge_overrun_m;
   rp.passes = plan_passes(in.wall.surface.grid, rp.region.cells, ctx.spacing_m, lines, ctx.lean, pc.graded_split_gap_m);
