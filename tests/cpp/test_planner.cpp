@@ -882,17 +882,25 @@ TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
 // the higher levels' edge_overrun_m (read off the passes: the furthest any waypoint lies past a
 // bay end along the axis; the knots sit at the end cells' centres, half a cell inside, and a pass
 // shorter than the spot's radius is lengthened about its middle, by up to half the radius each way).
-TEST(Planner, GradedLastRoundsRunOnFurtherPastTheBayEnds) {
-  Config cfg = small_synthetic_bay_config();
+// The graded plans (without the arm) of the small synthetic bay, seeds 1 and 2:
+// f(seed, plan, grid, d_lo, d_hi) with the bay's ends d_lo, d_hi along the axis [m].
+template <class F>
+void for_small_graded_plans(Config cfg, F f) {
   cfg.planner.mode = PlannerMode::graded;
-  cfg.planner.graded_last_edge_overrun_m = 0.25;  // well apart from edge_overrun_m's 0.1 m
-  int last_rounds = 0, other_rounds = 0;
   for (std::uint64_t seed : {1, 2}) {
     cfg.synth.seed = seed;
     const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
     const Plan plan = plan_bay(s, cfg);
     const Grid& g = s.grid;
-    const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
+    f(seed, plan, g, g.d0_m, g.d0_m + g.n_d * g.cell_size_m);
+  }
+}
+
+TEST(Planner, GradedLastRoundsRunOnFurtherPastTheBayEnds) {
+  Config cfg = small_synthetic_bay_config();
+  cfg.planner.graded_last_edge_overrun_m = 0.25;  // well apart from edge_overrun_m's 0.1 m
+  int last_rounds = 0, other_rounds = 0;
+  for_small_graded_plans(cfg, [&](std::uint64_t seed, const Plan& plan, const Grid& g, double d_lo, double d_hi) {
     for (std::size_t k = 0; k < plan.rounds.size(); ++k) {
       double run_on = -1.0;
       for (const auto& region : plan.rounds[k].regions)
@@ -908,7 +916,7 @@ TEST(Planner, GradedLastRoundsRunOnFurtherPastTheBayEnds) {
       if (last && run_on > cfg.planner.edge_overrun_m + lengthened + 0.01) ++last_rounds;
       if (!last && run_on > 0.0) ++other_rounds;
     }
-  }
+  });
   EXPECT_GT(last_rounds, 0);  // a level-1 round reached a bay end, and ran on further
   EXPECT_GT(other_rounds, 0);
 }
@@ -918,17 +926,11 @@ TEST(Planner, GradedLastRoundsRunOnFurtherPastTheBayEnds) {
 // waypoint of every pass keeps the pass's speed (no speed cap here: the plan is without the arm).
 // Some end is sprayed at a speed of its own; no pass of a higher level has one.
 TEST(Planner, GradedLastRoundsHaveEndSpeedsOnlyAtTheBayEnds) {
-  Config cfg = small_synthetic_bay_config();
-  cfg.planner.mode = PlannerMode::graded;
+  const Config cfg = small_synthetic_bay_config();
   ASSERT_GT(cfg.planner.graded_end_zone_m, 0.0);
   const double zone = cfg.planner.graded_end_zone_m;
   int end_speeds = 0;
-  for (std::uint64_t seed : {1, 2}) {
-    cfg.synth.seed = seed;
-    const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
-    const Plan plan = plan_bay(s, cfg);
-    const Grid& g = s.grid;
-    const double d_lo = g.d0_m, d_hi = g.d0_m + g.n_d * g.cell_size_m;
+  for_small_graded_plans(cfg, [&](std::uint64_t seed, const Plan& plan, const Grid& g, double d_lo, double d_hi) {
     for (const auto& round : plan.rounds)
       for (const auto& region : round.regions)
         for (const auto& pass : region.passes) {
@@ -950,6 +952,6 @@ TEST(Planner, GradedLastRoundsHaveEndSpeedsOnlyAtTheBayEnds) {
           }
           end_speeds += differs;
         }
-  }
+  });
   EXPECT_GT(end_speeds, 0);
 }
