@@ -101,7 +101,7 @@ struct SynthConfig {
   std::string section_path = "";  // design section CSV (as profile.section_path); empty: the circle
   double length_m = 1.2;         // bay length between two arches
   double theta_min_rad = 0.0;    // right springline
-  double theta_max_rad = 3.14159265358979;  // left springline
+  double theta_max_rad = 3.141592653589793;  // left springline (pi)
   double base_overbreak_m = 0.15;  // uniform over-break outside the design line
   int pit_count = 30;            // number of dig pits
   double pit_depth_min_m = 0.02;  // Tmax range of the pits
@@ -203,8 +203,9 @@ struct PlannerConfig {
   int graded_executed_corrections = 1;  // graded mode: re-solves of a region's speeds against its own executed deposit (0: none, nor the round's other regions)
   bool graded_thesis_objective = false;  // graded mode: the thesis's objective as written (one target per region)
   double graded_last_edge_overrun_m = 0.15;  // graded mode: edge_overrun_m of the level-1 rounds (0: edge_overrun_m) [m]
-  double graded_split_gap_m = 0.3;
-  double graded_end_zone_m = 0.2;  // graded mode: level-1 passes run on past a bay end have their own speed over this much of the bay's end and the run-on (0: one speed per pass) [m]  // graded mode: a region's pass line is cut where more than this of wall holds none of its cells (0: never) [m]
+  double graded_split_gap_m = 0.3;  // graded mode: a region's pass line is cut where more than this of wall holds none of its cells (0: never) [m]
+  double graded_end_zone_m = 0.2;  // graded mode: level-1 passes run on past a bay end have their own speed over this much of the bay's end and the run-on (0: one speed per pass) [m]
+  double graded_level_margin_m = 0.001;  // graded mode: a cell within this of level 1's floor (+50 mm) still counts as level 1 for the rounds [m]
   double graded_overfill_allowance_m = 0.025;  // graded mode: fill past flush a reached cell may take
   double graded_guard_weight = 1000.0;  // graded mode: cost of over-fill past the allowance per unit off target
 };

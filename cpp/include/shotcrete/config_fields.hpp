@@ -139,6 +139,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("graded_last_edge_overrun_m", &PlannerConfig::graded_last_edge_overrun_m, 0.0, 1.0, "graded mode: edge_overrun_m of the level-1 rounds, whose passes lay the last layer on the bay's end columns (0: edge_overrun_m) [m]");
   f("graded_split_gap_m", &PlannerConfig::graded_split_gap_m, 0.0, 100.0, "graded mode: a region's pass line is cut into several passes where more than this length of wall along it holds none of the region's cells, instead of spraying the cells between at the pass's speed (0: never) [m]");
   f("graded_end_zone_m", &PlannerConfig::graded_end_zone_m, 0.0, 0.6, "graded mode: a level-1 pass that runs on past a bay end has a speed of its own over this much of the bay's end and the run-on, so the end columns, short by what every earlier round left them, can be filled (0: one speed per pass, the thesis) [m]");
+  f("graded_level_margin_m", &PlannerConfig::graded_level_margin_m, 0.0, 0.02, "graded mode: a cell whose planned TD is within this of level 1's floor (+50 mm) still counts as level 1 for the rounds, so the executed deposit, which differs from the planner's by up to about 0.6 mm on a cell, leaves it at level 0 [m]");
   f("graded_overfill_allowance_m", &PlannerConfig::graded_overfill_allowance_m, 0.0, 0.05, "graded mode: fill past flush a cell may take before it counts as over-filled [m]");
   f("graded_guard_weight", &PlannerConfig::graded_guard_weight, 0.0, 1e4, "graded mode: cost of over-fill past the allowance per unit off target (0: no guard)");
 }

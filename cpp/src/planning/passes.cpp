@@ -341,7 +341,7 @@ std::vector<std::pair<int, int>> line_ranges(const PassFrame& f, const std::vect
   std::sort(us.begin(), us.end());
   std::vector<std::pair<int, int>> ranges{{us.front(), us.front()}};
   for (int u : us) {
-    if (split_gap_m > 0 && (u - ranges.back().second - 1) * f.cs > split_gap_m) ranges.push_back({u, u});
+    if (split_gap_m > 0 && (u - ranges.back().second - 1) * f.cs > split_gap_m + 1e-9) ranges.push_back({u, u});
     ranges.back().second = u;
   }
   return ranges;

@@ -110,7 +110,7 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
                                 std::to_string(surface.grid.size()) + " grid cells");
   RoundContext ctx{config, model, spacing, caps, plan, progress, lean.empty() ? nullptr : &lean};
   const std::unique_ptr<RoundStages> stages =
-      pc.mode == PlannerMode::graded ? graded_rounds() : levelling_rounds(pc.finish_tolerance_m);
+      pc.mode == PlannerMode::graded ? graded_rounds(pc.graded_level_margin_m) : levelling_rounds(pc.finish_tolerance_m);
   if (!excluded_cells.empty()) {
     std::vector<char> mask(static_cast<std::size_t>(surface.grid.size()), 0);
     for (int c : excluded_cells)

@@ -82,7 +82,9 @@ class RoundStages {
   std::vector<char> excluded_;
 };
 
-std::unique_ptr<RoundStages> graded_rounds();
+/// level_margin_m: planner.graded_level_margin_m, how far below level 1's floor (+50 mm) a cell
+/// still counts as level 1 for the rounds.
+std::unique_ptr<RoundStages> graded_rounds(double level_margin_m);
 /// finish_tolerance_m: planner.finish_tolerance_m, the TD every cell must be within to be flush.
 std::unique_ptr<RoundStages> levelling_rounds(double finish_tolerance_m);
 

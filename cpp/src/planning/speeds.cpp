@@ -152,8 +152,10 @@ struct GradedObjective {
 // brute-force search). Sweeps of exact line minimisations (golden section) along each pass's
 // dwell and along the sum and difference of neighbouring passes' dwells (the kinks where two
 // passes trade cells) finish the job; each evaluation touches only the cells of those passes.
+// lead (empty: none): per variable, the one it was tied to (a pass's end speed: its pass); the
+// sum and difference of each tied pair are searched too (where a pass's middle and end trade cells).
 void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, const std::vector<double>& w_hi,
-                   Eigen::VectorXd& w) {
+                   Eigen::VectorXd& w, const std::vector<std::size_t>& lead = {}) {
   const Eigen::Index n = w.size();
   std::vector<std::vector<std::size_t>> parts_of(static_cast<std::size_t>(n));
   for (std::size_t k = 0; k < obj.pass_of.size(); ++k) parts_of[obj.pass_of[k]].push_back(k);
@@ -164,6 +166,11 @@ void polish_dwells(const GradedObjective& obj, const std::vector<double>& w_lo, 
     if (j + 1 < n) {
       dirs.push_back({{j, 1.0}, {j + 1, 1.0}});
       dirs.push_back({{j, 1.0}, {j + 1, -1.0}});
+    }
+    const Eigen::Index l = lead.empty() ? j : static_cast<Eigen::Index>(lead[static_cast<std::size_t>(j)]);
+    if (l != j && l != j - 1 && l != j + 1) {
+      dirs.push_back({{j, 1.0}, {l, 1.0}});
+      dirs.push_back({{j, 1.0}, {l, -1.0}});
     }
   }
   Eigen::VectorXd z = obj.part_dwells(w);
@@ -242,7 +249,10 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
   if (!tied_to.empty()) {
     if (tied_to.size() != n_passes) throw std::invalid_argument("speed optimisation: one tie per speed variable is needed");
     for (std::size_t j = 0; j < n_passes; ++j) {
-      if (tied_to[j] >= n_passes || tied_to[tied_to[j]] != tied_to[j])
+      if (tied_to[j] >= n_passes)
+        throw std::invalid_argument("speed optimisation: speed " + std::to_string(j) + " is tied to speed " +
+                                    std::to_string(tied_to[j]) + " of " + std::to_string(n_passes));
+      if (tied_to[tied_to[j]] != tied_to[j])
         throw std::invalid_argument("speed optimisation: speed " + std::to_string(j) + " is tied to one that is tied itself");
       lead[j] = tied_to[j];
     }
@@ -268,7 +278,7 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
   for (int k = 0; k < n; ++k) slot_of[static_cast<std::size_t>(leaders[k])] = k;
   auto dwells = [&](const std::vector<double>& v) {  // every variable's dwell from the searched speeds
     Eigen::VectorXd w(n_all);
-    for (int j = 0; j < n_all; ++j) w[j] = 1.0 / v[static_cast<std::size_t>(slot_of[lead[j]])];
+    for (int j = 0; j < n_all; ++j) w[j] = 1.0 / std::min(v[static_cast<std::size_t>(slot_of[lead[j]])], v_max[j]);
     return w;
   };
   Objective objective = [&](const std::vector<double>& v) { return obj(dwells(v)) / m; };
@@ -296,13 +306,20 @@ PassSpeeds optimise_speeds(const std::vector<PassPart>& parts, std::size_t n_pas
   else
     vs[0] = golden_speed(objective, vs_max[0], cfg.min_speed_mps);
   v.resize(n_passes);
-  for (int j = 0; j < n_all; ++j) v[j] = std::clamp(vs[static_cast<std::size_t>(slot_of[lead[j]])], cfg.min_speed_mps, v_max[j]);
+  for (int j = 0; j < n_all; ++j) {
+    const std::size_t l = lead[j];
+    double vj = vs[static_cast<std::size_t>(slot_of[l])];
+    // A warm start keeps a tied speed's ratio to its leader for the polish to start from.
+    if (warm_start && l != static_cast<std::size_t>(j) && std::isfinite(v_start[j]) && std::isfinite(v_start[l]) && v_start[l] > 0)
+      vj *= v_start[j] / v_start[l];
+    v[j] = std::clamp(vj, cfg.min_speed_mps, v_max[j]);
+  }
   // The polish frees the tied speeds too (coordinate steps are cheap where BOBYQA's are not).
   if (n_all >= 2) {
     Eigen::VectorXd w(n_all);
     std::vector<double> w_lo(n_all), w_hi(n_all, 1.0 / cfg.min_speed_mps);
     for (int j = 0; j < n_all; ++j) w[j] = 1.0 / v[j], w_lo[j] = 1.0 / v_max[j];
-    polish_dwells(obj, w_lo, w_hi, w);
+    polish_dwells(obj, w_lo, w_hi, w, lead);
     for (int j = 0; j < n_all; ++j) v[j] = std::clamp(1.0 / w[j], cfg.min_speed_mps, v_max[j]);
   }
   // Can the slowest passes reach the targets at all?

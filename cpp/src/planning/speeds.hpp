@@ -14,7 +14,7 @@ namespace shotcrete {
 // Graded rounds: one speed per pass
 
 struct PassSpeeds {
-  std::vector<double> speeds_mps;  // per pass
+  std::vector<double> speeds_mps;  // per speed variable: one per pass, then any end speeds (tied_to)
   std::string note;                // why the target cannot be met, if so
 };
 

@@ -11,8 +11,10 @@
 namespace shotcrete {
 
 /// One nozzle pass: waypoints (position + spray axis, tunnel frame) along a clamped cubic spline.
-/// Graded mode: one constant speed. Optimal mode: the speed may change per segment
-/// (speed_profile_mps, one value per waypoint, piecewise constant); speed_mps is then the mean.
+/// Graded mode: one constant speed, slower where the machine's cap binds, and in the level-1
+/// rounds a speed of its own at each bay end it runs on past (speed_profile_mps; speed_mps is the
+/// pass's own). Optimal mode: the speed may change per segment (speed_profile_mps, one value per
+/// waypoint, piecewise constant); speed_mps is then the mean.
 struct Pass {
   std::vector<NozzlePose> waypoints;      // spline samples, about sample_step_m apart
   double speed_mps = 0.0;
