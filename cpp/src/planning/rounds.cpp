@@ -124,23 +124,20 @@ void limit_profile_changes(Pass& p, double accel_mps2) {
 
 // The passes at the solved speeds: slower where the machine's cap binds (the speed profile the
 // arm follows, its changes within speed_change_accel_mps2). var_of[j][i]: the speed variable of
-// pass j's waypoint i (the pass's own, j, or one of its ends'); empty: one per pass.
+// pass j's waypoint i (the pass's own, j, or one of its ends').
 std::vector<Pass> passes_at(std::vector<Pass> passes, const PassSpeeds& speeds, const std::vector<std::vector<double>>& caps,
-                            const RoundContext& ctx, const std::vector<std::vector<std::size_t>>& var_of = {}) {
-  if (speeds.speeds_mps.size() < passes.size() || caps.size() != passes.size() || (!var_of.empty() && var_of.size() != passes.size()))
+                            const RoundContext& ctx, const std::vector<std::vector<std::size_t>>& var_of) {
+  if (speeds.speeds_mps.size() < passes.size() || caps.size() != passes.size() || var_of.size() != passes.size())
     throw std::logic_error("passes_at: speeds, caps or speed variables do not match the passes");
   for (std::size_t j = 0; j < passes.size(); ++j) {
-    if (!var_of.empty() && var_of[j].size() != passes[j].waypoints.size())
-      throw std::logic_error("passes_at: one speed variable per waypoint is needed");
     Pass& p = passes[j];
+    if (var_of[j].size() != p.waypoints.size()) throw std::logic_error("passes_at: one speed variable per waypoint is needed");
     p.speed_mps = speeds.speeds_mps[j];
     p.speed_profile_mps.clear();
-    std::vector<double> v(p.waypoints.size(), p.speed_mps);
-    if (!var_of.empty())
-      for (std::size_t i = 0; i < v.size(); ++i) v[i] = speeds.speeds_mps[var_of[j][i]];
+    std::vector<double> v(p.waypoints.size());
     bool varies = false;
     for (std::size_t i = 0; i < v.size(); ++i) {
-      v[i] = std::min(v[i], caps[j][i]);
+      v[i] = std::min(speeds.speeds_mps[var_of[j][i]], caps[j][i]);
       varies = varies || v[i] != p.speed_mps;
     }
     if (varies) {
@@ -334,7 +331,7 @@ class GradedRounds : public RoundStages {
   }
 
   std::vector<int> active_levels(const SprayedWall& wall) const override {
-    std::vector<int> lv = wall.surface.levels;
+    std::vector<int> lv(wall.surface.levels.size());
     for (std::size_t c = 0; c < lv.size(); ++c) lv[c] = working_level(wall, static_cast<int>(c));
     for (std::size_t c = 0; c < set_aside_.size(); ++c)
       if (set_aside_[c]) lv[c] = kNoDataLevel;
