@@ -38,13 +38,15 @@ ALTERNATIVES = {
     # the wide late rounds became the default.
     "close late rounds": {"planner.levelling_late_spacing_ratio": 0.5, "planner.levelling_late_edge_overrun_m": 0.1},
     # graded mode before the last rounds ran on past the bay's ends with end speeds of their own
-    # and lines were cut at gaps
+    # and lines were cut at gaps (and before the 10 mm level margin)
     "graded lines whole, no last run-on": {"planner.graded_last_edge_overrun_m": 0.0, "planner.graded_split_gap_m": 0.0,
-                                           "planner.graded_end_zone_m": 0.0},
+                                           "planner.graded_end_zone_m": 0.0, "planner.graded_level_margin_m": 0.001},
+    # graded mode before the cells at +40..+50 mm got a last pass where one helps
+    "level margin 1 mm": {"planner.graded_level_margin_m": 0.001},
 }
 # Alternatives that change only the optimal mode's levelling rounds: not run in graded mode.
 OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds"}
-GRADED_ONLY = {"graded lines whole, no last run-on"}
+GRADED_ONLY = {"graded lines whole, no last run-on", "level margin 1 mm"}
 
 
 # Issue 15's residual targets per mode [mm].

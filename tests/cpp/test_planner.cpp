@@ -135,6 +135,49 @@ TEST(Passes, ALineIsCutWhereItsCellsLeaveAGap) {
   EXPECT_THROW(plan_passes(g, ends, 0.2, pc, nullptr, -0.1), std::invalid_argument);
 }
 
+// split_gap_m also parts the cells across the lines: two streaks of two rows each (0.1 m), 1.15 m
+// of wall apart, get one line each through the streak's own middle. One set of planes over both
+// (split_gap_m 0) puts the line nearest each streak 55 mm off its middle: a pass then lays its peak
+// on the wall beside the streak. Streaks less than split_gap_m apart keep the one set of planes.
+TEST(Passes, StreaksFarApartAcrossTheLinesGetLinesOfTheirOwn) {
+  Surface s = analytic_bay(uniform_100mm);
+  const Grid& g = s.grid;
+  PlannerConfig pc;
+  pc.edge_overrun_m = 0.0;
+  auto streaks = [&](int a, int b) {
+    std::vector<int> cells;
+    for (int i : {a, a + 1, b, b + 1})
+      for (int j = 0; j < g.n_d; ++j) cells.push_back(g.index(i, j));
+    return cells;
+  };
+  // The theta the pass sprays at (its hit points' mean), off the nearest streak's middle [m of wall].
+  auto off_streak = [&](const Pass& p, int a, int b) {
+    double theta = 0;
+    for (const auto& w : p.waypoints) theta += g.axis.to_cylindrical(w.position_m + pc.standoff_m * w.axis)[1];
+    theta /= static_cast<double>(p.waypoints.size());
+    const double ta = g.theta0_rad + (a + 1) * g.dtheta_rad, tb = g.theta0_rad + (b + 1) * g.dtheta_rad;
+    return 5.6 * std::min(std::abs(theta - ta), std::abs(theta - tb));
+  };
+  ASSERT_GT(g.n_theta, 33);
+  const double spacing = 0.228;
+  const auto parted = plan_passes(g, streaks(5, 30), spacing, pc, nullptr, 0.3);
+  ASSERT_EQ(parted.size(), 2u);
+  for (const auto& p : parted) EXPECT_LT(off_streak(p, 5, 30), 0.002);
+  EXPECT_NE(parted[0].line, parted[1].line);
+  const auto one_set = plan_passes(g, streaks(5, 30), spacing, pc);
+  ASSERT_EQ(one_set.size(), 2u);  // 6 planes over the 1.35 m, 2 of them with cells
+  for (const auto& p : one_set) EXPECT_NEAR(off_streak(p, 5, 30), 0.055, 0.003);
+  // Streaks 0.25 m apart (5 empty rows): not parted, the same passes as without the option.
+  const auto near = plan_passes(g, streaks(5, 12), spacing, pc, nullptr, 0.3);
+  const auto near_whole = plan_passes(g, streaks(5, 12), spacing, pc);
+  ASSERT_EQ(near.size(), near_whole.size());
+  for (std::size_t k = 0; k < near.size(); ++k) {
+    ASSERT_EQ(near[k].waypoints.size(), near_whole[k].waypoints.size());
+    for (std::size_t i = 0; i < near[k].waypoints.size(); ++i)
+      EXPECT_EQ(near[k].waypoints[i].position_m, near_whole[k].waypoints[i].position_m);
+  }
+}
+
 TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   // Axial passes over a uniform 100 mm bay (wall radius 5.7 m, d in [0, 0.8]) with a lean toward +d
   // that ramps from 0 at d = 0.4 m to 0.3 rad at the end: every waypoint's spray axis meets the wall
@@ -648,6 +691,60 @@ TEST(Planner, GradedRoundsLeaveNoCellOverfilled) {
   }
   // The bays are ones where it matters (measured: 2, 30 and 11 cells below -50 mm).
   EXPECT_GT(overfilled_as_written, 0);
+}
+
+// graded_level_margin_m (10 mm): two short one-row streaks at +44 mm (level 0, within the margin)
+// in flush wall, 1.75 m apart (one region of the minimum size, a line each), are left as they
+// are: the shortest pass the pump allows (a 2 s spell) lays about 30 mm on a streak and as much on
+// the rows beside, which only moves the error there. The same streaks at +60 mm (level 1) are
+// sprayed, and so is a wide band at +44 mm, which the passes bring nearer flush.
+TEST(Planner, GradedMarginCellsGetOnlyPassesThatHelp) {
+  Config cfg;
+  cfg.planner.mode = PlannerMode::graded;
+  ASSERT_NEAR(cfg.planner.graded_level_margin_m, 0.01, 1e-12);
+  ASSERT_EQ(cfg.regions.min_region_cells, 10);
+  // Rows [row_lo, row_hi) of the bay's grid (and the same rows shifted by `also` rows), d in
+  // [d_lo, d_hi) m, at mm; the rest flush.
+  Config flat = cfg;
+  const Grid g = test::analytic_bay([](double, double) { return 0.0; }, flat).grid;
+  auto band = [&](int row_lo, int row_hi, int also, double d_lo, double d_hi, double mm) {
+    return [=, t0 = g.theta0_rad, dt = g.dtheta_rad](double d, double theta) {
+      const double row = (theta - t0) / dt;
+      const bool in_rows = (row >= row_lo && row < row_hi) || (also > 0 && row >= row_lo + also && row < row_hi + also);
+      return in_rows && d >= d_lo && d < d_hi ? mm / 1000.0 : 0.0;
+    };
+  };
+  struct Case {
+    const char* name;
+    test::TdFunction td;
+    bool sprayed;
+  };
+  const Case cases[] = {{"streaks at +44 mm", band(20, 21, 35, 0.3, 0.55, 44), false},
+                        {"streaks at +60 mm", band(20, 21, 35, 0.3, 0.55, 60), true},
+                        {"band at +44 mm", band(30, 50, 0, 0.0, 0.8, 44), true}};
+  for (const Case& k : cases) {
+    Config c = cfg;
+    Surface s = test::analytic_bay(k.td, c);
+    const Plan plan = plan_bay(s, c);
+    EXPECT_NE(plan.stop_reason.kind, StopKind::no_progress) << k.name << ": " << plan.stop_reason;
+    EXPECT_NE(plan.stop_reason.kind, StopKind::max_rounds) << k.name << ": " << plan.stop_reason;
+    std::size_t passes = 0;
+    for (const auto& r : plan.rounds)
+      for (const auto& rp : r.regions) passes += rp.passes.size();
+    double laid_max = 0, high_after = -1;
+    for (int cell = 0; cell < s.grid.size(); ++cell) {
+      if (!s.grid.valid[cell]) continue;
+      laid_max = std::max(laid_max, s.grid.td_m[cell] - plan.td_after_m[cell]);
+      if (s.grid.td_m[cell] > 0.040) high_after = std::max(high_after, plan.td_after_m[cell]);
+    }
+    if (k.sprayed) {
+      EXPECT_GT(passes, 0u) << k.name;
+      EXPECT_LT(high_after, 0.040) << k.name;  // every raised cell brought under +40 mm
+    } else {
+      EXPECT_EQ(passes, 0u) << k.name;
+      EXPECT_EQ(laid_max, 0.0) << k.name;  // nothing laid anywhere
+    }
+  }
 }
 
 // ---------------------------------------------------------------------------------------------

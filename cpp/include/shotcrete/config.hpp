@@ -205,7 +205,7 @@ struct PlannerConfig {
   double graded_last_edge_overrun_m = 0.15;  // graded mode: edge_overrun_m of the level-1 rounds (0: edge_overrun_m) [m]
   double graded_split_gap_m = 0.3;  // graded mode: a region's pass line is cut where more than this of wall holds none of its cells (0: never) [m]
   double graded_end_zone_m = 0.2;  // graded mode: level-1 passes run on past a bay end have their own speed over this much of the bay's end and the run-on (0: one speed per pass) [m]
-  double graded_level_margin_m = 0.001;  // graded mode: a cell within this of level 1's floor (+50 mm) still counts as level 1 for the rounds [m]
+  double graded_level_margin_m = 0.01;  // graded mode: a cell within this of level 1's floor (+50 mm) still counts as level 1 for the rounds (a pass only over such cells is kept where it helps) [m]
   double graded_overfill_allowance_m = 0.025;  // graded mode: fill past flush a reached cell may take
   double graded_guard_weight = 1000.0;  // graded mode: cost of over-fill past the allowance per unit off target
 };

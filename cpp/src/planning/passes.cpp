@@ -384,16 +384,32 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
     throw std::invalid_argument("plan_passes: lean has " + std::to_string(lean->size()) + " entries for " +
                                 std::to_string(grid.size()) + " grid cells");
   const PassFrame f(grid, lean, config.pass_direction == PassDirection::axial);
-  int w_lo = f.n_w, w_hi = -1;
   double theta_sum = 0;
+  std::vector<int> ws;
   for (int c : cells) {
-    w_lo = std::min(w_lo, f.w_of(c));
-    w_hi = std::max(w_hi, f.w_of(c));
+    ws.push_back(f.w_of(c));
     theta_sum += grid.theta_center(grid.row_of(c));
   }
-  const double e0 = f.w0 + w_lo * f.cs, e1 = f.w0 + (w_hi + 1) * f.cs;
-  const int n_lines = std::max(1, static_cast<int>(std::ceil((e1 - e0) / spacing_m - 1e-6)));
-  const double mid = 0.5 * (e0 + e1);
+  std::sort(ws.begin(), ws.end());
+  ws.erase(std::unique(ws.begin(), ws.end()), ws.end());
+  // The slicing planes: spacing_m apart, centred on the cells' extent across the lines. With
+  // split_gap_m > 0 the cells are first parted where more than split_gap_m (and a spacing) of wall
+  // across the lines holds none of them, and each part gets planes of its own: one lattice over
+  // streaks metres apart puts the plane nearest a streak up to half a spacing off it, and the pass
+  // then lays its peak on the flush wall beside the streak.
+  std::vector<std::pair<int, int>> parts{{ws.front(), ws.front()}};
+  const double part_gap_m = std::max(split_gap_m, spacing_m);
+  for (int w : ws) {
+    if (split_gap_m > 0 && (w - parts.back().second - 1) * f.cs > part_gap_m + 1e-9) parts.push_back({w, w});
+    parts.back().second = w;
+  }
+  std::vector<double> planes;
+  for (const auto& [w_lo, w_hi] : parts) {
+    const double e0 = f.w0 + w_lo * f.cs, e1 = f.w0 + (w_hi + 1) * f.cs;
+    const int n = std::max(1, static_cast<int>(std::ceil((e1 - e0) / spacing_m - 1e-6)));
+    for (int k = 0; k < n; ++k) planes.push_back(0.5 * (e0 + e1) + (k - 0.5 * (n - 1)) * spacing_m);
+  }
+  const int n_lines = static_cast<int>(planes.size());
   // Step up the wall: from the right springline toward the crown on the right side, from the left
   // springline toward the crown on the left side (theta > pi/2).
   const bool left_side = theta_sum / cells.size() > M_PI / 2;
@@ -403,7 +419,7 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
   int n_sprayed_lines = 0;
   for (int k = 0; k < n_lines; ++k) {
     const int line = step_down_w ? n_lines - 1 - k : k;
-    const double wk = mid + (line - 0.5 * (n_lines - 1)) * spacing_m;
+    const double wk = planes[line];
     std::vector<Pass> pieces;
     for (const auto& [u_lo, u_hi] : line_ranges(f, cells, wk, spacing_m, split_gap_m)) {
       LineKnots knots = line_knots(f, u_lo, u_hi, wk, config);

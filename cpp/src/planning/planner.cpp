@@ -138,8 +138,14 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     round.level = in.grade.top_level;
     round.levels_before = level_counts(wall.surface.levels);
     // Plan the round.
+    const std::vector<int> active_before = stages->active_levels(wall);
     round.regions = stages->plan_regions(in, CellSurface(worked), ctx);
     if (round.regions.empty()) {
+      // Planning may have set cells aside (graded: level-0 cells of the margin that no pass
+      // helps): finished, or another round over the cells left.
+      const std::vector<int> active_after = stages->active_levels(wall);
+      if (stages->finished({top_level(active_after), in.grade.max_td_m})) break;
+      if (active_after != active_before) continue;
       stop = stages->nothing_to_spray(in.grade);
       break;
     }

@@ -47,7 +47,10 @@ void reverse_pass(Pass& pass);
 /// angle [rad]; the nozzle then stands at the standoff back along the leaned axis (the pose that
 /// keeps it off a face or a duct: nozzle_lean). Interpolated between cells like the crossing points.
 /// split_gap_m > 0: a line is cut into several passes where more than that length of wall [m]
-/// along it holds none of `cells` (0: one pass from the line's first cell to its last).
+/// along it holds none of `cells` (0: one pass from the line's first cell to its last), and the
+/// cells are parted where more than that (and more than a spacing) of wall across the lines holds
+/// none of them, each part with slicing planes centred on its own extent (0: one set of planes
+/// centred on all the cells).
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
                               const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean = nullptr,
                               double split_gap_m = 0.0);
