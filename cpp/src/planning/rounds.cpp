@@ -161,10 +161,15 @@ SprayedPasses sprayed_passes(const std::vector<Pass>& passes, const CellSurface&
           spray.flow.on_time_s()};
 }
 
-// The deposit the solve meant: sum_k unit_k max(1 / v_pass(k), floor_k) [m per slot].
+// What one part lays at the solved speeds: unit max(1 / v, floor) [m per slot].
+Eigen::VectorXd part_deposit_m(const PassPart& part, const PassSpeeds& speeds) {
+  return part.unit * std::max(1.0 / speeds.speeds_mps[part.pass], part.w_floor_s_per_m);
+}
+
+// The deposit the solve meant: the sum of its parts' [m per slot].
 Eigen::VectorXd solved_deposit_m(const std::vector<PassPart>& parts, const PassSpeeds& speeds) {
   Eigen::VectorXd dep = Eigen::VectorXd::Zero(parts.front().unit.size());
-  for (const PassPart& part : parts) dep += part.unit * std::max(1.0 / speeds.speeds_mps[part.pass], part.w_floor_s_per_m);
+  for (const PassPart& part : parts) dep += part_deposit_m(part, speeds);
   return dep;
 }
 
@@ -182,8 +187,7 @@ void drop_harmful_passes(const RoundInput& in, const CellSurface& cells, const R
                          const std::vector<int>& region_cells,
                          std::vector<Pass>& passes, Eigen::VectorXd& sprayed, std::vector<int>& left_alone) {
   std::vector<Eigen::VectorXd> own(passes.size(), Eigen::VectorXd::Zero(sprayed.size()));
-  for (const PassPart& part : parts)
-    own[owner[part.pass]] += part.unit * std::max(1.0 / speeds.speeds_mps[part.pass], part.w_floor_s_per_m);
+  for (const PassPart& part : parts) own[owner[part.pass]] += part_deposit_m(part, speeds);
   Eigen::VectorXd laid = sprayed;
   double cost = graded_deposit_cost(targets, round_deposit_m + laid);
   std::vector<char> keep(passes.size(), 1);
@@ -220,7 +224,7 @@ void drop_harmful_passes(const RoundInput& in, const CellSurface& cells, const R
   for (std::size_t j = 0; j < keep.size(); ++j)
     if (!keep[j])
       for (int c : region_cells)
-        if (own[j][cells.slot[c]] >= 0.001) left_alone.push_back(c);
+        if (reaches(j, static_cast<std::size_t>(cells.slot[c]))) left_alone.push_back(c);
 }
 
 // Passes over one region of the round's level, each at the BOBYQA speed that brings the region's
@@ -407,6 +411,7 @@ class GradedRounds : public RoundStages {
                                       ctx.config.regions.min_region_cells);
     std::vector<RegionPlan> out;
     Eigen::VectorXd round_deposit_m = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(cells.cell_ids.size()));
+    set_aside_.resize(in.wall.surface.grid.size(), 0);
     for (std::size_t ri = 0; ri < regions.size(); ++ri) {
       std::vector<int> left_alone;
       auto rp = graded_region(in, cells, ctx, regions[ri], ri, round_deposit_m, left_alone);
@@ -415,7 +420,6 @@ class GradedRounds : public RoundStages {
       const auto& cs = regions[ri].cells;
       if (!rp && std::all_of(cs.begin(), cs.end(), [&](int c) { return in.wall.surface.levels[c] == 0; }))
         left_alone.insert(left_alone.end(), cs.begin(), cs.end());
-      set_aside_.resize(in.wall.surface.grid.size(), 0);
       for (int c : left_alone) set_aside_[c] = 1;
       if (!rp) continue;
       ctx.report(in.number, 0.6 * (ri + 1) / regions.size());
