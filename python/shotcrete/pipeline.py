@@ -198,6 +198,16 @@ def _pass_tracks(plan_round, surface):
     return tracks
 
 
+def _pump_arrays(executed, trajectory) -> dict:
+    """The pump as it runs on the trajectory: flow (share of full flow, 0..1) at every sample and the
+    switch instants (ramps centred on them); nothing without an executed deposit."""
+    if executed is None:
+        return {}
+    flow = executed.flow
+    return {"flow": np.array([flow.flow_at(t) for t in trajectory.t_s]),
+            "flow_on_s": np.asarray(flow.on_s), "flow_off_s": np.asarray(flow.off_s)}
+
+
 def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, robot=None) -> dict:
     """plan.json, trajectory.npz (when timed), cells.csv (report.write_cells_csv), surface.ply and
     sprayed.ply (the executed deposit's wall when timed), every coordinate in the input's frame (``frame``'s origin added back);
@@ -211,8 +221,8 @@ def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, ro
                   qdd=trajectory.qdd, nozzle_position_m=frame.points_to_input(trajectory.positions),
                   nozzle_axis=trajectory.axes, base_position_m=_base_position(robot, frame),
                   spraying=trajectory.spraying, pass_index=trajectory.pass_index,
-                  region_index=trajectory.region_index)
-        files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle
+                  region_index=trajectory.region_index, **_pump_arrays(arm_plan.executed, trajectory))
+        files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle, flow
     # Per cell, for surveyors' own tools: TD before, planned and executed deposit, residual, level.
     report.write_cells_csv(out / "cells.csv", report.cell_table(surface, plan, arm_plan.executed))
     files["cells"] = "cells.csv"

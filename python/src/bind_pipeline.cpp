@@ -41,19 +41,44 @@ void bind_executed(py::module_& m) {
         "trajectory joins a region to its transits (the first sample is the last of the move before, the next move "
         "starts a sample interval after the last); ValueError on bad input.");
   m.def(
+      "program_schedule",
+      [](const std::vector<double>& on_s, const std::vector<double>& off_s, const std::vector<double>& t_s,
+         const FlowConfig& flow, const std::optional<py::array_t<double, py::array::forcecast>>& blocked, bool ends_blocked) {
+        std::vector<char> flags;
+        if (blocked)
+          for (py::ssize_t i = 0; i < blocked->size(); ++i) flags.push_back(blocked->data()[i] != 0.0);
+        return program_schedule(on_s, off_s, t_s, flow, flags, ends_blocked);
+      },
+      py::arg("on_s"), py::arg("off_s"), py::arg("t_s"), py::arg("flow"), py::arg("blocked") = py::none(),
+      py::arg("ends_blocked") = false,
+      "The pump's schedule for a program of commanded spells [on_s[k], off_s[k]] over samples at t_s: spells or "
+      "gaps a little short of the minimums (a program laid out on other durations) stretched into their "
+      "neighbours' slack first, then flow_schedule's rules; ValueError on a malformed program.");
+  py::class_<PumpProgram>(m, "PumpProgram", "Commanded pump spells [on_s[k], off_s[k]] [s].")
+      .def_readonly("on_s", &PumpProgram::on_s)
+      .def_readonly("off_s", &PumpProgram::off_s);
+  m.def("planned_pump_program", &planned_pump_program, py::arg("plan"), py::arg("trajectory"), py::arg("config"),
+        "The plan's pump program on the trajectory's timing: each region's planned switches (region_spray) moved "
+        "to where the trajectory reaches the same place of the same pass or join; ValueError when the "
+        "trajectory is not the plan's.");
+  m.def(
       "region_spray",
       [](const std::vector<Pass>& passes, const Config& config) {
         const RegionSpray rs = region_spray(passes, config);
         py::dict d;
         d["t_s"] = rs.t_s;
         d["positions_m"] = pose_positions(rs.nozzle);
+        d["axes"] = pose_axes(rs.nozzle);
         d["dwell_s"] = rs.dwell_s;
+        d["pass_index"] = rs.pass_index;
+        d["spraying"] = std::vector<bool>(rs.spraying.begin(), rs.spraying.end());
+        d["blocked"] = std::vector<bool>(rs.blocked.begin(), rs.blocked.end());
         d["flow"] = rs.flow;
         return d;
       },
       py::arg("passes"), py::arg("config"),
       "What the planner deposits one region with: its timed Cartesian path (no joint re-timing) and the "
-      "pump's flow; a dict of t_s, positions_m, dwell_s (full-flow dwell per sample) and flow (FlowSchedule).");
+      "pump's flow; a dict of t_s, positions_m, axes (unit spray axes), dwell_s (full-flow dwell per sample), pass_index (-1 off the passes), spraying (commanded), blocked (stop-and-go middles) and flow (FlowSchedule).");
   m.def("flow_dwells", &flow_dwells, py::arg("schedule"), py::arg("t_s"),
         "Full-flow dwell of every sample: the schedule's flow over the sample's share of time.");
   py::class_<DepositVolumes>(m, "DepositVolumes", "Volumes of the executed deposit [m^3].")
@@ -76,7 +101,8 @@ void bind_executed(py::module_& m) {
   m.def("execute_deposit",
         py::overload_cast<const Surface&, const Plan&, const TimedTrajectory&, const Config&>(&execute_deposit),
         py::arg("surface"), py::arg("plan"), py::arg("trajectory"), py::arg("config"),
-        "The deposit the trajectory lays on the surface, round by round on the moved wall.");
+        "The deposit the trajectory lays on the surface, round by round on the moved wall, the pump running the "
+        "plan's program (planned_pump_program, program_schedule).");
 }
 }  // namespace
 

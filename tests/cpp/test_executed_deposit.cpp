@@ -13,8 +13,10 @@
 #include "shotcrete/deposition/deposition.hpp"
 #include "shotcrete/deposition/wall.hpp"
 #include "shotcrete/pipeline/executed_deposit.hpp"
+#include "shotcrete/timing/region_spray.hpp"
 #include "shotcrete/timing/sampling.hpp"
 #include "bay_fixtures.hpp"
+#include "timing_fixtures.hpp"
 
 using namespace shotcrete;
 
@@ -515,6 +517,154 @@ TEST(FlowSchedule, EndsBlockedKeepsTheRampsOffTheTransitsAround) {
   // Nothing flows up to sample 0's share or past the last sample's.
   EXPECT_DOUBLE_EQ(closed.flow_at(0.05), 0.0);
   EXPECT_DOUBLE_EQ(closed.flow_at(10.05), 0.0);
+}
+
+// A program laid out on other durations: a 1.98 s spell between two 1.98 s gaps (a planner's 2 s,
+// run 1 % faster). The pump's own rules would bridge the first gap (the short spell has nothing to
+// cut); the program keeps its three spells, stretched into the slack around them. By hand: the
+// gaps widened off the long spells (0.02 s each), the short spell grown 0.02 s about its middle,
+// the gaps widened again by 0.01 s off the long spells.
+TEST(FlowSchedule, AProgramKeepsItsSpellsWhereItRanShortOfTheMinimums) {
+  const std::vector<double> t = times(1501, 0.02);  // 0 .. 30 s; the switches between samples
+  const FlowConfig f = flow(1.0, 2.0, 2.0);
+  const std::vector<double> on{1.01, 5.99, 9.95}, off{4.01, 7.97, 15.01};
+  const FlowSchedule s = program_schedule(on, off, t, f);
+  expect_spells(s, {{1.01, 3.98}, {5.98, 7.98}, {9.98, 15.01}});
+  EXPECT_NEAR(s.bridged_s, 0.0, 1e-12);
+  EXPECT_NEAR(s.trimmed_s, 0.06, 1e-9);
+  EXPECT_NEAR(s.extended_s, 0.02, 1e-9);
+  EXPECT_NEAR(s.commanded_on_s, 3.0 + 1.98 + 5.06, 1e-9);  // 10.04 s
+  EXPECT_EQ(s.commanded_switches, 6);
+  EXPECT_GE(s.shortest_on_s(), f.min_on_s - 1e-9);
+  EXPECT_GE(s.shortest_off_s(), f.min_off_s - 1e-9);
+  // The same spells as flags: the pump decides alone and bridges the first gap.
+  std::vector<char> flags(t.size(), 0);
+  for (std::size_t i = 0; i < t.size(); ++i)
+    for (std::size_t k = 0; k < on.size(); ++k) flags[i] = flags[i] || (t[i] > on[k] && t[i] < off[k]);
+  const FlowSchedule alone = flow_schedule(t, flags, f);
+  EXPECT_NEAR(alone.commanded_on_s, s.commanded_on_s, 1e-9);
+  EXPECT_EQ(alone.on_s.size(), 2u);
+  EXPECT_GT(alone.bridged_s, 1.9);
+  // A program within the minimums runs as it is.
+  expect_spells(program_schedule({1.01, 6.01}, {4.01, 9.01}, t, f), {{1.01, 4.01}, {6.01, 9.01}});
+  // Random programs: never shorter than the minimums, whatever their spells.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> len(0.3, 4.0);
+  for (int trial = 0; trial < 30; ++trial) {
+    std::vector<double> a, b;
+    for (double x = len(rng); x < 25.0;) {
+      a.push_back(x), b.push_back(x + len(rng));
+      x = b.back() + len(rng);
+    }
+    const FlowSchedule r = program_schedule(a, b, t, f);
+    if (r.on_s.size() > 1) EXPECT_GE(r.shortest_off_s(), f.min_off_s - 1e-9) << trial;
+    if (!r.on_s.empty()) EXPECT_GE(r.shortest_on_s(), f.min_on_s - 1e-9) << trial;
+    EXPECT_NEAR(r.on_time_s(), r.commanded_on_s + r.bridged_s + r.extended_s - r.dropped_s - r.trimmed_s, 1e-9);
+  }
+}
+
+TEST(FlowSchedule, AMalformedProgramIsAnError) {
+  const std::vector<double> t = times(101, 0.1);
+  const FlowConfig f = flow(0.5, 1.0, 1.0);
+  EXPECT_THROW(program_schedule({1.0}, {}, t, f), std::invalid_argument);                    // sizes
+  EXPECT_THROW(program_schedule({2.0}, {1.0}, t, f), std::invalid_argument);                 // empty spell
+  EXPECT_THROW(program_schedule({1.0, 2.5}, {3.0, 4.0}, t, f), std::invalid_argument);       // overlapping
+  EXPECT_THROW(program_schedule({std::nan("")}, {3.0}, t, f), std::invalid_argument);        // NaN
+  EXPECT_THROW(program_schedule({1.0}, {12.0}, t, f), std::invalid_argument);                // past the samples
+  EXPECT_THROW(program_schedule({1.0}, {3.0}, t, flow(2.0, 1.0, 3.0)), std::invalid_argument);  // config
+  try {
+    program_schedule({1.0, 2.5}, {3.0, 4.0}, t, f);
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("spell 1"), std::string::npos) << e.what();
+  }
+}
+
+namespace {
+
+// A trajectory through the samples of a region as the planner times it (region_spray), the time
+// between two samples off the passes stretched by join_stretch (the arm easing its turns).
+TimedTrajectory region_trajectory(const RegionSpray& rs, double join_stretch) {
+  TimedTrajectory tr;
+  double t = 0.0;
+  for (std::size_t k = 0; k < rs.t_s.size(); ++k) {
+    if (k > 0) {
+      const bool join = rs.pass_index[k] < 0 && rs.pass_index[k - 1] < 0;
+      t += (rs.t_s[k] - rs.t_s[k - 1]) * (join ? join_stretch : 1.0);
+    }
+    tr.t_s.push_back(t), tr.nozzle.push_back(rs.nozzle[k]), tr.spraying.push_back(rs.spraying[k]);
+    tr.pass_index.push_back(rs.pass_index[k]), tr.region_index.push_back(0);
+    tr.kind.push_back(static_cast<char>(rs.blocked[k] ? SegmentKind::Transit : rs.pass_index[k] >= 0 ? SegmentKind::Pass : SegmentKind::Link));
+  }
+  tr.duration_s = t;
+  return tr;
+}
+
+// The nozzle position at time t along the samples (linear between them).
+Eigen::Vector3d position_at(const std::vector<double>& t_s, const std::vector<NozzlePose>& nozzle, double t) {
+  const auto it = std::lower_bound(t_s.begin(), t_s.end(), t);
+  if (it == t_s.begin()) return nozzle.front().position_m;
+  if (it == t_s.end()) return nozzle.back().position_m;
+  const auto i = static_cast<std::size_t>(it - t_s.begin());
+  const double u = (t - t_s[i - 1]) / (t_s[i] - t_s[i - 1]);
+  return (1.0 - u) * nozzle[i - 1].position_m + u * nozzle[i].position_m;
+}
+
+}  // namespace
+
+// The pump runs the plan's program on the arm's timing. A serpentine of three passes whose turns
+// the planner sprays through (shorter than flow.min_off_s, 5 s here): on the planner's own timing
+// the program is the planner's schedule and the executed deposit is the planner's, to rounding;
+// with the turns 2.5 times slower (longer than 5 s) the program still sprays through them, every
+// switch at the place the planner put it, where a pump deciding on the flags alone switches off.
+TEST(ExecutedDeposit, ThePumpRunsThePlansProgramOnTheArmsTiming) {
+  Config cfg;
+  cfg.flow = flow(1.0, 1.0, 5.0);
+  const Surface surface = test::analytic_bay([](double, double) { return 0.05; }, cfg, 0.95, 1.45, 0.8, 2);
+  Plan plan;
+  plan.rounds.emplace_back();
+  plan.rounds[0].regions.emplace_back();
+  std::vector<Pass>& passes = plan.rounds[0].regions[0].passes;
+  passes = test::axial_region(3, 0.6, 0.25, 0.1, 1.15, {0.1}, 5.6 - cfg.planner.standoff_m, 5.6);
+  const RegionSpray rs = region_spray(passes, cfg);
+  ASSERT_EQ(rs.flow.on_s.size(), 1u) << "the planner sprays through both turns";
+  ASSERT_GT(rs.flow.bridged_s, 0.0);
+
+  // The planner's own timing.
+  const TimedTrajectory same = region_trajectory(rs, 1.0);
+  const PumpProgram p1 = planned_pump_program(plan, same, cfg);
+  ASSERT_EQ(p1.on_s.size(), 1u);
+  EXPECT_NEAR(p1.on_s[0], rs.flow.on_s[0], 1e-9);
+  EXPECT_NEAR(p1.off_s[0], rs.flow.off_s[0], 1e-9);
+  const ExecutedDeposit ex1 = execute_deposit(surface, plan, same, cfg);
+  SprayedWall wall = unsprayed_wall(surface, cfg.profile.max_deviation_m);
+  Eigen::VectorXd planned = Eigen::VectorXd::Zero(wall.surface.cloud.size());
+  accumulate_dwells(spot_model_from_config(cfg.deposition), SurfaceIndex(wall.surface.cloud, 0.05), rs.nozzle, rs.dwell_s,
+                    cfg.deposition.rebound_fraction, planned);
+  ASSERT_GT(planned.maxCoeff(), 0.005);
+  EXPECT_LT((ex1.deposited_m - planned).cwiseAbs().maxCoeff(), 1e-9 * planned.maxCoeff());
+
+  // The turns eased: 2.5 times as long.
+  const TimedTrajectory slow = region_trajectory(rs, 2.5);
+  const PumpProgram p2 = planned_pump_program(plan, slow, cfg);
+  ASSERT_EQ(p2.on_s.size(), 1u);
+  for (auto [t_plan, t_arm] : {std::pair{rs.flow.on_s[0], p2.on_s[0]}, std::pair{rs.flow.off_s[0], p2.off_s[0]}})
+    EXPECT_LT((position_at(rs.t_s, rs.nozzle, t_plan) - position_at(slow.t_s, slow.nozzle, t_arm)).norm(), 1e-3);
+  const ExecutedDeposit ex2 = execute_deposit(surface, plan, slow, cfg);
+  EXPECT_EQ(ex2.flow.on_s.size(), 1u);
+  EXPECT_NEAR(ex2.flow.bridged_s, 0.0, 1e-9);  // nothing the program did not ask for
+  EXPECT_GT(ex2.flow.on_time_s(), rs.flow.on_time_s() + 1.0);  // the slower turns, sprayed
+  // The pump on the trajectory's flags alone: off over both turns.
+  const ExecutedDeposit alone = execute_deposit(surface, std::vector<int>{1}, slow, cfg);
+  EXPECT_EQ(alone.flow.on_s.size(), 3u);
+
+  // A trajectory that is not the plan's is an error naming the region.
+  TimedTrajectory other = same;
+  other.region_index.back() = 1;
+  EXPECT_THROW(planned_pump_program(plan, other, cfg), std::invalid_argument);
+  other = same;
+  for (auto& p : other.pass_index)
+    if (p == 2) p = 3;
+  EXPECT_THROW(planned_pump_program(plan, other, cfg), std::invalid_argument);
 }
 
 // SpotOnGridBound settles spot_miss_fraction's zeros without casting rays: wherever it answers

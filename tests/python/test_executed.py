@@ -1,6 +1,7 @@
 """The executed deposit of a job (docs/architecture.md §9): the report's residual comes from it, the
-pump's schedule keeps its minimum spells, the volumes balance, and an independent re-integration of
-the trajectory (numpy, point_rate_mps, the flow's own dwells) agrees with the core on one round."""
+pump runs the plan's program and keeps its minimum spells, the volumes balance, and an independent
+re-integration of the trajectory (numpy, point_rate_mps, the flow's own dwells) agrees with the core
+on one round."""
 import numpy as np
 import pytest
 
@@ -45,7 +46,9 @@ def test_summary_reports_the_executed_deposit(job):
     assert f["shortest_on_s"] >= cfg.flow.min_on_s - 1e-9
     assert f["switches"] <= 2 or f["shortest_off_s"] >= cfg.flow.min_off_s - 1e-9
     assert f["flow_on_s"] == pytest.approx(f["commanded_on_s"] + f["bridged_s"] + f["extended_s"] - f["dropped_s"] - f["trimmed_s"])
-    assert f["commanded_on_s"] == pytest.approx(arm.trajectory.dwell_s.sum())
+    # Commanded: the plan's program on the arm's timing.
+    prog = _core.planned_pump_program(arm.plan, arm.trajectory, cfg)
+    assert f["commanded_on_s"] == pytest.approx(sum(b - a for a, b in zip(prog.on_s, prog.off_s)))
     rate = _core.spot_model_from_config(cfg.deposition).volume_rate_m3ps()
     assert f["bridged_volume_m3"] == pytest.approx(rate * f["bridged_s"])
     assert e["sprayed_m3"] == pytest.approx(rate * f["flow_on_s"])
@@ -58,7 +61,8 @@ def test_first_round_against_numpy_integration(job):
     # Joint moves (SegmentKind.Transit: between regions, from the start posture, stop-and-go inside
     # a region) and the time past the trajectory's ends: the pump is off there.
     moving = np.asarray(tr.kind) == 4
-    sched = _core.flow_schedule(t, tr.spraying, cfg.flow, moving, ends_blocked=True)
+    prog = _core.planned_pump_program(plan, tr, cfg)
+    sched = _core.program_schedule(prog.on_s, prog.off_s, t, cfg.flow, moving, ends_blocked=True)
     assert list(sched.on_s) == list(arm.executed.flow.on_s) and list(sched.off_s) == list(arm.executed.flow.off_s)
     # Dry through every joint move, ramps included: no sample of one gets any flow.
     assert np.all(np.asarray(_core.flow_dwells(sched, t))[moving] == pytest.approx(0.0, abs=1e-12))
@@ -139,3 +143,41 @@ def test_planner_region_spray_matches_the_trajectory(job):
         assert np.allclose(ex_off[inside] - t[idx[0]], flow.off_s, atol=1e-6)
         compared += 1
     assert compared >= 1
+
+
+def test_the_pump_switches_where_the_plan_switches(job):
+    """The pump runs the plan's program: every switch the planner's schedule (region_spray) puts on
+    a pass or at its end, the program puts where the trajectory's nozzle is at the same point of that
+    pass (found here by the nozzle positions alone), however the arm re-timed the region around it."""
+    cfg, surface, robot, arm = job
+    tr = arm.trajectory
+    t, pos = np.asarray(tr.t_s), np.asarray(tr.positions)
+    region, pas = np.asarray(tr.region_index), np.asarray(tr.pass_index)
+    prog = _core.planned_pump_program(arm.plan, tr, cfg)
+    on, off = np.asarray(prog.on_s), np.asarray(prog.off_s)
+    regions = [g for rd in arm.plan.rounds for g in rd.regions]
+    checked, offset = 0, 0
+    for r, g in enumerate(regions):
+        rs = _core.region_spray(g.passes, cfg)
+        pt, pp, pi = np.asarray(rs["t_s"]), np.asarray(rs["positions_m"]), np.asarray(rs["pass_index"])
+        idx = np.flatnonzero(region == r)
+        inside = (on >= t[idx[0]] - 1e-9) & (off <= t[idx[-1]] + 1e-9)
+        assert inside.sum() == len(rs["flow"].on_s), f"region {r}"
+        for plan_switches, arm_switches in ((rs["flow"].on_s, on[inside]), (rs["flow"].off_s, off[inside])):
+            for ts, ta in zip(plan_switches, arm_switches):
+                k = np.searchsorted(pt, ts)
+                if k == 0 or k >= len(pt) or max(pi[k - 1], pi[k]) < 0:
+                    continue  # off a pass: the arm's joins are its own
+                on_pass = pi[k - 1] if pi[k - 1] >= 0 else pi[k]  # on it, or at its end
+                at_plan = pp[k - 1] + (pp[k] - pp[k - 1]) * (ts - pt[k - 1]) / (pt[k] - pt[k - 1])
+                # Where the arm's nozzle is when the program switches (between its samples).
+                i = np.searchsorted(t, ta)
+                at_arm = pos[i - 1] + (pos[i] - pos[i - 1]) * (ta - t[i - 1]) / (t[i] - t[i - 1])
+                # Within the sample intervals' motion at a pass's end (the lead or turn beside it
+                # may run at another speed on the arm), millimetres on the pass.
+                step = np.linalg.norm(pp[k] - pp[k - 1]) + np.linalg.norm(pos[i] - pos[i - 1])
+                tol = 0.003 + (0.5 * step if min(pi[k - 1], pi[k]) < 0 else 0.0)
+                assert np.linalg.norm(at_arm - at_plan) < tol, f"region {r}: switch at {ts:.2f} s on pass {on_pass}"
+                checked += 1
+        offset += len(g.passes)
+    assert checked >= 4

@@ -238,24 +238,56 @@ double FlowSchedule::integral_to(double t) const {
   return sum;
 }
 
-FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
-                           const std::vector<char>& blocked, bool ends_blocked) {
+namespace {
+
+void check_inputs(const char* who, const std::vector<double>& t_s, const FlowConfig& flow, const std::vector<char>& blocked) {
   Config c;
   c.flow = flow;
   validate(c);
-  if (t_s.size() != spraying.size())
-    throw std::invalid_argument("flow_schedule: " + std::to_string(t_s.size()) + " times but " +
-                                std::to_string(spraying.size()) + " spraying flags");
   if (!blocked.empty() && blocked.size() != t_s.size())
-    throw std::invalid_argument("flow_schedule: " + std::to_string(t_s.size()) + " times but " +
+    throw std::invalid_argument(std::string(who) + ": " + std::to_string(t_s.size()) + " times but " +
                                 std::to_string(blocked.size()) + " blocked flags");
   check_times(t_s);
-  FlowSchedule s;
-  s.ramp_s = flow.ramp_s;
-  if (t_s.empty()) return s;
-  commanded_spells(t_s, spraying, s);
-  s.commanded_on_s = s.on_time_s();
-  s.commanded_switches = s.switches();
+}
+
+// A program laid out on other durations (the planner's timing of a region) runs on the arm's: a
+// spell or a gap that came out a little shorter than its minimum is stretched into the slack of
+// its neighbours (gaps longer than min_off, spells longer than min_on, the time to the ends), as
+// the program meant it, before the general rules (which bridge such a gap) see it.
+void stretch_to_minimums(FlowSchedule& s, double min_on, double min_off, double t0, double t1) {
+  const std::size_t n = s.on_s.size();
+  for (int round = 0; round < 4; ++round) {
+    bool changed = false;
+    for (std::size_t k = 0; k < n; ++k) {
+      const double need = min_on - (s.off_s[k] - s.on_s[k]);
+      if (need <= 1e-12) continue;
+      const double before = std::max(0.0, k > 0 ? s.on_s[k] - s.off_s[k - 1] - min_off : s.on_s[k] - t0);
+      const double after = std::max(0.0, k + 1 < n ? s.on_s[k + 1] - s.off_s[k] - min_off : t1 - s.off_s[k]);
+      if (before + after < need) continue;
+      const double grow_before = std::clamp(0.5 * need, need - after, before);
+      s.on_s[k] -= grow_before;
+      s.off_s[k] += need - grow_before;
+      changed = true;
+    }
+    for (std::size_t k = 1; k < n; ++k) {
+      const double need = min_off - (s.on_s[k] - s.off_s[k - 1]);
+      if (need <= 1e-12) continue;
+      const double before = std::max(0.0, s.off_s[k - 1] - s.on_s[k - 1] - min_on);
+      const double after = std::max(0.0, s.off_s[k] - s.on_s[k] - min_on);
+      if (before + after < need) continue;
+      const double cut_before = std::clamp(0.5 * need, need - after, before);
+      s.off_s[k - 1] -= cut_before;
+      s.on_s[k] += need - cut_before;
+      s.trimmed_s += need;
+      changed = true;
+    }
+    if (!changed) break;
+  }
+}
+
+// The commanded spells of `s` (set) made into what the pump runs: flow_schedule's rules.
+void settle(FlowSchedule& s, const std::vector<double>& t_s, const FlowConfig& flow, const std::vector<char>& blocked,
+            bool ends_blocked) {
   std::optional<Windows> windows;
   if (ends_blocked || std::find(blocked.begin(), blocked.end(), 1) != blocked.end()) {
     windows = free_windows(t_s, blocked, flow.ramp_s, ends_blocked);
@@ -271,6 +303,49 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
     if (!merged && !grown && !dropped) break;
   }
   s.extended_s = s.on_time_s() - s.commanded_on_s - s.bridged_s + s.dropped_s + s.trimmed_s;
+}
+
+}  // namespace
+
+FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
+                           const std::vector<char>& blocked, bool ends_blocked) {
+  check_inputs("flow_schedule", t_s, flow, blocked);
+  if (t_s.size() != spraying.size())
+    throw std::invalid_argument("flow_schedule: " + std::to_string(t_s.size()) + " times but " +
+                                std::to_string(spraying.size()) + " spraying flags");
+  FlowSchedule s;
+  s.ramp_s = flow.ramp_s;
+  if (t_s.empty()) return s;
+  commanded_spells(t_s, spraying, s);
+  s.commanded_on_s = s.on_time_s();
+  s.commanded_switches = s.switches();
+  settle(s, t_s, flow, blocked, ends_blocked);
+  return s;
+}
+
+FlowSchedule program_schedule(const std::vector<double>& on_s, const std::vector<double>& off_s,
+                              const std::vector<double>& t_s, const FlowConfig& flow, const std::vector<char>& blocked,
+                              bool ends_blocked) {
+  check_inputs("program_schedule", t_s, flow, blocked);
+  if (on_s.size() != off_s.size())
+    throw std::invalid_argument("program_schedule: " + std::to_string(on_s.size()) + " switches on but " +
+                                std::to_string(off_s.size()) + " off");
+  for (std::size_t k = 0; k < on_s.size(); ++k) {
+    if (!std::isfinite(on_s[k]) || !std::isfinite(off_s[k]) || !(off_s[k] > on_s[k]) || (k > 0 && !(on_s[k] > off_s[k - 1])))
+      throw std::invalid_argument("program_schedule: spell " + std::to_string(k) + " [" + std::to_string(on_s[k]) + ", " +
+                                  std::to_string(off_s[k]) + "] s is empty, not finite or not after the one before");
+    if (!t_s.empty() && (on_s[k] < t_s.front() - 1e-9 || off_s[k] > t_s.back() + 1e-9))
+      throw std::invalid_argument("program_schedule: spell " + std::to_string(k) + " lies outside the samples' times");
+  }
+  FlowSchedule s;
+  s.ramp_s = flow.ramp_s;
+  if (t_s.empty()) return s;
+  s.on_s = on_s;
+  s.off_s = off_s;
+  s.commanded_on_s = s.on_time_s();
+  s.commanded_switches = s.switches();
+  stretch_to_minimums(s, flow.min_on_s, flow.min_off_s, t_s.front(), t_s.back());
+  settle(s, t_s, flow, blocked, ends_blocked);
   return s;
 }
 

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "shotcrete/deposition/deposition.hpp"
+#include "shotcrete/timing/region_spray.hpp"
 
 namespace shotcrete {
 
@@ -95,6 +96,52 @@ int cell_on_wall(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector
   }
   const Eigen::Vector3d cyl = ax.to_cylindrical(ax.origin_m + c + t * u);
   return grid.cell_at(cyl[1], cyl[2]);
+}
+
+// Where a sample lies in its region, as slot + fraction: slot 0 the lead-in, 2j + 1 pass j, 2j + 2
+// the join after pass j (the last join is the lead-out), fraction the share of the slot's nozzle path
+// before the sample (of its time where the nozzle hardly moves). Slots follow each other in the
+// samples' order, so the position never decreases: each slot runs from its number to the next.
+std::vector<double> slot_positions(const std::vector<int>& local_pass, const std::vector<Eigen::Vector3d>& position,
+                                   const std::vector<double>& t_s) {
+  const std::size_t n = local_pass.size();
+  std::vector<int> slot(n, 0);
+  std::vector<double> x(n, 0.0);
+  int last = -1;
+  for (std::size_t k = 0; k < n; ++k) {
+    if (local_pass[k] >= 0) last = local_pass[k];
+    slot[k] = local_pass[k] >= 0 ? 2 * local_pass[k] + 1 : (last < 0 ? 0 : 2 * last + 2);
+  }
+  // A slot runs from the midpoint with the sample before its first to the midpoint with the sample
+  // after its last: the position grows strictly across a slot's end too (a switch commanded there,
+  // between two samples, keeps its place).
+  for (std::size_t a = 0; a < n;) {
+    std::size_t b = a + 1;
+    while (b < n && slot[b] == slot[a]) ++b;
+    const double d0 = a > 0 ? 0.5 * (position[a] - position[a - 1]).norm() : 0.0;
+    const double t0 = a > 0 ? 0.5 * (t_s[a] - t_s[a - 1]) : 0.0;
+    std::vector<double> d(b - a, d0), t(b - a, t0);
+    for (std::size_t k = a + 1; k < b; ++k) {
+      d[k - a] = d[k - a - 1] + (position[k] - position[k - 1]).norm();
+      t[k - a] = t[k - a - 1] + (t_s[k] - t_s[k - 1]);
+    }
+    const double length = d.back() + (b < n ? 0.5 * (position[b] - position[b - 1]).norm() : 0.0);
+    const double span = t.back() + (b < n ? 0.5 * (t_s[b] - t_s[b - 1]) : 0.0);
+    for (std::size_t k = a; k < b; ++k)
+      x[k] = slot[k] + (length > 1e-4 ? d[k - a] / length : (span > 0.0 ? t[k - a] / span : 0.0));
+    a = b;
+  }
+  return x;
+}
+
+// y at x on the polyline (xs, ys), xs non-decreasing: the first point reaching x, held beyond the ends.
+double interpolate(const std::vector<double>& xs, const std::vector<double>& ys, double x) {
+  const auto it = std::lower_bound(xs.begin(), xs.end(), x);
+  if (it == xs.begin()) return ys.front();
+  if (it == xs.end()) return ys.back();
+  const auto i = static_cast<std::size_t>(it - xs.begin());
+  const double span = xs[i] - xs[i - 1];
+  return span > 0.0 ? ys[i - 1] + (ys[i] - ys[i - 1]) * (x - xs[i - 1]) / span : ys[i];
 }
 
 }  // namespace
@@ -188,16 +235,75 @@ bool SpotOnGridBound::surely_on_grid(const NozzlePose& nozzle) const {
   return at(r1 + 1, c1 + 1) - at(r0, c1 + 1) - at(r1 + 1, c0) + at(r0, c0) == 0;
 }
 
-ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& regions_per_round,
-                                const TimedTrajectory& tr, const Config& config) {
-  validate(config);
+PumpProgram planned_pump_program(const Plan& plan, const TimedTrajectory& tr, const Config& config) {
+  std::vector<const std::vector<Pass>*> regions;
+  for (const auto& round : plan.rounds)
+    for (const auto& region : round.regions) regions.push_back(&region.passes);
+  std::vector<std::vector<std::size_t>> samples(regions.size());  // the trajectory's samples of each region
+  for (std::size_t i = 0; i < tr.size(); ++i) {
+    const int r = tr.region_index[i];
+    if (r < 0) continue;
+    if (r >= static_cast<int>(regions.size()))
+      throw std::invalid_argument("planned_pump_program: sample " + std::to_string(i) + " is in region " +
+                                  std::to_string(r) + " but the plan has " + std::to_string(regions.size()) + " regions");
+    samples[static_cast<std::size_t>(r)].push_back(i);
+  }
+  PumpProgram out;
+  int pass_offset = 0;
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    const std::vector<Pass>& passes = *regions[r];
+    const int n_passes = static_cast<int>(passes.size());
+    const std::vector<std::size_t>& idx = samples[r];
+    pass_offset += n_passes;
+    if (idx.empty() || passes.empty()) continue;
+    // The plan's program: the region's spells as the planner sprays it, and where they lie.
+    const RegionSpray spray = region_spray(passes, config);
+    std::vector<Eigen::Vector3d> plan_pos;
+    for (const auto& p : spray.nozzle) plan_pos.push_back(p.position_m);
+    const std::vector<double> plan_x = slot_positions(spray.pass_index, plan_pos, spray.t_s);
+    // The same places on the trajectory.
+    std::vector<int> local(idx.size());
+    std::vector<Eigen::Vector3d> pos(idx.size());
+    std::vector<double> t(idx.size());
+    const int first_pass = pass_offset - n_passes;
+    for (std::size_t k = 0; k < idx.size(); ++k) {
+      const int p = tr.pass_index[idx[k]];
+      if (p >= 0 && (p < first_pass || p >= pass_offset))
+        throw std::invalid_argument("planned_pump_program: sample " + std::to_string(idx[k]) + " of region " +
+                                    std::to_string(r) + " is on pass " + std::to_string(p) + ", not one of its " +
+                                    std::to_string(n_passes) + " passes from " + std::to_string(first_pass));
+      local[k] = p < 0 ? -1 : p - first_pass;
+      pos[k] = tr.nozzle[idx[k]].position_m;
+      t[k] = tr.t_s[idx[k]];
+    }
+    const std::vector<double> x = slot_positions(local, pos, t);
+    const FlowSchedule& f = spray.flow;
+    for (std::size_t k = 0; k < f.on_s.size(); ++k) {
+      const double on = interpolate(x, t, interpolate(spray.t_s, plan_x, f.on_s[k]));
+      const double off = interpolate(x, t, interpolate(spray.t_s, plan_x, f.off_s[k]));
+      if (!(off > on)) continue;  // the trajectory stands still there
+      if (!out.on_s.empty() && on <= out.off_s.back()) {
+        out.off_s.back() = std::max(out.off_s.back(), off);
+        continue;
+      }
+      out.on_s.push_back(on);
+      out.off_s.push_back(off);
+    }
+  }
+  return out;
+}
+
+namespace {
+
+ExecutedDeposit execute_schedule(const Surface& surface, const std::vector<int>& regions_per_round,
+                                 const TimedTrajectory& tr, FlowSchedule flow, const Config& config) {
   if (!surface.cloud.has_normals()) throw std::invalid_argument("execute_deposit: the surface cloud has no normals");
   const SpotModel model = spot_model_from_config(config.deposition);
   const double rebound = config.deposition.rebound_fraction, rate = model.volume_rate_m3ps();
   const std::vector<int> round_of = sample_rounds(tr, regions_per_round);
   ExecutedDeposit out{Eigen::VectorXd::Zero(surface.cloud.size()), {}, {}, {},
                       unsprayed_wall(surface, config.profile.max_deviation_m),
-                      flow_schedule(tr.t_s, tr.spraying, config.flow, joint_move_samples(tr), /*ends_blocked=*/true), {}};
+                      std::move(flow), {}};
   const std::vector<double> dwell = flow_dwells(out.flow, tr.t_s);
   double missed = 0.0;  // full-flow seconds whose spray lands off the scanned cells
   for (std::size_t k = 0; k < regions_per_round.size(); ++k) {
@@ -233,11 +339,27 @@ ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& 
   return out;
 }
 
+}  // namespace
+
+ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& regions_per_round,
+                                const TimedTrajectory& trajectory, const Config& config) {
+  validate(config);
+  return execute_schedule(surface, regions_per_round, trajectory,
+                          flow_schedule(trajectory.t_s, trajectory.spraying, config.flow, joint_move_samples(trajectory),
+                                        /*ends_blocked=*/true),
+                          config);
+}
+
 ExecutedDeposit execute_deposit(const Surface& surface, const Plan& plan, const TimedTrajectory& trajectory,
                                 const Config& config) {
+  validate(config);
   std::vector<int> regions_per_round;
   for (const auto& round : plan.rounds) regions_per_round.push_back(static_cast<int>(round.regions.size()));
-  return execute_deposit(surface, regions_per_round, trajectory, config);
+  const PumpProgram program = planned_pump_program(plan, trajectory, config);
+  return execute_schedule(surface, regions_per_round, trajectory,
+                          program_schedule(program.on_s, program.off_s, trajectory.t_s, config.flow,
+                                           joint_move_samples(trajectory), /*ends_blocked=*/true),
+                          config);
 }
 
 double DepositVolumes::balance_error() const {

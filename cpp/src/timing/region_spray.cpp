@@ -18,6 +18,7 @@ RegionSpray region_spray(const std::vector<Pass>& passes, const Config& config) 
   RegionSpray out;
   out.t_s = cs.t_s;
   out.nozzle = cs.nozzle;
+  out.pass_index = cs.pass_index;
   // The stop-and-go middles are joint moves in time_plan, and so are the transits into and out of
   // the region: the pump is off through them, ramps included.
   std::vector<char> blocked(cs.t_s.size(), 0);
@@ -26,6 +27,8 @@ RegionSpray region_spray(const std::vector<Pass>& passes, const Config& config) 
     blocked[k] = path.pieces()[path.locate(cs.s_m[k], local)].motion == PieceMotion::RestToRest;
   }
   out.flow = flow_schedule(cs.t_s, cs.spraying, config.flow, blocked, /*ends_blocked=*/true);
+  out.spraying = cs.spraying;
+  out.blocked = std::move(blocked);
   out.dwell_s = flow_dwells(out.flow, cs.t_s);
   return out;
 }

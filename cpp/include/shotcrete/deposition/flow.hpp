@@ -53,6 +53,16 @@ struct FlowSchedule {
 FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<char>& spraying, const FlowConfig& flow,
                            const std::vector<char>& blocked = {}, bool ends_blocked = false);
 
+/// The schedule the pump runs for a program of commanded spells [on_s[k], off_s[k]] (sorted, not
+/// empty, apart, within [t_s.front(), t_s.back()]) over samples at t_s: a program laid out on other
+/// durations (the planner's timing of a region, run on the arm's): a spell or gap that came out
+/// shorter than its minimum is first stretched into its neighbours' slack (gaps beyond min_off_s,
+/// spells beyond min_on_s, the time to the ends; counted as extended / trimmed), then the rules of
+/// flow_schedule apply. Throws std::invalid_argument for a malformed program and as flow_schedule.
+FlowSchedule program_schedule(const std::vector<double>& on_s, const std::vector<double>& off_s,
+                              const std::vector<double>& t_s, const FlowConfig& flow,
+                              const std::vector<char>& blocked = {}, bool ends_blocked = false);
+
 /// Full-flow dwell of every sample: the schedule's flow integrated over the sample's share of
 /// time (midpoints with its neighbours; the first and last samples take everything before / after),
 /// every dwell >= 0 (rounding below 0 is cut); the dwells add up to the schedule's on_time_s (to

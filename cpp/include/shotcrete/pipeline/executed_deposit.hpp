@@ -31,7 +31,7 @@ struct ExecutedDeposit {
   std::vector<Eigen::VectorXd> round_deposited_m;  // per round, per point of the wall's cloud
   std::vector<Eigen::VectorXd> round_td_after_m;   // per round, per grid cell
   SprayedWall wall;             // the wall as sprayed (cloud, grid, levels)
-  FlowSchedule flow;
+  FlowSchedule flow;            // the pump's flow over the trajectory
   DepositVolumes volumes;
   double bridged_volume_m3 = 0.0;   // sprayed through the bridged gaps
   double extended_volume_m3 = 0.0;  // sprayed by extending short spells
@@ -42,12 +42,32 @@ struct ExecutedDeposit {
 /// over all rounds); samples off a region belong to the round of the region before them. Round by
 /// round, the flow-weighted dwells are accumulated on a SurfaceIndex of the wall as moved so far
 /// (accumulate_dwells) and laid with deposit_layer, as plan_bay does. Throws std::invalid_argument
-/// for a region_index beyond the rounds' regions or a surface without normals.
+/// for a region_index beyond the rounds' regions or a surface without normals. The pump is
+/// commanded by the trajectory's own spraying flags: it decides on the arm's timing which short
+/// gaps it runs through and how it stretches short spells.
 ExecutedDeposit execute_deposit(const Surface& surface, const std::vector<int>& regions_per_round,
                                 const TimedTrajectory& trajectory, const Config& config);
-/// Same with the rounds of `plan` (the plan the trajectory was timed from).
+/// Same with the rounds of `plan` (the plan the trajectory was timed from), the pump commanded by
+/// the plan's program (planned_pump_program, program_schedule): the arm re-times the joins (eased turns, joint moves
+/// for the stop-and-go middles, tuned parameters), and a pump deciding again on those durations
+/// bridged a turn the plan switched off over, or dropped a spell the plan sprayed (33 mm on a patch).
 ExecutedDeposit execute_deposit(const Surface& surface, const Plan& plan, const TimedTrajectory& trajectory,
                                 const Config& config);
+
+/// The pump's program: commanded spells [on_s[k], off_s[k]] [s], sorted and apart.
+struct PumpProgram {
+  std::vector<double> on_s, off_s;
+};
+
+/// The plan's pump program on the trajectory's timing: for region r of the trajectory (the plan's
+/// r-th region in spraying order, its passes numbered on from the regions before it), the
+/// planner's flow schedule of that region (region_spray's commanded switches, after its minimum
+/// spells and ramps) with every switch moved to the time the trajectory reaches the same place:
+/// the same pass, join, lead-in or lead-out, at the same share of its nozzle path. The pump then
+/// runs it with program_schedule, which only changes it where the re-timing broke a minimum spell
+/// or a joint move's clearance. Throws std::invalid_argument when a sample's region or pass is not
+/// in the plan.
+PumpProgram planned_pump_program(const Plan& plan, const TimedTrajectory& trajectory, const Config& config);
 
 /// Share of the spot's volume at `nozzle` that lands off every valid cell of `grid`: the disc at
 /// H0 split into 8 rings of equal volume x 16 directions; each ray meets the design surface, then

@@ -16,6 +16,9 @@ struct RegionSpray {
   std::vector<double> t_s;           // sample times from the start of the lead-in
   std::vector<NozzlePose> nozzle;    // nozzle pose of every sample
   std::vector<double> dwell_s;       // full-flow dwell of every sample (flow_dwells)
+  std::vector<int> pass_index;       // the region's pass a sample lies on (-1 off the passes)
+  std::vector<char> spraying;        // the commanded spray (passes, joins sprayed through)
+  std::vector<char> blocked;         // the flow must be off (the stop-and-go middles: joint moves)
   FlowSchedule flow;                 // the pump's schedule over the region
   double duration_s() const { return t_s.empty() ? 0.0 : t_s.back(); }
 };
