@@ -545,6 +545,18 @@ TEST(FlowSchedule, AProgramKeepsItsSpellsWhereItRanShortOfTheMinimums) {
   EXPECT_NEAR(alone.commanded_on_s, s.commanded_on_s, 1e-9);
   EXPECT_EQ(alone.on_s.size(), 2u);
   EXPECT_GT(alone.bridged_s, 1.9);
+  // A short spell grows into the slack it has: 0.1 s before it (a 2.1 s gap), 1 s after it. The
+  // pump's own rule (about its middle) would cut the spell before it instead.
+  expect_spells(program_schedule({1.01, 6.11, 10.61}, {4.01, 7.61, 15.01}, t, f),
+                {{1.01, 4.01}, {6.01, 8.01}, {10.61, 15.01}});
+  // ... but not into a joint move ([8.4, 9.0] s; its ramp keeps the flow off from 7.89 s): the
+  // spell ends clear of it, and nothing flows in the move.
+  std::vector<char> blocked(t.size(), 0);
+  for (int i = 420; i <= 450; ++i) blocked[static_cast<std::size_t>(i)] = 1;
+  const FlowSchedule clear = program_schedule({1.01, 6.01, 10.61}, {4.01, 7.51, 15.01}, t, f, blocked);
+  for (std::size_t k = 0; k < clear.on_s.size(); ++k)
+    EXPECT_TRUE(clear.off_s[k] <= 7.89 + 1e-9 || clear.on_s[k] >= 9.51 - 1e-9) << "spell " << k;
+  for (int i = 420; i <= 450; ++i) EXPECT_EQ(clear.flow_at(t[static_cast<std::size_t>(i)]), 0.0) << i;
   // A program within the minimums runs as it is.
   expect_spells(program_schedule({1.01, 6.01}, {4.01, 9.01}, t, f), {{1.01, 4.01}, {6.01, 9.01}});
   // Random programs: never shorter than the minimums, whatever their spells.
@@ -664,6 +676,9 @@ TEST(ExecutedDeposit, ThePumpRunsThePlansProgramOnTheArmsTiming) {
   other = same;
   for (auto& p : other.pass_index)
     if (p == 2) p = 3;
+  EXPECT_THROW(planned_pump_program(plan, other, cfg), std::invalid_argument);
+  other = same;
+  for (auto& p : other.pass_index) p = p == 0 ? 1 : p == 1 ? 0 : p;  // passes out of order
   EXPECT_THROW(planned_pump_program(plan, other, cfg), std::invalid_argument);
 }
 

@@ -156,7 +156,7 @@ def test_the_pump_switches_where_the_plan_switches(job):
     prog = _core.planned_pump_program(arm.plan, tr, cfg)
     on, off = np.asarray(prog.on_s), np.asarray(prog.off_s)
     regions = [g for rd in arm.plan.rounds for g in rd.regions]
-    checked, offset = 0, 0
+    checked = 0
     for r, g in enumerate(regions):
         rs = _core.region_spray(g.passes, cfg)
         pt, pp, pi = np.asarray(rs["t_s"]), np.asarray(rs["positions_m"]), np.asarray(rs["pass_index"])
@@ -179,5 +179,4 @@ def test_the_pump_switches_where_the_plan_switches(job):
                 tol = 0.003 + (0.5 * step if min(pi[k - 1], pi[k]) < 0 else 0.0)
                 assert np.linalg.norm(at_arm - at_plan) < tol, f"region {r}: switch at {ts:.2f} s on pass {on_pass}"
                 checked += 1
-        offset += len(g.passes)
     assert checked >= 4

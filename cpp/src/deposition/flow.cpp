@@ -108,6 +108,13 @@ void clip_to_windows(FlowSchedule& s, const Windows& w) {
   s.off_s = std::move(off);
 }
 
+// The part of `need` taken on the side before when both sides can give (before + after >= need):
+// half, or more where the side after has less than half (std::clamp's bounds may cross by
+// rounding there).
+double share_before(double need, double before, double after) {
+  return std::min(before, std::max(need - after, 0.5 * need));
+}
+
 // A gap shorter than min_off within one free window (across a joint move the flow is never kept
 // on) is widened to min_off by switching off earlier and on later, when that cuts less commanded
 // flow than bridging would add (min_off - gap < gap) and both spells keep min_on; otherwise the
@@ -123,7 +130,7 @@ bool bridge_gaps(FlowSchedule& s, double min_off, double min_on, const Windows* 
       const double need = min_off - gap;
       const double spare_before = off.back() - on.back() - min_on, spare_after = s.off_s[k] - s.on_s[k] - min_on;
       if (gap > 0.0 && need < gap && spare_before >= 0.0 && spare_after >= 0.0 && spare_before + spare_after >= need) {
-        const double cut_before = std::clamp(0.5 * need, need - spare_after, spare_before);
+        const double cut_before = share_before(need, spare_before, spare_after);
         off.back() -= cut_before;
         on.push_back(s.on_s[k] + (need - cut_before));
         off.push_back(s.off_s[k]);
@@ -197,11 +204,11 @@ bool drop_short_blocked_gaps(FlowSchedule& s, double min_off, const Windows& w) 
   return false;
 }
 
-void check_times(const std::vector<double>& t_s) {
+void check_times(const char* who, const std::vector<double>& t_s) {
   for (std::size_t i = 0; i < t_s.size(); ++i) {
-    if (!std::isfinite(t_s[i])) throw std::invalid_argument("flow_schedule: t_s[" + std::to_string(i) + "] is not finite");
+    if (!std::isfinite(t_s[i])) throw std::invalid_argument(std::string(who) + ": t_s[" + std::to_string(i) + "] is not finite");
     if (i > 0 && !(t_s[i] > t_s[i - 1]))
-      throw std::invalid_argument("flow_schedule: t_s must increase strictly (t_s[" + std::to_string(i) +
+      throw std::invalid_argument(std::string(who) + ": t_s must increase strictly (t_s[" + std::to_string(i) +
                                   "] = " + std::to_string(t_s[i]) + ")");
   }
 }
@@ -247,53 +254,57 @@ void check_inputs(const char* who, const std::vector<double>& t_s, const FlowCon
   if (!blocked.empty() && blocked.size() != t_s.size())
     throw std::invalid_argument(std::string(who) + ": " + std::to_string(t_s.size()) + " times but " +
                                 std::to_string(blocked.size()) + " blocked flags");
-  check_times(t_s);
+  check_times(who, t_s);
 }
 
 // A program laid out on other durations (the planner's timing of a region) runs on the arm's: a
 // spell or a gap that came out a little shorter than its minimum is stretched into the slack of
-// its neighbours (gaps longer than min_off, spells longer than min_on, the time to the ends), as
-// the program meant it, before the general rules (which bridge such a gap) see it.
-void stretch_to_minimums(FlowSchedule& s, double min_on, double min_off, double t0, double t1) {
+// its neighbours (gaps longer than min_off, spells longer than min_on, the free time to the ends
+// of its window), as the program meant it, before the general rules (which bridge such a gap)
+// see it. Spells lie in their windows (clip_to_windows) and stay there; a gap across a joint move
+// is drop_short_blocked_gaps'.
+void stretch_to_minimums(FlowSchedule& s, double min_on, double min_off, double t0, double t1, const Windows* w) {
   const std::size_t n = s.on_s.size();
-  for (int round = 0; round < 4; ++round) {
-    bool changed = false;
-    for (std::size_t k = 0; k < n; ++k) {
-      const double need = min_on - (s.off_s[k] - s.on_s[k]);
-      if (need <= 1e-12) continue;
-      const double before = std::max(0.0, k > 0 ? s.on_s[k] - s.off_s[k - 1] - min_off : s.on_s[k] - t0);
-      const double after = std::max(0.0, k + 1 < n ? s.on_s[k + 1] - s.off_s[k] - min_off : t1 - s.off_s[k]);
-      if (before + after < need) continue;
-      const double grow_before = std::clamp(0.5 * need, need - after, before);
-      s.on_s[k] -= grow_before;
-      s.off_s[k] += need - grow_before;
-      changed = true;
-    }
-    for (std::size_t k = 1; k < n; ++k) {
-      const double need = min_off - (s.on_s[k] - s.off_s[k - 1]);
-      if (need <= 1e-12) continue;
-      const double before = std::max(0.0, s.off_s[k - 1] - s.on_s[k - 1] - min_on);
-      const double after = std::max(0.0, s.off_s[k] - s.on_s[k] - min_on);
-      if (before + after < need) continue;
-      const double cut_before = std::clamp(0.5 * need, need - after, before);
-      s.off_s[k - 1] -= cut_before;
-      s.on_s[k] += need - cut_before;
-      s.trimmed_s += need;
-      changed = true;
-    }
-    if (!changed) break;
+  auto window_of = [&](std::size_t k) { return w == nullptr ? -1 : w->at(0.5 * (s.on_s[k] + s.off_s[k])); };
+  auto lo_of = [&](std::size_t k) { const int v = window_of(k); return v < 0 ? t0 : w->lo[static_cast<std::size_t>(v)]; };
+  auto hi_of = [&](std::size_t k) { const int v = window_of(k); return v < 0 ? t1 : w->hi[static_cast<std::size_t>(v)]; };
+  auto same_window = [&](std::size_t a, std::size_t b) { return w == nullptr || window_of(a) == window_of(b); };
+  for (std::size_t k = 0; k < n; ++k) {
+    const double need = min_on - (s.off_s[k] - s.on_s[k]);
+    if (need <= 1e-12) continue;
+    const double before = std::max(0.0, k > 0 && same_window(k - 1, k) ? s.on_s[k] - s.off_s[k - 1] - min_off : s.on_s[k] - lo_of(k));
+    const double after = std::max(0.0, k + 1 < n && same_window(k, k + 1) ? s.on_s[k + 1] - s.off_s[k] - min_off : hi_of(k) - s.off_s[k]);
+    if (before + after < need) continue;
+    const double grow_before = share_before(need, before, after);
+    s.on_s[k] -= grow_before;
+    s.off_s[k] += need - grow_before;
+  }
+  for (std::size_t k = 1; k < n; ++k) {
+    const double need = min_off - (s.on_s[k] - s.off_s[k - 1]);
+    if (need <= 1e-12 || !same_window(k - 1, k)) continue;
+    // Each spell keeps min_on (and some length when that is 0).
+    const double keep = std::max(min_on, 1e-6);
+    const double before = std::max(0.0, s.off_s[k - 1] - s.on_s[k - 1] - keep);
+    const double after = std::max(0.0, s.off_s[k] - s.on_s[k] - keep);
+    if (before + after < need) continue;
+    const double cut_before = share_before(need, before, after);
+    s.off_s[k - 1] -= cut_before;
+    s.on_s[k] += need - cut_before;
+    s.trimmed_s += need;
   }
 }
 
-// The commanded spells of `s` (set) made into what the pump runs: flow_schedule's rules.
+// The commanded spells of `s` (set) made into what the pump runs: flow_schedule's rules, after
+// stretch_to_minimums for a program.
 void settle(FlowSchedule& s, const std::vector<double>& t_s, const FlowConfig& flow, const std::vector<char>& blocked,
-            bool ends_blocked) {
+            bool ends_blocked, bool stretch) {
   std::optional<Windows> windows;
   if (ends_blocked || std::find(blocked.begin(), blocked.end(), 1) != blocked.end()) {
     windows = free_windows(t_s, blocked, flow.ramp_s, ends_blocked);
     clip_to_windows(s, *windows);
   }
   const Windows* w = windows ? &*windows : nullptr;
+  if (stretch) stretch_to_minimums(s, flow.min_on_s, flow.min_off_s, t_s.front(), t_s.back(), w);
   // Bridging only merges, extending only lengthens and dropping only removes, so this settles;
   // the cap is a safeguard.
   for (int pass = 0; pass < 1000; ++pass) {
@@ -319,7 +330,7 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
   commanded_spells(t_s, spraying, s);
   s.commanded_on_s = s.on_time_s();
   s.commanded_switches = s.switches();
-  settle(s, t_s, flow, blocked, ends_blocked);
+  settle(s, t_s, flow, blocked, ends_blocked, /*stretch=*/false);
   return s;
 }
 
@@ -344,8 +355,7 @@ FlowSchedule program_schedule(const std::vector<double>& on_s, const std::vector
   s.off_s = off_s;
   s.commanded_on_s = s.on_time_s();
   s.commanded_switches = s.switches();
-  stretch_to_minimums(s, flow.min_on_s, flow.min_off_s, t_s.front(), t_s.back());
-  settle(s, t_s, flow, blocked, ends_blocked);
+  settle(s, t_s, flow, blocked, ends_blocked, /*stretch=*/true);
   return s;
 }
 

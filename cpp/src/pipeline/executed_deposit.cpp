@@ -98,23 +98,28 @@ int cell_on_wall(const Grid& grid, const Eigen::Vector3d& c, const Eigen::Vector
   return grid.cell_at(cyl[1], cyl[2]);
 }
 
-// Where a sample lies in its region, as slot + fraction: slot 0 the lead-in, 2j + 1 pass j, 2j + 2
-// the join after pass j (the last join is the lead-out), fraction the share of the slot's nozzle path
-// before the sample (of its time where the nozzle hardly moves). Slots follow each other in the
-// samples' order, so the position never decreases: each slot runs from its number to the next.
-std::vector<double> slot_positions(const std::vector<int>& local_pass, const std::vector<Eigen::Vector3d>& position,
-                                   const std::vector<double>& t_s) {
+// Where a sample lies in its region, as slot + fraction. Slots: 0 the lead-in, 4j + 1 pass j, and
+// the join after pass j (the last join is the lead-out) as 4j + 2 up to a joint move, 4j + 3 the
+// move (blocked: a stop-and-go middle) and 4j + 4 after it; the move's path and length are the
+// arm's own, the runs before and after it keep their places. The fraction is the share of the
+// slot's nozzle path before the sample (of its time where the nozzle hardly moves), each slot
+// running from the midpoint with the sample before its first to the midpoint with the sample
+// after its last, so the position grows across a slot's end too. local_pass never decreases.
+std::vector<double> slot_positions(const std::vector<int>& local_pass, const std::vector<char>& blocked,
+                                   const std::vector<Eigen::Vector3d>& position, const std::vector<double>& t_s) {
   const std::size_t n = local_pass.size();
   std::vector<int> slot(n, 0);
   std::vector<double> x(n, 0.0);
-  int last = -1;
+  int last = -1, phase = 0;  // the last pass; in the join after it: 0 before a joint move, 1 in it, 2 after
   for (std::size_t k = 0; k < n; ++k) {
-    if (local_pass[k] >= 0) last = local_pass[k];
-    slot[k] = local_pass[k] >= 0 ? 2 * local_pass[k] + 1 : (last < 0 ? 0 : 2 * last + 2);
+    if (local_pass[k] >= 0) {
+      last = local_pass[k], phase = 0;
+      slot[k] = 4 * last + 1;
+    } else if (last >= 0) {
+      phase = blocked[k] ? 1 : (phase == 1 ? 2 : phase);
+      slot[k] = 4 * last + 2 + phase;
+    }
   }
-  // A slot runs from the midpoint with the sample before its first to the midpoint with the sample
-  // after its last: the position grows strictly across a slot's end too (a switch commanded there,
-  // between two samples, keeps its place).
   for (std::size_t a = 0; a < n;) {
     std::size_t b = a + 1;
     while (b < n && slot[b] == slot[a]) ++b;
@@ -139,9 +144,8 @@ double interpolate(const std::vector<double>& xs, const std::vector<double>& ys,
   const auto it = std::lower_bound(xs.begin(), xs.end(), x);
   if (it == xs.begin()) return ys.front();
   if (it == xs.end()) return ys.back();
-  const auto i = static_cast<std::size_t>(it - xs.begin());
-  const double span = xs[i] - xs[i - 1];
-  return span > 0.0 ? ys[i - 1] + (ys[i] - ys[i - 1]) * (x - xs[i - 1]) / span : ys[i];
+  const auto i = static_cast<std::size_t>(it - xs.begin());  // xs[i - 1] < x <= xs[i]
+  return ys[i - 1] + (ys[i] - ys[i - 1]) * (x - xs[i - 1]) / (xs[i] - xs[i - 1]);
 }
 
 }  // namespace
@@ -260,27 +264,53 @@ PumpProgram planned_pump_program(const Plan& plan, const TimedTrajectory& tr, co
     const RegionSpray spray = region_spray(passes, config);
     std::vector<Eigen::Vector3d> plan_pos;
     for (const auto& p : spray.nozzle) plan_pos.push_back(p.position_m);
-    const std::vector<double> plan_x = slot_positions(spray.pass_index, plan_pos, spray.t_s);
+    const std::vector<double> plan_x = slot_positions(spray.pass_index, spray.blocked, plan_pos, spray.t_s);
     // The same places on the trajectory.
     std::vector<int> local(idx.size());
+    std::vector<char> moving(idx.size());
     std::vector<Eigen::Vector3d> pos(idx.size());
     std::vector<double> t(idx.size());
     const int first_pass = pass_offset - n_passes;
+    int last = -1;
     for (std::size_t k = 0; k < idx.size(); ++k) {
       const int p = tr.pass_index[idx[k]];
-      if (p >= 0 && (p < first_pass || p >= pass_offset))
+      if (p >= 0 && (p < first_pass || p >= pass_offset || p < last))
         throw std::invalid_argument("planned_pump_program: sample " + std::to_string(idx[k]) + " of region " +
-                                    std::to_string(r) + " is on pass " + std::to_string(p) + ", not one of its " +
-                                    std::to_string(n_passes) + " passes from " + std::to_string(first_pass));
+                                    std::to_string(r) + " is on pass " + std::to_string(p) +
+                                    (p < last ? ", after pass " + std::to_string(last) + " (out of order)"
+                                              : ", not one of its " + std::to_string(n_passes) + " passes from " +
+                                                    std::to_string(first_pass)));
+      last = std::max(last, p);
       local[k] = p < 0 ? -1 : p - first_pass;
+      moving[k] = tr.kind[idx[k]] == static_cast<char>(SegmentKind::Transit);
       pos[k] = tr.nozzle[idx[k]].position_m;
       t[k] = tr.t_s[idx[k]];
     }
-    const std::vector<double> x = slot_positions(local, pos, t);
+    const std::vector<double> x = slot_positions(local, moving, pos, t);
+    // A switch on a pass keeps its place on the pass. One off the passes (a spell the pump
+    // lengthened to its minimum into a join or lead, a bridged gap's end) keeps its time from the
+    // nearer pass end, within its join: the pump's rules are in time, and the arm runs joins at
+    // speeds of its own (an eased start run 2.1 s where the plan's took 1.4 s: by place, a spell
+    // lengthened 0.3 s into it started 0.5 s before the pass, 3.3 mm more on a cell).
+    const auto plan_t_at = [&](double xp) { return interpolate(plan_x, spray.t_s, xp); };
+    const auto arm_t_at = [&](double xp) { return interpolate(x, t, xp); };
+    const auto to_arm = [&](double ts) {
+      const double xs = interpolate(spray.t_s, plan_x, ts);
+      const int slot = static_cast<int>(std::floor(xs));
+      if (slot % 4 == 1) return arm_t_at(xs);
+      const int before = slot < 2 ? -1 : (slot - 2) / 4;  // the pass before (-1: the lead-in)
+      const int after = before + 1;                       // the pass after (n_passes: the lead-out)
+      const double x_lo = before < 0 ? plan_x.front() : 4.0 * before + 2.0;  // the join's ends
+      const double x_hi = after < n_passes ? 4.0 * after + 1.0 : plan_x.back();
+      const bool from_before =
+          before >= 0 && (after >= n_passes || ts - plan_t_at(x_lo) <= plan_t_at(x_hi) - ts);
+      const double x_end = from_before ? x_lo : x_hi;
+      return std::clamp(arm_t_at(x_end) + (ts - plan_t_at(x_end)), arm_t_at(x_lo), arm_t_at(x_hi));
+    };
     const FlowSchedule& f = spray.flow;
     for (std::size_t k = 0; k < f.on_s.size(); ++k) {
-      const double on = interpolate(x, t, interpolate(spray.t_s, plan_x, f.on_s[k]));
-      const double off = interpolate(x, t, interpolate(spray.t_s, plan_x, f.off_s[k]));
+      const double on = to_arm(f.on_s[k]);
+      const double off = to_arm(f.off_s[k]);
       if (!(off > on)) continue;  // the trajectory stands still there
       if (!out.on_s.empty() && on <= out.off_s.back()) {
         out.off_s.back() = std::max(out.off_s.back(), off);

@@ -341,7 +341,8 @@ std::optional<RegionPlan> graded_region(const RoundInput& in, const CellSurface&
   // solve (leads, turns sprayed through, the pump's spells and ramps): the solve is repeated with
   // the difference as a fixed deposit (plan -> time -> simulate -> correct, as the levelling
   // rounds) and kept while the simulated deposit's cost falls. As there, the simulation is of the
-  // passes as planned: ordering may reverse a region later (the same passes and turns backwards).
+  // passes as planned: ordering may reverse a region later (the same passes and turns backwards,
+  // where the pump may decide otherwise; graded rounds keep the ordering's direction, planner.cpp).
   const bool executed = pc.graded_executed_corrections > 0 && !pc.graded_thesis_objective;
   auto solve = [&](const SpeedTargets& t, const std::vector<double>& v_start) {
     try {
@@ -620,8 +621,9 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
 }
 
 // What a round's regions lay on the cells [mm per slot] (sprayed_passes) and the pump's on-time
-// [s]. The order the round is later sprayed in may reverse a region: the same passes and turns
-// backwards, about the same deposit.
+// [s]. The order the round is later sprayed in may reverse a region, the same passes and turns
+// backwards; where the pump then lays it differently, the region keeps this direction
+// (keep_solved_directions, planner.cpp).
 struct SprayedRound {
   Eigen::VectorXd deposit_mm;
   double on_time_s = 0;

@@ -13,14 +13,14 @@ namespace shotcrete {
 struct FlowSchedule {
   std::vector<double> on_s, off_s;  // sorted, off_s[k] - on_s[k] >= min_on_s, gaps >= min_off_s
   double ramp_s = 0.0;
-  double commanded_on_s = 0.0;  // flow-on time the trajectory's spraying flags ask for
+  double commanded_on_s = 0.0;  // flow-on time the spraying flags (or the program) ask for
   double bridged_s = 0.0;       // off-gaps shorter than min_off_s the flow stayed on through
   double extended_s = 0.0;      // flow-on time added to spells shorter than min_on_s
   double trimmed_s = 0.0;       // commanded flow-on time cut off the ends of two spells to widen a gap
                                 // to min_off_s (cheaper than bridging it)
   double dropped_s = 0.0;       // commanded flow-on time switched off: spells or their ends the pump
                                 // could not serve without spraying into a joint move
-  int commanded_switches = 0;   // on and off switches the flags ask for
+  int commanded_switches = 0;   // on and off switches the flags (or the program) ask for
   /// On and off switches of the schedule.
   int switches() const { return 2 * static_cast<int>(on_s.size()); }
   /// Shortest spell with the flow on / off between two spells [s] (0 when there is none).
@@ -57,8 +57,8 @@ FlowSchedule flow_schedule(const std::vector<double>& t_s, const std::vector<cha
 /// empty, apart, within [t_s.front(), t_s.back()]) over samples at t_s: a program laid out on other
 /// durations (the planner's timing of a region, run on the arm's): a spell or gap that came out
 /// shorter than its minimum is first stretched into its neighbours' slack (gaps beyond min_off_s,
-/// spells beyond min_on_s, the time to the ends; counted as extended / trimmed), then the rules of
-/// flow_schedule apply. Throws std::invalid_argument for a malformed program and as flow_schedule.
+/// spells beyond min_on_s, the free time to the ends of its window between joint moves; counted as
+/// extended / trimmed), then the rules of flow_schedule apply. Throws std::invalid_argument for a malformed program and as flow_schedule.
 FlowSchedule program_schedule(const std::vector<double>& on_s, const std::vector<double>& off_s,
                               const std::vector<double>& t_s, const FlowConfig& flow,
                               const std::vector<char>& blocked = {}, bool ends_blocked = false);

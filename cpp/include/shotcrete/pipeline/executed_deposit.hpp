@@ -62,11 +62,14 @@ struct PumpProgram {
 /// The plan's pump program on the trajectory's timing: for region r of the trajectory (the plan's
 /// r-th region in spraying order, its passes numbered on from the regions before it), the
 /// planner's flow schedule of that region (region_spray's commanded switches, after its minimum
-/// spells and ramps) with every switch moved to the time the trajectory reaches the same place:
-/// the same pass, join, lead-in or lead-out, at the same share of its nozzle path. The pump then
+/// spells and ramps) with every switch on a pass moved to the time the trajectory reaches the same
+/// place on it (the same share of its nozzle path), and every switch off the passes (in a join,
+/// the lead-in or the lead-out) the same time from the nearer end of a pass, within its join: the
+/// pump's rules are in time (a spell lengthened to min_on_s into a join stays that long). The pump then
 /// runs it with program_schedule, which only changes it where the re-timing broke a minimum spell
-/// or a joint move's clearance. Throws std::invalid_argument when a sample's region or pass is not
-/// in the plan.
+/// or a joint move's clearance. A region with no samples on the trajectory gets no spells. Throws
+/// std::invalid_argument when a sample's region or pass is not in the plan, or a region's passes
+/// come out of order.
 PumpProgram planned_pump_program(const Plan& plan, const TimedTrajectory& trajectory, const Config& config);
 
 /// Share of the spot's volume at `nozzle` that lands off every valid cell of `grid`: the disc at
