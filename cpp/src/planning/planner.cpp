@@ -43,17 +43,21 @@ double add_region_deposit(const std::vector<Pass>& passes, const SurfaceIndex& i
 // cells at level -1 on seed 4 where the ordering's left none).
 constexpr double kReversalTolerance_m = 0.002;
 
+// A region's passes sprayed the other way: their order and each pass reversed.
+void reverse_passes(std::vector<Pass>& passes) {
+  std::reverse(passes.begin(), passes.end());
+  for (auto& p : passes) reverse_pass(p);
+}
+
 void keep_solved_directions(Round& round, const OrderingProblem& problem, std::vector<bool> reversed,
-                            const SprayedWall& wall, const SpotModel& model, const Config& config) {
-  const SurfaceIndex index(wall.surface.cloud, 0.05);
+                            const SurfaceIndex& index, const SpotModel& model, const Config& config) {
   bool changed = false;
   for (std::size_t k = 0; k < round.regions.size(); ++k) {
     RegionPlan& r = round.regions[k];
     if (!r.reversed) continue;
     std::vector<Pass> solved = r.passes;
-    std::reverse(solved.begin(), solved.end());
-    for (auto& p : solved) reverse_pass(p);
-    Eigen::VectorXd kept = Eigen::VectorXd::Zero(wall.surface.cloud.size()), other = kept;
+    reverse_passes(solved);
+    Eigen::VectorXd kept = Eigen::VectorXd::Zero(index.cloud().size()), other = kept;
     add_region_deposit(r.passes, index, model, config, kept);
     add_region_deposit(solved, index, model, config, other);
     if (kept.size() == 0 || (kept - other).cwiseAbs().maxCoeff() <= kReversalTolerance_m) continue;
@@ -67,7 +71,7 @@ void keep_solved_directions(Round& round, const OrderingProblem& problem, std::v
 
 // Order: the shortest transit through the round's regions, from where the nozzle is; a reversed
 // levelling region keeps its solved direction where the pump would lay it differently.
-void order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, const SprayedWall& wall,
+void order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, const SurfaceIndex& index,
                    const SpotModel& model, const Config& config) {
   if (round.regions.empty()) return;
   OrderingProblem problem;
@@ -81,8 +85,7 @@ void order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, co
   for (int i : res.order) {
     RegionPlan r = round.regions[i];
     if (res.reversed[i]) {
-      std::reverse(r.passes.begin(), r.passes.end());
-      for (auto& p : r.passes) reverse_pass(p);
+      reverse_passes(r.passes);
       r.reversed = true;
     }
     ordered.push_back(std::move(r));
@@ -91,13 +94,14 @@ void order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, co
   round.order = res.order;
   round.link_length_m = res.link_length_m;
   round.order_method = res.method;
-  if (round.kind == RoundKind::levelling) keep_solved_directions(round, problem, res.reversed, wall, model, config);
+  if (round.kind == RoundKind::levelling) keep_solved_directions(round, problem, res.reversed, index, model, config);
 }
 
 // Deposit: each region sprayed on the full cloud as the trajectory and the pump will spray it
-// (region_spray: timed Cartesian path, flow schedule), then the wall re-graded.
-void spray_round(Round& round, SprayedWall& wall, const SpotModel& model, const Config& config, Plan& plan) {
-  const SurfaceIndex index(wall.surface.cloud, 0.05);
+// (region_spray: timed Cartesian path, flow schedule), then the wall re-graded. `index` is of the
+// wall before the round.
+void spray_round(Round& round, SprayedWall& wall, const SurfaceIndex& index, const SpotModel& model,
+                 const Config& config, Plan& plan) {
   Eigen::VectorXd deposit = Eigen::VectorXd::Zero(wall.surface.cloud.size());
   for (const auto& r : round.regions) round.spray_time_s += add_region_deposit(r.passes, index, model, config, deposit);
   deposit_layer(wall, deposit);
@@ -191,10 +195,12 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
       break;
     }
     // Order, deposit, stop test.
-    order_regions(round, nozzle_at, wall, model, config);
+    // One index of the wall as it stands for the ordering's direction check and the deposit.
+    const SurfaceIndex index(wall.surface.cloud, 0.05);
+    order_regions(round, nozzle_at, index, model, config);
     nozzle_at = round.regions.back().exit_m();
     ctx.report(number, 0.7);
-    spray_round(round, wall, model, config, plan);
+    spray_round(round, wall, index, model, config, plan);
     plan.timings_s["round_" + std::to_string(number)] = seconds_since(t_round);
     plan.rounds.push_back(std::move(round));
     ctx.report(number, 1.0);
