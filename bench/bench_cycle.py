@@ -37,6 +37,9 @@ ALTERNATIVES = {
     # The levelling rounds after the first on the first round's close lines and run-on, as before
     # the wide late rounds became the default.
     "close late rounds": {"planner.levelling_late_spacing_ratio": 0.5, "planner.levelling_late_edge_overrun_m": 0.1},
+    # The levelling lines at the spacing ratio exactly (0.5 and 1.0 of the two-pass spacing), as
+    # before they moved to the least-ripple pitch near it.
+    "lines at the plain ratio": {"planner.levelling_pitch_window": 0.0},
     # graded mode before the last rounds ran on past the bay's ends with end speeds of their own
     # and lines were cut at gaps (and before the 10 mm level margin)
     "graded lines whole, no last run-on": {"planner.graded_last_edge_overrun_m": 0.0, "planner.graded_split_gap_m": 0.0,
@@ -45,7 +48,7 @@ ALTERNATIVES = {
     "level margin 1 mm": {"planner.graded_level_margin_m": 0.001},
 }
 # Alternatives that change only the optimal mode's levelling rounds: not run in graded mode.
-OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds"}
+OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds", "lines at the plain ratio"}
 GRADED_ONLY = {"graded lines whole, no last run-on", "level margin 1 mm"}
 
 

@@ -203,4 +203,11 @@ void bind_deposition(py::module_& m) {
       .def_readonly("band_max_m", &PassSpacing::band_max_m, "largest thickness between the pass centres [m]");
   m.def("pass_spacing", &pass_spacing, py::arg("model"), py::arg("target_thickness_m"),
         "Overlap minimising sum (Td - T(x))^2 on a 1 mm grid for two strokes peaking at Td; spacing = 2R - overlap.");
+  py::class_<LinePitch>(m, "LinePitch", "A pitch of equal parallel strokes and the ripple of their sum")
+      .def_readonly("pitch_m", &LinePitch::pitch_m, "line pitch [m]")
+      .def_readonly("ripple", &LinePitch::ripple, "(max - min) / mean of the strokes' sum across the lines [-]");
+  m.def("line_ripple", &line_ripple, py::arg("model"), py::arg("pitch_m"),
+        "(max - min) / mean across many equal parallel strokes at pitch_m (cross profile (1 - (x/R)^2)^(beta - 1/2)).");
+  m.def("least_ripple_pitch", &least_ripple_pitch, py::arg("model"), py::arg("lo_m"), py::arg("hi_m"),
+        "The pitch in [lo_m, hi_m] (0.1 mm steps) whose equal strokes ripple least (line_ripple).");
 }

@@ -707,6 +707,57 @@ TEST(Wall, TiltedNormalFillsRadiallyAndKeepsTheCell) {
 
 // ------------------------------------------------------------------ pass spacing
 
+// Many equal lines: the ripple of their sum from the closed-form cross profile against the deposit
+// integrated along real passes (accumulate_pass over a plane at H0, eq. 2-13); the least-ripple
+// pitch lays a flatter layer than the optimal mode's former 0.5 x two-pass spacing.
+TEST(Spacing, LeastRipplePitchLaysTheFlattestLayerOfManyLines) {
+  const SpotModel m = default_model();
+  // A strip of wall points across the lines, 1 mm apart, at H0 below the nozzles.
+  const Cloud c = plane_lattice(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), 0.6, 0.0005,
+                                0.001, Eigen::Vector3d::UnitZ());
+  const SurfaceIndex idx(c, 0.05);
+  const Eigen::Vector3d axis(0, 0, -1);
+  auto integrated_ripple = [&](double pitch_m) {
+    Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+    const int k_max = static_cast<int>(std::ceil((0.6 - m.radius_m) / pitch_m)) - 1;
+    for (int k = -k_max; k <= k_max; ++k) {
+      const double x = k * pitch_m;
+      const std::vector<NozzlePose> line{{Eigen::Vector3d(x, -0.5, m.reference_standoff_m), axis},
+                                         {Eigen::Vector3d(x, 0.5, m.reference_standoff_m), axis}};
+      accumulate_pass(m, idx, line, 0.2, 0.001, 0.0, t);
+    }
+    double lo = 1e300, hi = -1e300, sum = 0;
+    int n = 0;
+    for (Eigen::Index i = 0; i < c.size(); ++i)
+      if (std::abs(c.xyz(i, 0)) <= pitch_m) lo = std::min(lo, t[i]), hi = std::max(hi, t[i]), sum += t[i], ++n;
+    return (hi - lo) / (sum / n);
+  };
+  const double two_pass_m = pass_spacing(m, 0.07).spacing_m;
+  for (double ratio : {0.42, 0.45, 0.5, 0.55}) {
+    const double p = ratio * two_pass_m;
+    EXPECT_NEAR(line_ripple(m, p), integrated_ripple(p), 0.004) << "pitch " << p;
+  }
+  const double nominal = 0.5 * two_pass_m;
+  const LinePitch best = least_ripple_pitch(m, 0.85 * nominal, 1.15 * nominal);
+  std::cout << "lines at " << nominal * 1e3 << " mm: ripple " << 100 * line_ripple(m, nominal) << " %; least at "
+            << best.pitch_m * 1e3 << " mm: " << 100 * best.ripple << " %\n";
+  EXPECT_GE(best.pitch_m, 0.85 * nominal);
+  EXPECT_LE(best.pitch_m, 1.15 * nominal);
+  EXPECT_NEAR(best.ripple, line_ripple(m, best.pitch_m), 1e-12);
+  // The integrated layer: flatter at the chosen pitch than at the nominal one, and than 1 mm either side.
+  const double at_best = integrated_ripple(best.pitch_m);
+  EXPECT_LT(at_best, 0.5 * integrated_ripple(nominal));
+  EXPECT_LT(at_best, 0.025);
+  EXPECT_LE(at_best, integrated_ripple(best.pitch_m - 0.002) + 0.002);
+  EXPECT_LE(at_best, integrated_ripple(best.pitch_m + 0.002) + 0.002);
+  // A window of one pitch is that pitch.
+  EXPECT_EQ(least_ripple_pitch(m, nominal, nominal).pitch_m, nominal);
+  EXPECT_THROW(least_ripple_pitch(m, 0.0, 0.1), std::invalid_argument);
+  EXPECT_THROW(least_ripple_pitch(m, 0.2, 0.1), std::invalid_argument);
+  EXPECT_THROW(line_ripple(m, -0.1), std::invalid_argument);
+  EXPECT_THROW(least_ripple_pitch(m, 0.1, std::numeric_limits<double>::quiet_NaN()), std::invalid_argument);
+}
+
 TEST(Spacing, GoldenMatchesExhaustiveScanAndIsScaleFree) {
   const SpotModel m = default_model();
   const double R = m.radius_m, p = m.beta - 0.5;

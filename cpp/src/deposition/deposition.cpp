@@ -694,4 +694,39 @@ PassSpacing pass_spacing(const SpotModel& model, double target_thickness_m) {
   return out;
 }
 
+double line_ripple(const SpotModel& model, double pitch_m) {
+  check_model(model);
+  if (!(pitch_m > 0) || !std::isfinite(pitch_m))
+    throw std::invalid_argument("line_ripple: the pitch must be > 0, got " + std::to_string(pitch_m));
+  const SpacingEval ev{model.radius_m, model.beta - 0.5, 1.0};
+  // The sum is periodic in the pitch: sample one period, with every stroke that reaches it.
+  const int reach = static_cast<int>(std::ceil(model.radius_m / pitch_m)) + 1;
+  constexpr int kSamples = 400;
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo, sum = 0;
+  for (int i = 0; i < kSamples; ++i) {
+    const double x = pitch_m * i / kSamples;
+    double t = 0;
+    for (int k = -reach; k <= reach; ++k) t += ev.shape(x - k * pitch_m);
+    lo = std::min(lo, t);
+    hi = std::max(hi, t);
+    sum += t;
+  }
+  return (hi - lo) / (sum / kSamples);
+}
+
+LinePitch least_ripple_pitch(const SpotModel& model, double lo_m, double hi_m) {
+  if (!(lo_m > 0) || !(hi_m >= lo_m) || !std::isfinite(hi_m))
+    throw std::invalid_argument("least_ripple_pitch: need 0 < lo <= hi, got [" + std::to_string(lo_m) + ", " +
+                                std::to_string(hi_m) + "] m");
+  constexpr double kStep_m = 1e-4;
+  const int n = static_cast<int>(std::floor((hi_m - lo_m) / kStep_m + 1e-9));
+  LinePitch best{lo_m, line_ripple(model, lo_m)};
+  for (int i = 1; i <= n + 1; ++i) {
+    const double p = i <= n ? lo_m + i * kStep_m : hi_m;
+    const double r = line_ripple(model, p);
+    if (r < best.ripple) best = {p, r};
+  }
+  return best;
+}
+
 }  // namespace shotcrete
