@@ -140,10 +140,21 @@ def test_planner_region_spray_matches_the_trajectory(job):
         inside = (ex_off > t[idx[0]]) & (ex_on < t[idx[-1]])
         assert inside.sum() == len(flow.on_s)
         # A switch on a pass goes to the same place on the arm's nozzle path (planned_pump_program),
-        # which its tracking keeps within about a millimetre of the planner's: 1.1 ms at 0.36 m/s
-        # measured on one region; switches off the passes keep their times exactly.
-        assert np.allclose(ex_on[inside] - t[idx[0]], flow.on_s, atol=5e-3)
-        assert np.allclose(ex_off[inside] - t[idx[0]], flow.off_s, atol=5e-3)
+        # which its tracking keeps within about a millimetre of the planner's (1.1 ms at 0.36 m/s
+        # measured on one region): 1.5 mm of the pass at its speed there. Switches off the passes
+        # keep their times exactly.
+        st, pos, on_pass = np.asarray(rs["t_s"]), np.asarray(rs["positions_m"]), np.asarray(rs["pass_index"]) >= 0
+
+        def tolerance_s(ts):
+            k = int(np.clip(np.searchsorted(st, ts), 1, len(st) - 1))
+            if not (on_pass[k - 1] and on_pass[k]):
+                return 1e-6
+            speed = np.linalg.norm(pos[k] - pos[k - 1]) / (st[k] - st[k - 1])
+            return 1.5e-3 / speed + 1e-6
+
+        for ex, planned in ((ex_on[inside], flow.on_s), (ex_off[inside], flow.off_s)):
+            for e, ts in zip(ex - t[idx[0]], planned):
+                assert abs(e - ts) <= tolerance_s(ts), (r, ts, e - ts)
         compared += 1
     assert compared >= 1
 

@@ -128,7 +128,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("edge_overrun_m", &PlannerConfig::edge_overrun_m, 0.0, 0.5, "pass run-on past the bay ends [m]");
   f("levelling_spacing_ratio", &PlannerConfig::levelling_spacing_ratio, 0.2, 1.0, "optimal mode: pass spacing / two-pass spacing");
   f("levelling_late_spacing_ratio", &PlannerConfig::levelling_late_spacing_ratio, 0.2, 1.0, "optimal mode: levelling_spacing_ratio of the rounds after the first once the layer left is thin (fewer, longer pump spells)");
-  f("levelling_pitch_window", &PlannerConfig::levelling_pitch_window, 0.0, 0.5, "optimal mode: the pass lines' pitch is the one of least ripple across equal lines (deposition.least_ripple_pitch) within +- this share of the spacing ratio x the two-pass spacing (0: exactly that)");
+  f("levelling_pitch_window", &PlannerConfig::levelling_pitch_window, 0.0, 0.2, "optimal mode: the pass lines' pitch is the one of least ripple across equal lines (deposition.least_ripple_pitch) within +- this share of the spacing ratio x the two-pass spacing (0: exactly that; at most 0.2: the ripple falls with the pitch overall, a wider window slides to its low end)");
   f("levelling_late_edge_overrun_m", &PlannerConfig::levelling_late_edge_overrun_m, 0.0, 0.5, "optimal mode: edge_overrun_m of those rounds [m]");
   f("levelling_late_td_quantile", &PlannerConfig::levelling_late_td_quantile, 0.5, 1.0, "optimal mode: share of the open cells whose TD must be within what a wide round lays at the slowest speed before the wide lines are taken");
   f("levelling_guard_band_m", &PlannerConfig::levelling_guard_band_m, 0.0, 0.1, "optimal mode: residual band (+-) past which a cell's error costs levelling_guard_weight more [m]");

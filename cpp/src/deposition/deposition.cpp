@@ -696,8 +696,9 @@ PassSpacing pass_spacing(const SpotModel& model, double target_thickness_m) {
 
 double line_ripple(const SpotModel& model, double pitch_m) {
   check_model(model);
-  if (!(pitch_m > 0) || !std::isfinite(pitch_m))
-    throw std::invalid_argument("line_ripple: the pitch must be > 0, got " + std::to_string(pitch_m));
+  if (!(pitch_m >= 1e-3 * model.radius_m) || !std::isfinite(pitch_m))
+    throw std::invalid_argument("line_ripple: the pitch must be finite and >= 0.001 of the spot radius (" +
+                                std::to_string(model.radius_m) + " m), got " + std::to_string(pitch_m) + " m");
   const SpacingEval ev{model.radius_m, model.beta - 0.5, 1.0};
   // The sum is periodic in the pitch: sample one period, with every stroke that reaches it.
   const int reach = static_cast<int>(std::ceil(model.radius_m / pitch_m)) + 1;
@@ -718,11 +719,16 @@ LinePitch least_ripple_pitch(const SpotModel& model, double lo_m, double hi_m) {
   if (!(lo_m > 0) || !(hi_m >= lo_m) || !std::isfinite(hi_m))
     throw std::invalid_argument("least_ripple_pitch: need 0 < lo <= hi, got [" + std::to_string(lo_m) + ", " +
                                 std::to_string(hi_m) + "] m");
-  constexpr double kStep_m = 1e-4;
-  const int n = static_cast<int>(std::floor((hi_m - lo_m) / kStep_m + 1e-9));
+  // 0.1 mm, finer for a small spot's pitch (0.1 % of the window's low end).
+  const double step_m = std::min(1e-4, 1e-3 * lo_m);
+  const double steps = std::floor((hi_m - lo_m) / step_m + 1e-9);
+  if (steps > 1e5)
+    throw std::invalid_argument("least_ripple_pitch: the window [" + std::to_string(lo_m) + ", " + std::to_string(hi_m) +
+                                "] m is over 1e5 steps of " + std::to_string(step_m) + " m");
+  const int n = static_cast<int>(steps);
   LinePitch best{lo_m, line_ripple(model, lo_m)};
   for (int i = 1; i <= n + 1; ++i) {
-    const double p = i <= n ? lo_m + i * kStep_m : hi_m;
+    const double p = i <= n ? lo_m + i * step_m : hi_m;
     const double r = line_ripple(model, p);
     if (r < best.ripple) best = {p, r};
   }

@@ -122,6 +122,7 @@ RescanOutcome rescan_job(const Grid& grid, const Eigen::VectorXd& predicted_depo
   // ... and laid on lines at the two-pass spacing: one pump spell on the job's close lines lays
   // more than its thin cells need.
   out.correction_config->planner.levelling_spacing_ratio = config.rescan.correction_spacing_ratio;
+  out.correction_config->planner.levelling_pitch_window = 0.0;  // that spacing itself (near a ripple minimum)
   // Its end cells need too little for a spell of their own: the lines run on further past the ends.
   out.correction_config->planner.edge_overrun_m = config.rescan.correction_edge_overrun_m;
   // Every round of the correction alike (its layer is thin from the first).

@@ -463,9 +463,9 @@ class GradedRounds : public RoundStages {
 // Levelling rounds (optimal mode): every cell short of flush, a dwell per segment
 
 // The lines' pitch for a spacing ratio: the least ripple of equal lines near ratio x the two-pass
-// spacing (closer lines than that spacing: at 0.5 the default spot's lines laid 5.8 % peak to
+// spacing (closer lines than that spacing: at 0.5 the default spot's lines laid 5.6 % peak to
 // peak across them, a ripple the speeds along the lines cannot take out; 8 mm RMS of row-to-row
-// residual on seeds 1-3 against 2.5 mm along the rows).
+// residual on seeds 1-3 against 2.7-2.8 mm along the rows).
 double levelling_pitch_m(const PlannerConfig& pc, double ratio, const RoundContext& ctx) {
   const double nominal = ratio * ctx.spacing_m;
   if (pc.levelling_pitch_window <= 0) return nominal;
