@@ -719,8 +719,8 @@ LinePitch least_ripple_pitch(const SpotModel& model, double lo_m, double hi_m) {
   if (!(lo_m > 0) || !(hi_m >= lo_m) || !std::isfinite(hi_m))
     throw std::invalid_argument("least_ripple_pitch: need 0 < lo <= hi, got [" + std::to_string(lo_m) + ", " +
                                 std::to_string(hi_m) + "] m");
-  // 0.1 mm, finer for a small spot's pitch (0.1 % of the window's low end).
-  const double step_m = std::min(1e-4, 1e-3 * lo_m);
+  // 0.1 mm, finer for a small spot's pitch (0.2 % of the window's low end below 50 mm).
+  const double step_m = std::min(1e-4, 2e-3 * lo_m);
   const double steps = std::floor((hi_m - lo_m) / step_m + 1e-9);
   if (steps > 1e5)
     throw std::invalid_argument("least_ripple_pitch: the window [" + std::to_string(lo_m) + ", " + std::to_string(hi_m) +
