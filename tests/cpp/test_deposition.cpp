@@ -756,7 +756,10 @@ TEST(Spacing, LeastRipplePitchLaysTheFlattestLayerOfManyLines) {
   EXPECT_THROW(least_ripple_pitch(m, 0.2, 0.1), std::invalid_argument);
   EXPECT_THROW(line_ripple(m, -0.1), std::invalid_argument);
   EXPECT_THROW(line_ripple(m, 1e-12), std::invalid_argument);  // below 0.001 R: a loop over 1e11 strokes
-  EXPECT_THROW(least_ripple_pitch(m, 0.1, 1e6), std::invalid_argument);  // 1e10 steps
+  EXPECT_THROW(least_ripple_pitch(m, 0.001, 0.1), std::invalid_argument);  // below 0.05 R: 40+ strokes a ripple
+  const LinePitch wide = least_ripple_pitch(m, 0.1, 1e6);  // 1e10 steps of 0.1 mm: 2e4 steps instead
+  EXPECT_GE(wide.pitch_m, 0.1);
+  EXPECT_LE(wide.pitch_m, 1e6);
   EXPECT_THROW(least_ripple_pitch(m, 0.1, std::numeric_limits<double>::quiet_NaN()), std::invalid_argument);
 }
 

@@ -716,16 +716,16 @@ double line_ripple(const SpotModel& model, double pitch_m) {
 }
 
 LinePitch least_ripple_pitch(const SpotModel& model, double lo_m, double hi_m) {
-  if (!(lo_m > 0) || !(hi_m >= lo_m) || !std::isfinite(hi_m))
-    throw std::invalid_argument("least_ripple_pitch: need 0 < lo <= hi, got [" + std::to_string(lo_m) + ", " +
-                                std::to_string(hi_m) + "] m");
-  // 0.1 mm, finer for a small spot's pitch (0.2 % of the window's low end below 50 mm).
-  const double step_m = std::min(1e-4, 2e-3 * lo_m);
-  const double steps = std::floor((hi_m - lo_m) / step_m + 1e-9);
-  if (steps > 1e5)
-    throw std::invalid_argument("least_ripple_pitch: the window [" + std::to_string(lo_m) + ", " + std::to_string(hi_m) +
-                                "] m is over 1e5 steps of " + std::to_string(step_m) + " m");
-  const int n = static_cast<int>(steps);
+  check_model(model);
+  // Lines closer than 5 % of the spot's radius are no spray pattern (and each ripple would sum
+  // over 40+ strokes).
+  if (!(lo_m >= 0.05 * model.radius_m) || !(hi_m >= lo_m) || !std::isfinite(hi_m))
+    throw std::invalid_argument("least_ripple_pitch: need 0.05 R (" + std::to_string(0.05 * model.radius_m) +
+                                " m) <= lo <= hi, got [" + std::to_string(lo_m) + ", " + std::to_string(hi_m) + "] m");
+  // 0.1 mm, finer for a small spot's pitch (0.2 % of the window's low end below 50 mm), and at
+  // most 2e4 steps (coarser only for windows over 2 m).
+  const double step_m = std::max(std::min(1e-4, 2e-3 * lo_m), (hi_m - lo_m) / 2e4);
+  const int n = static_cast<int>(std::floor((hi_m - lo_m) / step_m + 1e-9));
   LinePitch best{lo_m, line_ripple(model, lo_m)};
   for (int i = 1; i <= n + 1; ++i) {
     const double p = i <= n ? lo_m + i * step_m : hi_m;

@@ -142,7 +142,8 @@ PassSpacing pass_spacing(const SpotModel& model, double target_thickness_m);
 /// p; how much depends on p non-monotonically (default spot: 5.6 % peak to peak at 0.114 m, 0.9 %
 /// at 0.103 m). The pitch in [lo_m, hi_m] of least ripple, (max - min) / mean of the sum of the
 /// strokes' cross profiles (1 - (x/R)^2)^(beta - 1/2) (a flat wall at H0; the design's curvature
-/// moves the optimum by < 1 mm), scanned in 0.1 mm steps (0.2 % of lo_m where that is finer).
+/// moves the optimum by < 1 mm), scanned in 0.1 mm steps (0.2 % of lo_m where that is finer, at most
+/// 2e4 steps); lo_m >= 0.05 R.
 struct LinePitch {
   double pitch_m = 0.0;
   double ripple = 0.0;  // (max - min) / mean across the lines [-]
