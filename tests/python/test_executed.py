@@ -140,17 +140,20 @@ def test_planner_region_spray_matches_the_trajectory(job):
         inside = (ex_off > t[idx[0]]) & (ex_on < t[idx[-1]])
         assert inside.sum() == len(flow.on_s)
         # A switch on a pass goes to the same place on the arm's nozzle path (planned_pump_program),
-        # which its tracking keeps within about a millimetre of the planner's (1.1 ms at 0.36 m/s
-        # measured on one region): 1.5 mm of the pass at its speed there. Switches off the passes
-        # keep their times exactly.
+        # which its tracking and sampling keep within about a millimetre of the planner's (1.1 ms at
+        # 0.36 m/s measured at a pass's end): 1.5 mm of the pass at its speed there. Switches in a
+        # join or lead, a sample or more from any pass, keep their times exactly.
         st, pos, on_pass = np.asarray(rs["t_s"]), np.asarray(rs["positions_m"]), np.asarray(rs["pass_index"]) >= 0
 
         def tolerance_s(ts):
             k = int(np.clip(np.searchsorted(st, ts), 1, len(st) - 1))
-            if not (on_pass[k - 1] and on_pass[k]):
+            near = on_pass[max(0, k - 2):k + 2]
+            if not near.any():
                 return 1e-6
-            speed = np.linalg.norm(pos[k] - pos[k - 1]) / (st[k] - st[k - 1])
-            return 1.5e-3 / speed + 1e-6
+            j = max(0, k - 2) + int(np.flatnonzero(near)[0])
+            j = int(np.clip(j, 1, len(st) - 1))
+            speed = np.linalg.norm(pos[j] - pos[j - 1]) / (st[j] - st[j - 1])
+            return 1.5e-3 / max(speed, 1e-3) + 1e-6
 
         for ex, planned in ((ex_on[inside], flow.on_s), (ex_off[inside], flow.off_s)):
             for e, ts in zip(ex - t[idx[0]], planned):
