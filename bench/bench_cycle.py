@@ -40,6 +40,12 @@ ALTERNATIVES = {
     # The levelling lines at the spacing ratio exactly (0.5 and 1.0 of the two-pass spacing), as
     # before they moved to the least-ripple pitch near it.
     "lines at the plain ratio": {"planner.levelling_pitch_window": 0.0},
+    # The first round's look-ahead on its own lines (three rounds' dwell, clipped to one), later
+    # rounds on the wide lines only once the layer left is thin, their run-on 0.15 m: the default
+    # before the look-ahead took the wide lines.
+    "look-ahead on the round's own lines": {"planner.levelling_lookahead_late_lines": False,
+                                            "planner.levelling_lookahead_rounds": 3,
+                                            "planner.levelling_late_edge_overrun_m": 0.15},
     # graded mode before the last rounds ran on past the bay's ends with end speeds of their own
     # and lines were cut at gaps (and before the 10 mm level margin)
     "graded lines whole, no last run-on": {"planner.graded_last_edge_overrun_m": 0.0, "planner.graded_split_gap_m": 0.0,
@@ -48,7 +54,8 @@ ALTERNATIVES = {
     "level margin 1 mm": {"planner.graded_level_margin_m": 0.001},
 }
 # Alternatives that change only the optimal mode's levelling rounds: not run in graded mode.
-OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds", "lines at the plain ratio"}
+OPTIMAL_ONLY = {"levelling guard weight 1000", "close late rounds", "lines at the plain ratio",
+                "look-ahead on the round's own lines"}
 GRADED_ONLY = {"graded lines whole, no last run-on", "level margin 1 mm"}
 
 

@@ -195,11 +195,12 @@ struct PlannerConfig {
   double levelling_spacing_ratio = 0.5;  // optimal mode: pass spacing as a share of the two-pass spacing
   double levelling_late_spacing_ratio = 1.0;  // optimal mode: levelling_spacing_ratio once the layer left is thin
   double levelling_pitch_window = 0.15;  // optimal mode: the lines' pitch is the one of least ripple within +- this share of ratio x two-pass spacing (0: exactly that)
-  double levelling_late_edge_overrun_m = 0.15;  // optimal mode: edge_overrun_m once the layer left is thin [m]
+  double levelling_late_edge_overrun_m = 0.1;  // optimal mode: edge_overrun_m once the layer left is thin [m]
   double levelling_late_td_quantile = 0.95;  // optimal mode: share of the open cells whose TD must be within a wide round's layer
   double levelling_guard_band_m = 0.02;  // optimal mode: residual band (+-) past which the guard counts
   double levelling_guard_weight = 100.0;  // optimal mode: cost of a mm past the band per mm off target, squared (0: no guard)
-  int levelling_lookahead_rounds = 3;  // optimal mode: rounds a round's dwells are solved for (it sprays one)
+  int levelling_lookahead_rounds = 2;  // optimal mode: rounds a round's dwells are solved for (it sprays one)
+  bool levelling_lookahead_late_lines = true;  // optimal mode: a round on the close lines solves the look-ahead's later rounds on the wide late lines
   int levelling_executed_corrections = 2;  // optimal mode: re-solves of a round against its own executed deposit (0: none)
   int graded_executed_corrections = 1;  // graded mode: re-solves of a region's speeds against its own executed deposit (0: none, nor the round's other regions)
   bool graded_thesis_objective = false;  // graded mode: the thesis's objective as written (one target per region)

@@ -132,8 +132,17 @@ int SpeedCapMap::learn(const TimedTrajectory& tr, const Eigen::VectorXd& vel_lim
       const double v = speed_at(i);
       if (ra > 1.0 && v > 1e-6 && i >= 2 && i + 2 < tr.size()) {
         const double a = (speed_at(i + 1) - speed_at(i - 1)) / (tr.t_s[i + 1] - tr.t_s[i - 1]);
-        const double rc = (tr.qdd[i] - tr.qd[i] * (a / v)).cwiseAbs().cwiseQuotient(acc_limit).maxCoeff();
+        const Eigen::VectorXd curve = tr.qdd[i] - tr.qd[i] * (a / v);  // the part that scales with v^2
+        const double rc = curve.cwiseAbs().cwiseQuotient(acc_limit).maxCoeff();
         fc = rc > 1.0 ? (spike ? limit_share / rc : std::sqrt(limit_share / rc)) : 1.0;
+        // Under the limit without the speed change, over it with: a lower speed takes the
+        // curve's part down until both fit, where the change's part alone leaves room (a pass of
+        // the pytest slice read 1.006x on the slew joint, nothing learned, no re-plan).
+        if (rc <= 1.0 && !spike) {
+          const double change = std::abs(tr.qdd[i][jw] - curve[jw]) / acc_limit[jw];
+          const double part = std::abs(curve[jw]) / acc_limit[jw];
+          if (part > 1e-9 && change < limit_share) fc = std::min(1.0, std::sqrt((limit_share - change) / part));
+        }
         // An acceleration whose sign flips from sample to sample is the joint path zig-zagging
         // (two telescopes at their limits, the tracking's limit avoidance against the task), not
         // a curve a lower speed would follow: bounding it took a graded pass of the default bay

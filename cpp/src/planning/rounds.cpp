@@ -469,31 +469,49 @@ class GradedRounds : public RoundStages {
 double levelling_pitch_m(const PlannerConfig& pc, double ratio, const RoundContext& ctx) {
   const double nominal = ratio * ctx.spacing_m;
   if (pc.levelling_pitch_window <= 0) return nominal;
-  return least_ripple_pitch(ctx.model, nominal * (1.0 - pc.levelling_pitch_window), nominal * (1.0 + pc.levelling_pitch_window)).pitch_m;
+  const auto known = ctx.pitch_m.find(ratio);
+  if (known != ctx.pitch_m.end()) return known->second;
+  const double pitch_m =
+      least_ripple_pitch(ctx.model, nominal * (1.0 - pc.levelling_pitch_window), nominal * (1.0 + pc.levelling_pitch_window)).pitch_m;
+  ctx.pitch_m[ratio] = pitch_m;
+  return pitch_m;
+}
+
+// Whether a round on the close lines solves the look-ahead's later rounds on the wide lines.
+constexpr double kLateLayerAllowance = 1.25;  // levelling_sides
+bool lookahead_on_late_lines(const PlannerConfig& pc) {
+  return pc.levelling_lookahead_late_lines && pc.levelling_lookahead_rounds > 1;
 }
 
 // One set of pass lines over every cell still short of flush (even spacing across the crown), then
 // split into the right and left walls so each side is sprayed bottom-up. The rounds after the
 // first lay their lines at planner.levelling_late_spacing_ratio with levelling_late_edge_overrun_m
-// once the layer left is thin: levelling_late_td_quantile (95 %) of the open cells miss no more
-// than those lines lay in a round at the slowest speed (the first round leaves a few pits deeper;
-// a small slice whose first round left 100 mm broadly ended its three rounds with 67 cells at
-// level 1 on the wide lines).
-std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<int>& open_cells, RoundContext& ctx) {
+// (`late`: those lines for the look-ahead) once the layer left is thin: levelling_late_td_quantile
+// (95 %) of the open cells miss no more than those lines lay in a round at the slowest speed (the
+// first round leaves a few pits deeper; a small slice whose first round left 100 mm broadly ended
+// its three rounds with 67 cells at level 1 on the wide lines). Where the first round's solve
+// counted on the wide lines (levelling_lookahead_late_lines) it leaves nearly every cell open, and
+// a few deeper pits cost another wide round over them only: 1.25 x that layer (seed 4: the 95th
+// percentile at 118 mm against 116 took close lines over the whole wall, cycle-time ratio 1.456
+// instead of 1.351; the small horseshoe slice, 60 % of its cells over 100 mm, still takes them).
+std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<int>& open_cells, RoundContext& ctx,
+                                        bool late = false) {
   PlannerConfig pc = ctx.config.planner;
+  const double late_pitch_m = levelling_pitch_m(pc, pc.levelling_late_spacing_ratio, ctx);
   double pitch_m = levelling_pitch_m(pc, pc.levelling_spacing_ratio, ctx);
-  if (in.number >= 2 && !open_cells.empty()) {
-    const double late_pitch_m = levelling_pitch_m(pc, pc.levelling_late_spacing_ratio, ctx);
+  if (!late && in.number >= 2 && !open_cells.empty()) {
     const double late_layer_m = ctx.model.volume_rate_m3ps() * (1.0 - ctx.config.deposition.rebound_fraction) /
                                 (pc.min_speed_mps * late_pitch_m);
     std::vector<double> td;
     for (int c : open_cells) td.push_back(in.wall.surface.grid.td_m[c]);
     const auto q = td.begin() + static_cast<long>(pc.levelling_late_td_quantile * static_cast<double>(td.size() - 1));
     std::nth_element(td.begin(), q, td.end());
-    if (*q <= late_layer_m) {
-      pitch_m = late_pitch_m;
-      pc.edge_overrun_m = pc.levelling_late_edge_overrun_m;
-    }
+    const bool counted_on = lookahead_on_late_lines(pc) && std::abs(late_pitch_m - pitch_m) > 1e-9;
+    late = *q <= late_layer_m * (counted_on ? kLateLayerAllowance : 1.0);
+  }
+  if (late) {
+    pitch_m = late_pitch_m;
+    pc.edge_overrun_m = pc.levelling_late_edge_overrun_m;
   }
   const Grid& grid = in.wall.surface.grid;
   const bool axial = pc.pass_direction == PassDirection::axial;
@@ -519,9 +537,10 @@ std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<
 }
 
 // The sides' passes cut into segments about segment_length_m long, with their unit deposits on
-// the cells and the machine's speed caps.
+// the cells and the machine's speed caps. Later lines (the look-ahead's, never sprayed) are
+// numbered from first_side, past the round's own sides, and take no speed caps (the IK's cost).
 void add_segments(const RoundInput& in, const CellSurface& cells, const std::vector<RegionPlan>& sides,
-                  RoundContext& ctx, DwellProblem& problem) {
+                  RoundContext& ctx, DwellProblem& problem, bool later = false, std::size_t first_side = 0) {
   const PlannerConfig& pc = ctx.config.planner;
   const double rebound = ctx.config.deposition.rebound_fraction;
   std::vector<const Pass*> all;
@@ -529,7 +548,12 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
   for (std::size_t s = 0; s < sides.size(); ++s)
     for (const Pass& pass : sides[s].passes)
       all.push_back(&pass), names.push_back(round_name(in.number) + ", side " + std::to_string(s) + ", line " + std::to_string(pass.line));
-  const std::vector<std::vector<double>> caps = ctx.caps(all, names);
+  std::vector<std::vector<double>> caps;
+  if (later) {
+    for (const Pass* pass : all) caps.emplace_back(pass->waypoints.size(), pc.max_speed_mps);
+  } else {
+    caps = ctx.caps(all, names);
+  }
   std::size_t next = 0;
   for (std::size_t s = 0; s < sides.size(); ++s)
     for (std::size_t p = 0; p < sides[s].passes.size(); ++p) {
@@ -542,8 +566,9 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
       const std::size_t n_seg = std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(static_cast<double>(nw - 1) / static_cast<double>(per))));
       for (std::size_t k = 0; k < n_seg && nw >= 2; ++k) {
         Segment seg;
-        seg.side = s;
+        seg.side = first_side + s;
         seg.pass = p;
+        seg.later = later;
         seg.first = k * (nw - 1) / n_seg;
         seg.last = (k + 1) * (nw - 1) / n_seg;
         if (seg.last <= seg.first) continue;
@@ -556,7 +581,7 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
         // thickness in mm per (s/m) of dwell: speed 1 m/s means dwell 1 s per metre.
         problem.unit_mm.push_back(sparsify(unit_deposit(ctx.model, cells, poses, piece.dwell_s(), rebound) * 1000.0));
         problem.segments.push_back(seg);
-        if (seg.cap_mps < pc.max_speed_mps) ++ctx.plan.speed_capped;
+        if (!later && seg.cap_mps < pc.max_speed_mps) ++ctx.plan.speed_capped;
       }
     }
 }
@@ -567,7 +592,8 @@ std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<doub
   std::vector<double> w;
   for (int it = 0; it < 3; ++it) {
     w = optimise_dwell(problem, floor);
-    for (double& x : w) x = std::min(x, problem.w_max_s_per_m);  // the look-ahead's rest: later rounds
+    for (std::size_t j = 0; j < w.size(); ++j)  // the look-ahead's rest: later rounds (on later lines: theirs)
+      if (!problem.segments[j].later) w[j] = std::min(w[j], problem.w_max_s_per_m);
     const auto limited = limit_speed_changes(problem.segments, w, accel_mps2);
     for (std::size_t j = 0; j < w.size(); ++j)
       if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
@@ -614,7 +640,7 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
       cur = Pass();
     };
     for (std::size_t j = 0; j < segs.size(); ++j) {
-      if (segs[j].side != s || segs[j].pass != p) continue;
+      if (segs[j].later || segs[j].side != s || segs[j].pass != p) continue;
       if (w[j] <= 0) {
         flush_cur();
         continue;
@@ -655,7 +681,8 @@ SprayedRound sprayed_round(const std::vector<RegionPlan>& regions, const CellSur
 Eigen::VectorXd solved_deposit_mm(const DwellProblem& problem, const std::vector<double>& w) {
   Eigen::VectorXd dep = Eigen::VectorXd::Zero(problem.target_mm.size());
   for (std::size_t j = 0; j < w.size(); ++j)
-    for (std::size_t k = 0; k < problem.unit_mm[j].idx.size(); ++k) dep[problem.unit_mm[j].idx[k]] += w[j] * problem.unit_mm[j].val[k];
+    if (!problem.segments[j].later)
+      for (std::size_t k = 0; k < problem.unit_mm[j].idx.size(); ++k) dep[problem.unit_mm[j].idx[k]] += w[j] * problem.unit_mm[j].val[k];
   return dep;
 }
 
@@ -687,6 +714,14 @@ class LevellingRounds : public RoundStages {
     }
     const std::vector<RegionPlan> sides = levelling_sides(in, open_cells, ctx);
     add_segments(in, cells, sides, ctx, problem);
+    // A round on the close lines solves the look-ahead's later rounds on the wide lines they will
+    // take, not on its own: a steep flank the close lines could follow in three rounds, a wide
+    // round cannot (seed 1: round 2 laid 85 mm on a flank rising 25 mm a row, 35 mm over). Not in
+    // the last round planner.max_rounds allows: nothing would lay what it leaves them.
+    const std::size_t own_segments = problem.segments.size();
+    if (lookahead_on_late_lines(pc) && !sides.empty() && in.number < pc.max_rounds &&
+        std::abs(levelling_pitch_m(pc, pc.levelling_late_spacing_ratio, ctx) - sides.front().spacing_m) > 1e-9)
+      add_segments(in, cells, levelling_sides(in, open_cells, ctx, true), ctx, problem, true, sides.size());
     ctx.report(in.number, 0.3);
     problem.lambda_mm2_per_s = pc.time_weight_mm2_per_s;
     problem.w_max_s_per_m = 1.0 / pc.min_speed_mps;
@@ -705,6 +740,13 @@ class LevellingRounds : public RoundStages {
     };
     std::vector<double> w = solve_dwells(problem, accel, ctx.config.flow);
     std::vector<RegionPlan> out = runs_of(w);
+    if (out.empty() && problem.segments.size() > own_segments) {
+      // The later lines took all there was to lay: this round sprays its own share after all.
+      problem.segments.resize(own_segments);
+      problem.unit_mm.resize(own_segments);
+      w = solve_dwells(problem, accel, ctx.config.flow);
+      out = runs_of(w);
+    }
     if (pc.levelling_executed_corrections <= 0 || out.empty()) return out;
     // The solve's segments are not what the arm and the pump do with them: the timed passes
     // change speed over ramps, turns too short for the pump's off spell are sprayed through,

@@ -8,6 +8,7 @@
 //   levelling_rounds() planner.mode optimal: every cell still short of flush, one least-squares
 //                      dwell per segment of a pass, until another round does not pay off.
 // Ordering and deposit are the same for both (planner.cpp).
+#include <map>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -39,6 +40,7 @@ struct RoundContext {
   Plan& plan;                  // warnings and speed_capped are added here
   const ProgressFn& progress;  // stage "round <number>"
   const std::vector<Eigen::Vector3d>* lean = nullptr;  // per cell, the nozzle's lean (plan_passes); null: square
+  mutable std::map<double, double> pitch_m = {};  // levelling lines' pitch per spacing ratio, found once a plan
 
   void report(int round_number, double fraction) const;
 };

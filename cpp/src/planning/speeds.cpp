@@ -488,17 +488,29 @@ double deposit_cost(const DwellProblem& problem, const Eigen::VectorXd& deposit_
   return f;
 }
 
+std::vector<double> dwell_bounds(const DwellProblem& problem) {
+  const int rounds = std::max(1, problem.lookahead_rounds);
+  const bool later = std::any_of(problem.segments.begin(), problem.segments.end(), [](const Segment& s) { return s.later; });
+  std::vector<double> out(problem.segments.size());
+  for (std::size_t j = 0; j < out.size(); ++j)
+    out[j] = problem.w_max_s_per_m * (!later ? rounds : problem.segments[j].later ? rounds - 1 : 1);
+  return out;
+}
+
 std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor) {
+  const std::size_t n = problem.unit_mm.size();
+  if (problem.segments.size() != n || w_floor.size() != n)
+    throw std::invalid_argument("optimise_dwell: one segment and one floor per unit deposit");
   DwellSolver s(problem);
-  const std::size_t n = s.w.size();
-  const double w_max = problem.w_max_s_per_m * std::max(1, problem.lookahead_rounds);
+  const std::vector<double> bound = dwell_bounds(problem);
+  const double w_max = bound.empty() ? 0.0 : *std::max_element(bound.begin(), bound.end());
   std::vector<char> empty(n);
   for (std::size_t j = 0; j < n; ++j) empty[j] = problem.unit_mm[j].idx.empty();
   for (int sweep = 0; sweep < 300; ++sweep) {
     double change = 0;
     for (std::size_t j = 0; j < n; ++j) {
       if (empty[j]) continue;
-      const double next = s.line_min(j, w_floor[j], w_max);
+      const double next = s.line_min(j, std::min(w_floor[j], bound[j]), bound[j]);
       change = std::max(change, std::abs(next - s.w[j]));
       s.set(j, next);
     }
@@ -513,7 +525,7 @@ std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vecto
     }
     for (std::size_t j = 0; j < n; ++j) {
       if (s.w[j] <= 0 || empty[j]) continue;  // skipped segments stay skipped
-      s.set(j, s.line_min(j, std::max(s.w_min[j], w_floor[j]), w_max));
+      s.set(j, s.line_min(j, std::min(std::max(s.w_min[j], w_floor[j]), bound[j]), bound[j]));
     }
   }
   return s.w;
@@ -615,6 +627,10 @@ FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<doubl
   for (std::size_t a = 0; a < segs.size();) {
     std::size_t b = a;
     while (b < segs.size() && segs[b].side == segs[a].side && segs[b].pass == segs[a].pass) ++b;
+    if (segs[a].later) {  // a later round's line: not sprayed in this one
+      a = b;
+      continue;
+    }
     const auto runs = line_runs(w, a, b);
     for (std::size_t k = 0; k < runs.size(); ++k) {
       const SpellRun& r = runs[k];

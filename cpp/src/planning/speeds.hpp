@@ -80,6 +80,7 @@ struct Segment {
   std::size_t first = 0, last = 0;  // waypoint range [first, last]
   double length_m = 0;
   double cap_mps = 0;               // fastest speed the machine allows on the segment
+  bool later = false;               // a line of the look-ahead's later rounds: solved for, never sprayed
 };
 
 /// The least-squares problem of the levelling round:
@@ -99,8 +100,13 @@ struct DwellProblem {
   double lambda_mm2_per_s = 0;   // planner.time_weight_mm2_per_s
   double w_max_s_per_m = 0;      // dwell at the slowest speed: the most a round sprays
   int lookahead_rounds = 1;      // the solve may give a segment lookahead_rounds x w_max (the rounds
-                                 // after this one add the rest); the round sprays at most w_max
+                                 // after this one add the rest); the round sprays at most w_max.
+                                 // With segments of later lines (Segment::later): this round's
+                                 // take w_max, the later lines (lookahead_rounds - 1) x w_max.
 };
+
+/// The most dwell the solve gives each segment [s/m] (DwellProblem::lookahead_rounds).
+std::vector<double> dwell_bounds(const DwellProblem& problem);
 
 /// Guard limits for cells with TD td_mm [mm] (negative: over-filled): over-filled past band_mm
 /// beyond flush (a cell already past it may take nothing more), under-filled past band_mm short of
