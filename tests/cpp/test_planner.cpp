@@ -1,6 +1,8 @@
 // Planner: spline, pass geometry on a cylinder, rounds on analytic and synthetic bays, bad input.
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -845,6 +847,84 @@ TEST(LevellingDwells, TheGuardHoldsOverlappedShouldersAndMatchesABruteForceSearc
   EXPECT_DOUBLE_EQ(p.guard_hi_mm[2], 120.0);
   EXPECT_DOUBLE_EQ(p.guard_lo_mm[1], 0.0);
   EXPECT_DOUBLE_EQ(p.guard_lo_mm[2], 80.0);
+}
+
+// Close lines and the look-ahead's wide lines over them trade cells, and coordinate descent crawls
+// along such directions: on this problem (the lines' units overlapping far more than the default
+// bay's) a cold solve ends 25 % above the optimum of an independent solver (projected gradient
+// with momentum, 20,000 steps; on the default bay's first round 0.13 %). What a warm start must
+// do: never end worse than where it starts, stay at the optimum when started there, and clamp a
+// start out of the bounds into them.
+TEST(LevellingDwells, AWarmStartNeverEndsWorseAndStaysAtTheOptimum) {
+  const int n_cells = 90;
+  DwellProblem p;
+  p.target_mm.resize(n_cells);
+  for (int c = 0; c < n_cells; ++c) p.target_mm[c] = 220.0 + 80.0 * std::sin(0.11 * c) + 30.0 * std::cos(0.37 * c);
+  auto add = [&](double centre, double sigma, bool later) {
+    Segment s;
+    s.pass = p.segments.size();
+    s.length_m = 0.15;
+    s.cap_mps = 1e9;  // no fastest speed: the snap to {0} u [w_min, ...] after the descent does nothing
+    s.later = later;
+    p.segments.push_back(s);
+    Eigen::VectorXd u(n_cells);
+    for (int c = 0; c < n_cells; ++c) u[c] = 10.0 * std::exp(-0.5 * std::pow((c - centre) / sigma, 2));
+    p.unit_mm.push_back(sparsify(u));
+  };
+  for (int j = 0; j < 30; ++j) add(3.0 * j + 1.5, 3.0, false);  // close lines
+  for (int j = 0; j < 15; ++j) add(6.0 * j + 3.0, 6.0, true);   // wide later lines
+  p.w_max_s_per_m = 20.0;
+  p.lookahead_rounds = 2;
+  p.lambda_mm2_per_s = 50.0;
+  const std::size_t n = p.segments.size();
+  const std::vector<double> zero(n, 0.0), hi = dwell_bounds(p);
+  // The reference: projected gradient with Nesterov momentum on the box [0, hi].
+  Eigen::MatrixXd U = Eigen::MatrixXd::Zero(n_cells, static_cast<Eigen::Index>(n));
+  for (std::size_t j = 0; j < n; ++j)
+    for (std::size_t k = 0; k < p.unit_mm[j].idx.size(); ++k) U(p.unit_mm[j].idx[k], static_cast<Eigen::Index>(j)) = p.unit_mm[j].val[k];
+  Eigen::VectorXd lw(static_cast<Eigen::Index>(n));
+  for (std::size_t j = 0; j < n; ++j) lw[static_cast<Eigen::Index>(j)] = p.lambda_mm2_per_s * p.segments[j].length_m;
+  const double L = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(U.transpose() * U).eigenvalues().maxCoeff();
+  auto project = [&](Eigen::VectorXd v) {
+    for (Eigen::Index j = 0; j < v.size(); ++j) v[j] = std::clamp(v[j], 0.0, hi[static_cast<std::size_t>(j)]);
+    return v;
+  };
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n)), y = x;
+  double t = 1.0;
+  for (int it = 0; it < 20000; ++it) {
+    const Eigen::VectorXd x_next = project(y - (U.transpose() * (U * y - p.target_mm) + lw) / L);
+    const double t_next = 0.5 * (1.0 + std::sqrt(1.0 + 4.0 * t * t));
+    y = x_next + ((t - 1.0) / t_next) * (x_next - x);
+    x = x_next, t = t_next;
+  }
+  const std::vector<double> ref(x.data(), x.data() + x.size());
+  const double f_ref = dwell_objective(p, ref);
+  const double f_ref_direct = 0.5 * (U * x - p.target_mm).squaredNorm() + lw.dot(x);
+  ASSERT_NEAR(f_ref, f_ref_direct, 1e-9 * f_ref);
+  const std::vector<double> cold = optimise_dwell(p, zero);
+  const double f_cold = dwell_objective(p, cold);
+  EXPECT_GE(f_cold, f_ref * (1.0 - 1e-9));  // the reference is the optimum
+  EXPECT_LE(f_cold, f_ref * 1.3);
+  // Each warm restart goes on from where the last one stopped.
+  std::vector<double> warm = cold;
+  double f_warm = f_cold;
+  for (int restart = 0; restart < 5; ++restart) {
+    warm = optimise_dwell(p, zero, warm);
+    const double f = dwell_objective(p, warm);
+    EXPECT_LE(f, f_warm * (1.0 + 1e-12)) << "restart " << restart;
+    f_warm = f;
+  }
+  EXPECT_LT(f_warm, f_cold);
+  const std::vector<double> at_ref = optimise_dwell(p, zero, ref);
+  EXPECT_NEAR(dwell_objective(p, at_ref), f_ref, 1e-6 * f_ref);
+  std::vector<double> wild(n, 1e6);
+  wild[0] = -5.0;
+  const std::vector<double> clamped = optimise_dwell(p, zero, wild);
+  for (std::size_t j = 0; j < n; ++j) {
+    EXPECT_GE(clamped[j], 0.0);
+    EXPECT_LE(clamped[j], hi[j]);
+  }
+  EXPECT_THROW(optimise_dwell(p, zero, std::vector<double>(n - 1, 0.0)), std::invalid_argument);
 }
 
 TEST(LevellingDwells, TheLookAheadSolvesForMoreThanOneRound) {

@@ -32,6 +32,19 @@ double add_region_deposit(const std::vector<Pass>& passes, const SurfaceIndex& i
   accumulate_dwells(model, index, spray.nozzle, spray.dwell_s, config.deposition.rebound_fraction, deposit);
   return spray.flow.on_time_s();
 }
+struct RegionDeposit {
+  Eigen::VectorXd deposit_m;  // per point of the cloud
+  double on_time_s = 0;
+};
+RegionDeposit region_deposit(const std::vector<Pass>& passes, const SurfaceIndex& index, const SpotModel& model,
+                             const Config& config) {
+  RegionDeposit out;
+  out.deposit_m = Eigen::VectorXd::Zero(index.cloud().size());
+  out.on_time_s = add_region_deposit(passes, index, model, config, out.deposit_m);
+  return out;
+}
+// Per region of a round: its deposit where already simulated (the direction check), else empty.
+using KnownDeposits = std::vector<std::optional<RegionDeposit>>;
 
 // A levelling region the ordering reversed is sprayed the other way than its speeds were solved
 // for (against its own timed deposit), and the pump's rules do not run the same both ways (a gap
@@ -50,17 +63,22 @@ void reverse_passes(std::vector<Pass>& passes) {
 }
 
 void keep_solved_directions(Round& round, const OrderingProblem& problem, std::vector<bool> reversed,
-                            const SurfaceIndex& index, const SpotModel& model, const Config& config) {
+                            const SurfaceIndex& index, const SpotModel& model, const Config& config,
+                            KnownDeposits& known) {
   bool changed = false;
   for (std::size_t k = 0; k < round.regions.size(); ++k) {
     RegionPlan& r = round.regions[k];
     if (!r.reversed) continue;
     std::vector<Pass> solved = r.passes;
     reverse_passes(solved);
-    Eigen::VectorXd kept = Eigen::VectorXd::Zero(index.cloud().size()), other = kept;
-    add_region_deposit(r.passes, index, model, config, kept);
-    add_region_deposit(solved, index, model, config, other);
-    if (kept.size() == 0 || (kept - other).cwiseAbs().maxCoeff() <= kReversalTolerance_m) continue;
+    RegionDeposit kept = region_deposit(r.passes, index, model, config);
+    RegionDeposit other = region_deposit(solved, index, model, config);
+    if (kept.deposit_m.size() == 0 ||
+        (kept.deposit_m - other.deposit_m).cwiseAbs().maxCoeff() <= kReversalTolerance_m) {
+      known[k] = std::move(kept);
+      continue;
+    }
+    known[k] = std::move(other);
     r.passes = std::move(solved);
     r.reversed = false;
     reversed[static_cast<std::size_t>(round.order[k])] = false;
@@ -71,9 +89,10 @@ void keep_solved_directions(Round& round, const OrderingProblem& problem, std::v
 
 // Order: the shortest transit through the round's regions, from where the nozzle is; a reversed
 // levelling region keeps its solved direction where the pump would lay it differently.
-void order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, const SurfaceIndex& index,
-                   const SpotModel& model, const Config& config) {
-  if (round.regions.empty()) return;
+KnownDeposits order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, const SurfaceIndex& index,
+                            const SpotModel& model, const Config& config) {
+  KnownDeposits known(round.regions.size());
+  if (round.regions.empty()) return known;
   OrderingProblem problem;
   for (const auto& r : round.regions) {
     problem.a_m.push_back(r.entry_m());
@@ -94,16 +113,24 @@ void order_regions(Round& round, const std::optional<Eigen::Vector3d>& start, co
   round.order = res.order;
   round.link_length_m = res.link_length_m;
   round.order_method = res.method;
-  if (round.kind == RoundKind::levelling) keep_solved_directions(round, problem, res.reversed, index, model, config);
+  if (round.kind == RoundKind::levelling) keep_solved_directions(round, problem, res.reversed, index, model, config, known);
+  return known;
 }
 
 // Deposit: each region sprayed on the full cloud as the trajectory and the pump will spray it
-// (region_spray: timed Cartesian path, flow schedule), then the wall re-graded. `index` is of the
-// wall before the round.
+// (region_spray: timed Cartesian path, flow schedule; the direction check's deposit where it
+// simulated the region already), then the wall re-graded. `index` is of the wall before the round.
 void spray_round(Round& round, SprayedWall& wall, const SurfaceIndex& index, const SpotModel& model,
-                 const Config& config, Plan& plan) {
+                 const Config& config, Plan& plan, const KnownDeposits& known) {
   Eigen::VectorXd deposit = Eigen::VectorXd::Zero(wall.surface.cloud.size());
-  for (const auto& r : round.regions) round.spray_time_s += add_region_deposit(r.passes, index, model, config, deposit);
+  for (std::size_t k = 0; k < round.regions.size(); ++k) {
+    if (known[k]) {
+      deposit += known[k]->deposit_m;
+      round.spray_time_s += known[k]->on_time_s;
+      continue;
+    }
+    round.spray_time_s += add_region_deposit(round.regions[k].passes, index, model, config, deposit);
+  }
   deposit_layer(wall, deposit);
   plan.deposited_m += deposit;
   round.levels_after = level_counts(wall.surface.levels);
@@ -197,10 +224,10 @@ Plan plan_bay(const Surface& surface, const Config& config, const ProgressFn& pr
     // Order, deposit, stop test.
     // One index of the wall as it stands for the ordering's direction check and the deposit.
     const SurfaceIndex index(wall.surface.cloud, 0.05);
-    order_regions(round, nozzle_at, index, model, config);
+    const KnownDeposits known = order_regions(round, nozzle_at, index, model, config);
     nozzle_at = round.regions.back().exit_m();
     ctx.report(number, 0.7);
-    spray_round(round, wall, index, model, config, plan);
+    spray_round(round, wall, index, model, config, plan, known);
     plan.timings_s["round_" + std::to_string(number)] = seconds_since(t_round);
     plan.rounds.push_back(std::move(round));
     ctx.report(number, 1.0);

@@ -587,11 +587,12 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
 }
 
 // Least squares, then the arm's speed-change limit; the capped segments become floors of the next
-// solve so the others can compensate; the limiter has the last word.
-std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<double> floor, double accel_mps2) {
-  std::vector<double> w;
+// solve so the others can compensate; the limiter has the last word. Each solve starts at the
+// dwells before it (w: the first one's start; empty: all 0).
+std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<double> floor, double accel_mps2,
+                                   std::vector<double> w = {}) {
   for (int it = 0; it < 3; ++it) {
-    w = optimise_dwell(problem, floor);
+    w = optimise_dwell(problem, floor, w);
     for (std::size_t j = 0; j < w.size(); ++j)  // the look-ahead's rest: later rounds (on later lines: theirs)
       if (!problem.segments[j].later) w[j] = std::min(w[j], problem.w_max_s_per_m);
     const auto limited = limit_speed_changes(problem.segments, w, accel_mps2);
@@ -605,11 +606,13 @@ std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<doub
 // The dwells with an on/off pattern the pump can follow: segments the pump would spray through
 // are forced on (at least their fastest dwell) and stretches too short to switch on for are
 // forced off (their deposit removed from the problem), then the least squares is solved again
-// with that pattern, until flow_spell_fix has nothing left to change.
-std::vector<double> solve_dwells(DwellProblem problem, double accel_mps2, const FlowConfig& flow) {
+// with that pattern, until flow_spell_fix has nothing left to change. w_start: where the first
+// solve starts (empty: all 0).
+std::vector<double> solve_dwells(DwellProblem problem, double accel_mps2, const FlowConfig& flow,
+                                 const std::vector<double>& w_start = {}) {
   const std::size_t n = problem.segments.size();
   std::vector<double> floor(n, 0.0);
-  std::vector<double> w = limited_dwells(problem, floor, accel_mps2);
+  std::vector<double> w = limited_dwells(problem, floor, accel_mps2, w_start);
   for (int it = 0; it < 6; ++it) {
     const FlowSpellFix fix = flow_spell_fix(problem, w, flow, accel_mps2);
     if (fix.empty()) break;
@@ -618,7 +621,7 @@ std::vector<double> solve_dwells(DwellProblem problem, double accel_mps2, const 
       problem.unit_mm[j] = Sparse();
       floor[j] = 0.0;
     }
-    w = limited_dwells(problem, floor, accel_mps2);
+    w = limited_dwells(problem, floor, accel_mps2, w);
   }
   return w;
 }
@@ -761,7 +764,7 @@ class LevellingRounds : public RoundStages {
     for (int it = 0; it < pc.levelling_executed_corrections; ++it) {
       DwellProblem corrected = problem;
       corrected.background_mm = sprayed.deposit_mm - solved_deposit_mm(problem, w);
-      std::vector<double> w_next = solve_dwells(corrected, accel, ctx.config.flow);
+      std::vector<double> w_next = solve_dwells(corrected, accel, ctx.config.flow, w);
       std::vector<RegionPlan> out_next = runs_of(w_next);
       if (out_next.empty()) break;
       SprayedRound sprayed_next = sprayed_round(out_next, cells, ctx);

@@ -455,6 +455,13 @@ struct DwellSolver {
     }
     return w[j] + d;
   }
+  // The objective at the current dwells (dwell_objective).
+  double objective() const {
+    double f = 0.0;
+    for (Eigen::Index c = 0; c < dep.size(); ++c) f += cell(static_cast<int>(c)).value(dep[c]);
+    for (std::size_t j = 0; j < w.size(); ++j) f += p.lambda_mm2_per_s * p.segments[j].length_m * w[j];
+    return f;
+  }
   // Change of the objective if w[j] became `value`.
   double objective_delta(std::size_t j, double value) const {
     const double d = value - w[j];
@@ -473,10 +480,7 @@ struct DwellSolver {
 double dwell_objective(const DwellProblem& problem, const std::vector<double>& w) {
   DwellSolver s(problem);
   for (std::size_t j = 0; j < w.size(); ++j) s.set(j, w[j]);
-  double f = 0.0;
-  for (Eigen::Index c = 0; c < s.dep.size(); ++c) f += s.cell(static_cast<int>(c)).value(s.dep[c]);
-  for (std::size_t j = 0; j < w.size(); ++j) f += problem.lambda_mm2_per_s * problem.segments[j].length_m * w[j];
-  return f;
+  return s.objective();
 }
 
 double deposit_cost(const DwellProblem& problem, const Eigen::VectorXd& deposit_mm) {
@@ -497,16 +501,37 @@ std::vector<double> dwell_bounds(const DwellProblem& problem) {
   return out;
 }
 
-std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor) {
+// Coordinate descent crawls along directions where two segments trade cells (a close line and
+// the later wide line over it): on the default bay's first round (2,223 segments) no sweep count
+// up to 3,000 met the change test, while the objective had settled within 0.06 % by sweep 300
+// (and ends 0.13 % above the optimum of a projected gradient run 20,000 steps). The objective
+// test ends it there; with warm starts the first round's solves take 0.6 s instead of 7.5 s
+// (docs/architecture.md §5: the executed residuals on seeds 1-6).
+constexpr double kDwellObjectiveTolerance = 1e-4;  // relative decrease over 10 sweeps
+
+std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vector<double>& w_floor,
+                                   const std::vector<double>& w_start) {
   const std::size_t n = problem.unit_mm.size();
   if (problem.segments.size() != n || w_floor.size() != n)
     throw std::invalid_argument("optimise_dwell: one segment and one floor per unit deposit");
+  if (!w_start.empty() && w_start.size() != n)
+    throw std::invalid_argument("optimise_dwell: " + std::to_string(w_start.size()) + " start dwells for " +
+                                std::to_string(n) + " segments");
   DwellSolver s(problem);
   const std::vector<double> bound = dwell_bounds(problem);
   const double w_max = bound.empty() ? 0.0 : *std::max_element(bound.begin(), bound.end());
   std::vector<char> empty(n);
   for (std::size_t j = 0; j < n; ++j) empty[j] = problem.unit_mm[j].idx.empty();
+  if (!w_start.empty())
+    for (std::size_t j = 0; j < n; ++j)
+      if (!empty[j] && std::isfinite(w_start[j])) s.set(j, std::clamp(w_start[j], std::min(w_floor[j], bound[j]), bound[j]));
+  double f_before = std::numeric_limits<double>::infinity();
   for (int sweep = 0; sweep < 300; ++sweep) {
+    if (sweep % 10 == 0) {
+      const double f = s.objective();
+      if (f_before - f <= kDwellObjectiveTolerance * std::abs(f)) break;
+      f_before = f;
+    }
     double change = 0;
     for (std::size_t j = 0; j < n; ++j) {
       if (empty[j]) continue;
