@@ -524,7 +524,7 @@ std::vector<double> optimise_dwell(const DwellProblem& problem, const std::vecto
   for (std::size_t j = 0; j < n; ++j) empty[j] = problem.unit_mm[j].idx.empty();
   if (!w_start.empty())
     for (std::size_t j = 0; j < n; ++j)
-      if (!empty[j] && std::isfinite(w_start[j])) s.set(j, std::clamp(w_start[j], std::min(w_floor[j], bound[j]), bound[j]));
+      if (!empty[j] && !std::isnan(w_start[j])) s.set(j, std::clamp(w_start[j], std::min(w_floor[j], bound[j]), bound[j]));
   double f_before = std::numeric_limits<double>::infinity();
   for (int sweep = 0; sweep < 300; ++sweep) {
     if (sweep % 10 == 0) {

@@ -117,7 +117,7 @@ void set_guard(DwellProblem& problem, const Eigen::VectorXd& td_mm, double band_
 /// piecewise quadratic along it); w_min[j] = 1 / cap of segment j (the nozzle cannot spray
 /// faster); w_floor[j] > 0 forces segment j to spray with at least that dwell (from the limiter).
 /// Dwells up to lookahead_rounds x w_max: the caller clips them to one round's. The descent starts
-/// at w_start (clamped to the bounds; empty: every dwell 0): the solve of a problem a little
+/// at w_start (clamped to the bounds, NaN as 0; empty: every dwell 0): the solve of a problem a little
 /// changed (a floor more, a fixed deposit) starts at the last one's dwells. It stops when a sweep
 /// moves no dwell by 1e-4 of the largest bound, when ten sweeps lower the objective by less than
 /// 1e-4 of it (kDwellObjectiveTolerance), or after 300 sweeps.
