@@ -477,10 +477,12 @@ double levelling_pitch_m(const PlannerConfig& pc, double ratio, const RoundConte
   return pitch_m;
 }
 
-// Whether a round on the close lines solves the look-ahead's later rounds on the wide lines.
+// Whether a round on lines of pitch_m solves the look-ahead's later rounds on the wide lines: with
+// the option, a look-ahead, and lines that are not the wide ones already.
 constexpr double kLateLayerAllowance = 1.25;  // levelling_sides
-bool lookahead_on_late_lines(const PlannerConfig& pc) {
-  return pc.levelling_lookahead_late_lines && pc.levelling_lookahead_rounds > 1;
+bool lookahead_on_late_lines(const PlannerConfig& pc, const RoundContext& ctx, double pitch_m) {
+  return pc.levelling_lookahead_late_lines && pc.levelling_lookahead_rounds > 1 &&
+         std::abs(levelling_pitch_m(pc, pc.levelling_late_spacing_ratio, ctx) - pitch_m) > 1e-9;
 }
 
 // One set of pass lines over every cell still short of flush (even spacing across the crown), then
@@ -506,7 +508,7 @@ std::vector<RegionPlan> levelling_sides(const RoundInput& in, const std::vector<
     for (int c : open_cells) td.push_back(in.wall.surface.grid.td_m[c]);
     const auto q = td.begin() + static_cast<long>(pc.levelling_late_td_quantile * static_cast<double>(td.size() - 1));
     std::nth_element(td.begin(), q, td.end());
-    const bool counted_on = lookahead_on_late_lines(pc) && std::abs(late_pitch_m - pitch_m) > 1e-9;
+    const bool counted_on = lookahead_on_late_lines(pc, ctx, pitch_m);
     late = *q <= late_layer_m * (counted_on ? kLateLayerAllowance : 1.0);
   }
   if (late) {
@@ -722,8 +724,7 @@ class LevellingRounds : public RoundStages {
     // round cannot (seed 1: round 2 laid 85 mm on a flank rising 25 mm a row, 35 mm over). Not in
     // the last round planner.max_rounds allows: nothing would lay what it leaves them.
     const std::size_t own_segments = problem.segments.size();
-    if (lookahead_on_late_lines(pc) && !sides.empty() && in.number < pc.max_rounds &&
-        std::abs(levelling_pitch_m(pc, pc.levelling_late_spacing_ratio, ctx) - sides.front().spacing_m) > 1e-9)
+    if (!sides.empty() && in.number < pc.max_rounds && lookahead_on_late_lines(pc, ctx, sides.front().spacing_m))
       add_segments(in, cells, levelling_sides(in, open_cells, ctx, true), ctx, problem, true, sides.size());
     ctx.report(in.number, 0.3);
     problem.lambda_mm2_per_s = pc.time_weight_mm2_per_s;
