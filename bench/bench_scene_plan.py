@@ -1,0 +1,169 @@
+"""Whole-scene plan benchmark (issue 16's target "a whole-scene scan: only the bay's cells graded;
+plan equal within 1 % to the bay alone"): the job planned for the arm (`plan_for_arm`, the figures of
+report.json via `summarise_job`) on the generator's scenes around the same default bay:
+
+- `bay alone`: the bay as the demo plans it (the reference);
+- `face`: the bay and the face at its end (no lining, invert, duct or rig);
+- `scene without duct`: 2 m of lining, the invert, the face and the rig's carrier;
+- `whole scene`: the same with a 1.2 m ventilation duct hung 0.3 m under the crown over both bays
+  (bench_axis's scene: its surface figures are there).
+
+Per case: status and problems (codes), the executed residual (min / max / RMS), levels after, cells
+at level -1 and above level 0, required volume, the executed volumes (sprayed, on the wall, landed
+outside the bay), cycle time and its ratio to the physical
+limit, the arm's clearance (samples below the margins, the least distance per link), obstructed and
+leaned cells; and against the bay alone: the required volume, the sprayed volume, the cycle time and
+the residual RMS, in per cent. `targets`: whether each scene's plan is within 1 % of the bay alone's
+(required volume, sprayed volume, cycle time) and executable, with the measured figures.
+
+    python bench/bench_scene_plan.py --out bench/results [--cases face ...] [--seed 1]
+        [--set clearance.nozzle_lean_fade_rad_per_m=0.01 ...]
+
+The scenes take 8-12 min each on 2 cores (the stages are printed as they start).
+Writes <out>/scene_plan.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+import shotcrete
+from shotcrete import _core
+from shotcrete.robot import load_robot
+
+CASES = {
+    "bay alone": {},
+    "face": {"context_enabled": True, "context_previous_bay_m": 0.0, "context_invert_depth_m": 0.0},
+    "scene without duct": {"context_enabled": True, "context_rig_length_m": 4.0},
+    "whole scene": {"context_enabled": True, "context_rig_length_m": 4.0, "context_duct_diameter_m": 1.2,
+                    "context_duct_gap_m": 0.3},
+}
+
+
+def apply_setting(cfg, text: str) -> None:
+    """`section.key=value` onto the config (numbers, true/false, comma-separated lists, text)."""
+    key, _, value = text.partition("=")
+    section, _, name = key.partition(".")
+    if not value or not name or not hasattr(cfg, section) or not hasattr(getattr(cfg, section), name):
+        raise SystemExit(f"--set {text!r}: expected section.key=value with a key of the config")
+    old = getattr(getattr(cfg, section), name)
+    try:
+        setattr(getattr(cfg, section), name, _parse(old, value))
+    except (ValueError, TypeError) as e:
+        raise SystemExit(f"--set {text!r}: {e}") from None
+
+
+def _parse(old, value: str):
+    if isinstance(old, bool):
+        new = value.lower() == "true"
+    elif isinstance(old, int):
+        new = int(value)
+    elif isinstance(old, float):
+        new = float(value)
+    elif isinstance(old, str):
+        new = value
+    else:
+        new = [float(v) for v in value.split(",")]
+    return new
+
+
+def plan_case(name: str, base_cfg, seed: int) -> dict:
+    cfg = base_cfg.copy()
+    cfg.synth.seed = seed
+    for key, value in CASES[name].items():
+        setattr(cfg.synth, key, value)
+    cloud = _core.make_synthetic_bay(cfg.synth).sample_scan(cfg.grid.cell_size_m)
+    t0 = time.perf_counter()
+    last = [""]
+
+    def progress(stage: str, fraction: float) -> None:
+        if stage != last[0]:
+            last[0] = stage
+            print(f"  [{name}] {time.perf_counter() - t0:7.1f} s  {stage}", flush=True)
+
+    surface = _core.build_surface(cloud, cfg)
+    robot = load_robot(cfg)
+    arm = _core.plan_for_arm(surface, cfg, robot, progress)
+    s = _core.summarise_job(surface, arm, robot, cfg, points_in=len(cloud)).to_dict()
+    seconds = time.perf_counter() - t0
+    levels = {int(k): int(v) for k, v in s["levels_after"].items()}
+    res = s["residual_mm"]
+    clear = s.get("clearance") or {}
+    ob = s.get("obstructed") or {}
+    return {
+        "case": name, "seed": seed, "scan_points": len(cloud), "cells": s["cells"],
+        "status": s["status"], "problems": [p["code"] for p in s["problems"]],
+        "residual_mm": {k: round(res[k], 2) for k in ("min", "max", "rms")},
+        "levels_after": levels, "cells_level_minus_1": sum(v for k, v in levels.items() if k < 0),
+        "cells_above_level_0": sum(v for k, v in levels.items() if k > 0),
+        "unreachable_cells": s["unreachable_cells"], "speed_capped": s["speed_capped"],
+        "required_volume_m3": round(s["required_volume_m3"], 4), "sprayed_volume_m3": round(s["executed"]["sprayed_m3"], 4),
+        "on_wall_m3": round(s["executed"]["on_wall_m3"], 4), "outside_bay_m3": round(s["executed"]["outside_m3"], 4),
+        "cycle_time_s": round(s["cycle_time_s"], 1), "cycle_time_ratio": round(s["cycle_time_ratio"], 3),
+        "cycle_time_breakdown_s": {k: round(v, 1) for k, v in s["cycle_time_breakdown_s"].items()},
+        "joint_limit_ratios": {"velocity": round(s["trajectory"]["max_velocity_ratio"], 3),
+                               "acceleration": round(s["trajectory"]["max_acceleration_ratio"], 3)},
+        "clearance_link_samples_below_margin": clear.get("samples_below_margin"),  # summed over the links
+        "clearance_samples": clear.get("samples"),
+        "clearance_least_m": {l["link"]: round(l["min_m"], 3) for l in clear.get("links", [])},
+        "obstructed_cells": ob.get("cells", 0), "leaned_cells": ob.get("leaned_cells", 0),
+        "max_lean_deg": round(ob.get("max_lean_deg", 0.0), 1),
+        "wall_s": round(seconds, 1),
+    }
+
+
+def relative(row: dict, ref: dict) -> dict:
+    pct = lambda a, b: round(100.0 * (a / b - 1.0), 2) if b else None  # noqa: E731
+    return {"required_volume_pct": pct(row["required_volume_m3"], ref["required_volume_m3"]),
+            "sprayed_volume_pct": pct(row["sprayed_volume_m3"], ref["sprayed_volume_m3"]),
+            "cycle_time_pct": pct(row["cycle_time_s"], ref["cycle_time_s"]),
+            "residual_rms_pct": pct(row["residual_mm"]["rms"], ref["residual_mm"]["rms"])}
+
+
+def targets(rows: list[dict]) -> list[dict]:
+    out = []
+    for r in rows:
+        if "vs_bay_alone" not in r:
+            continue
+        v = r["vs_bay_alone"]
+        within = all(abs(v[k]) <= 1.0 for k in ("required_volume_pct", "sprayed_volume_pct", "cycle_time_pct"))
+        out.append({"target": f"{r['case']}: plan within 1 % of the bay alone's (required and sprayed volume, "
+                              "cycle time) and executable",
+                    "measured": {**v, "status": r["status"], "problems": r["problems"]},
+                    "met": bool(within and r["status"] == "ok")})
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=Path("bench/results"))
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
+    ap.add_argument("--set", dest="settings", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="a config value for every case (repeatable)")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    cfg = shotcrete.load_config()
+    for text in args.settings:
+        apply_setting(cfg, text)
+    cases = list(dict.fromkeys(["bay alone", *args.cases]))  # the reference first, always
+    rows = []
+    for name in cases:
+        print(f"=== {name}", flush=True)
+        row = plan_case(name, cfg, args.seed)
+        if name != "bay alone":
+            row["vs_bay_alone"] = relative(row, rows[0])
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    result = {"machine": platform.machine(), "settings": args.settings, "cases": rows, "targets": targets(rows)}
+    (args.out / "scene_plan.json").write_text(json.dumps(result, indent=1) + "\n")
+    print(json.dumps(result["targets"], indent=1))
+
+
+if __name__ == "__main__":
+    main()
