@@ -9,15 +9,18 @@ report.json via `summarise_job`) on the generator's scenes around the same defau
   (bench_axis's scene: its surface figures are there).
 
 Per case: status and problems (codes), the executed residual (min / max / RMS), levels after, cells
-at level -1 and above level 0, required volume, the executed volumes (sprayed, on the wall, landed
+below level 0 and above level 0, required volume, the executed volumes (sprayed, on the wall, landed
 outside the bay), cycle time and its ratio to the physical
 limit, the arm's clearance (samples below the margins, the least distance per link), obstructed and
 leaned cells; and against the bay alone: the required volume, the sprayed volume, the cycle time and
 the residual RMS, in per cent. `targets`: whether each scene's plan is within 1 % of the bay alone's
 (required volume, sprayed volume, cycle time) and executable, with the measured figures.
 
-    python bench/bench_scene_plan.py --out bench/results [--cases face ...] [--seed 1]
+    python bench/bench_scene_plan.py --out bench/results [--cases face ...] [--seed 1] [--note TEXT]
         [--set clearance.nozzle_lean_fade_rad_per_m=0.01 ...]
+
+`--set` applies to every case (the bay alone too) and is validated as a config file would be; the
+scene (`synth.context_*`) and the seed are the cases' and `--seed`'s.
 
 The scenes take 8-12 min each on 2 cores (the stages are printed as they start).
 Writes <out>/scene_plan.json.
@@ -51,6 +54,8 @@ def apply_setting(cfg, text: str) -> None:
     section, _, name = key.partition(".")
     if not value or not name or not hasattr(cfg, section) or not hasattr(getattr(cfg, section), name):
         raise SystemExit(f"--set {text!r}: expected section.key=value with a key of the config")
+    if section == "synth" and (name == "seed" or name.startswith("context_")):
+        raise SystemExit(f"--set {text!r}: the cases set the scene and --seed the seed")
     old = getattr(getattr(cfg, section), name)
     try:
         setattr(getattr(cfg, section), name, _parse(old, value))
@@ -60,6 +65,8 @@ def apply_setting(cfg, text: str) -> None:
 
 def _parse(old, value: str):
     if isinstance(old, bool):
+        if value.lower() not in ("true", "false"):
+            raise ValueError(f"expected true or false, got {value!r}")
         new = value.lower() == "true"
     elif isinstance(old, int):
         new = int(value)
@@ -70,6 +77,10 @@ def _parse(old, value: str):
     else:
         new = [float(v) for v in value.split(",")]
     return new
+
+
+def _round(x, digits: int):
+    return None if x is None else round(x, digits)
 
 
 def plan_case(name: str, base_cfg, seed: int) -> dict:
@@ -95,22 +106,28 @@ def plan_case(name: str, base_cfg, seed: int) -> dict:
     res = s["residual_mm"]
     clear = s.get("clearance") or {}
     ob = s.get("obstructed") or {}
+    ex = s.get("executed") or {}
+    tr = s.get("trajectory") or {}
     return {
         "case": name, "seed": seed, "scan_points": len(cloud), "cells": s["cells"],
         "status": s["status"], "problems": [p["code"] for p in s["problems"]],
         "residual_mm": {k: round(res[k], 2) for k in ("min", "max", "rms")},
-        "levels_after": levels, "cells_level_minus_1": sum(v for k, v in levels.items() if k < 0),
+        "planned_residual_rms_mm": _round(s["planned_residual_mm"]["rms"], 2),
+        "planned_vs_executed_rms_mm": _round((s.get("planned_vs_executed_mm") or {}).get("rms"), 2),
+        "levels_after": levels, "cells_below_level_0": sum(v for k, v in levels.items() if k < 0),
         "cells_above_level_0": sum(v for k, v in levels.items() if k > 0),
         "unreachable_cells": s["unreachable_cells"], "speed_capped": s["speed_capped"],
-        "required_volume_m3": round(s["required_volume_m3"], 4), "sprayed_volume_m3": round(s["executed"]["sprayed_m3"], 4),
-        "on_wall_m3": round(s["executed"]["on_wall_m3"], 4), "outside_bay_m3": round(s["executed"]["outside_m3"], 4),
-        "cycle_time_s": round(s["cycle_time_s"], 1), "cycle_time_ratio": round(s["cycle_time_ratio"], 3),
+        "required_volume_m3": round(s["required_volume_m3"], 4), "sprayed_volume_m3": _round(ex.get("sprayed_m3"), 4),
+        "on_wall_m3": _round(ex.get("on_wall_m3"), 4), "outside_bay_m3": _round(ex.get("outside_m3"), 4),
+        "cycle_time_s": _round(s["cycle_time_s"], 1), "cycle_time_ratio": _round(s["cycle_time_ratio"], 3),
         "cycle_time_breakdown_s": {k: round(v, 1) for k, v in s["cycle_time_breakdown_s"].items()},
-        "joint_limit_ratios": {"velocity": round(s["trajectory"]["max_velocity_ratio"], 3),
-                               "acceleration": round(s["trajectory"]["max_acceleration_ratio"], 3)},
-        "clearance_link_samples_below_margin": clear.get("samples_below_margin"),  # summed over the links
+        "joint_limit_ratios": {"velocity": _round(tr.get("max_velocity_ratio"), 3),
+                               "acceleration": _round(tr.get("max_acceleration_ratio"), 3)},
+        # summed over the links and the link pairs (a sample counts once for each link below its margin)
+        "clearance_link_samples_below_margin": clear.get("samples_below_margin"),
+        "clearance_moving_samples_below_margin": clear.get("moving_samples_below_margin"),
         "clearance_samples": clear.get("samples"),
-        "clearance_least_m": {l["link"]: round(l["min_m"], 3) for l in clear.get("links", [])},
+        "clearance_least_m": {l["link"]: _round(l["min_m"], 3) for l in clear.get("links", [])},
         "obstructed_cells": ob.get("cells", 0), "leaned_cells": ob.get("leaned_cells", 0),
         "max_lean_deg": round(ob.get("max_lean_deg", 0.0), 1),
         "wall_s": round(seconds, 1),
@@ -118,7 +135,7 @@ def plan_case(name: str, base_cfg, seed: int) -> dict:
 
 
 def relative(row: dict, ref: dict) -> dict:
-    pct = lambda a, b: round(100.0 * (a / b - 1.0), 2) if b else None  # noqa: E731
+    pct = lambda a, b: round(100.0 * (a / b - 1.0), 2) if a is not None and b else None  # noqa: E731
     return {"required_volume_pct": pct(row["required_volume_m3"], ref["required_volume_m3"]),
             "sprayed_volume_pct": pct(row["sprayed_volume_m3"], ref["sprayed_volume_m3"]),
             "cycle_time_pct": pct(row["cycle_time_s"], ref["cycle_time_s"]),
@@ -131,7 +148,7 @@ def targets(rows: list[dict]) -> list[dict]:
         if "vs_bay_alone" not in r:
             continue
         v = r["vs_bay_alone"]
-        within = all(abs(v[k]) <= 1.0 for k in ("required_volume_pct", "sprayed_volume_pct", "cycle_time_pct"))
+        within = all(v[k] is not None and abs(v[k]) <= 1.0 for k in ("required_volume_pct", "sprayed_volume_pct", "cycle_time_pct"))
         out.append({"target": f"{r['case']}: plan within 1 % of the bay alone's (required and sprayed volume, "
                               "cycle time) and executable",
                     "measured": {**v, "status": r["status"], "problems": r["problems"]},
@@ -144,6 +161,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("bench/results"))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
+    ap.add_argument("--note", default="", help="what the run was measured on (written with the results)")
     ap.add_argument("--set", dest="settings", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="a config value for every case (repeatable)")
     args = ap.parse_args()
@@ -151,6 +169,10 @@ def main() -> None:
     cfg = shotcrete.load_config()
     for text in args.settings:
         apply_setting(cfg, text)
+    try:
+        cfg.validate()
+    except ValueError as e:
+        raise SystemExit(f"--set: {e}") from None
     cases = list(dict.fromkeys(["bay alone", *args.cases]))  # the reference first, always
     rows = []
     for name in cases:
@@ -160,7 +182,7 @@ def main() -> None:
             row["vs_bay_alone"] = relative(row, rows[0])
         rows.append(row)
         print(json.dumps(row), flush=True)
-    result = {"machine": platform.machine(), "settings": args.settings, "cases": rows, "targets": targets(rows)}
+    result = {"machine": platform.machine(), "note": args.note, "settings": args.settings, "cases": rows, "targets": targets(rows)}
     (args.out / "scene_plan.json").write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result["targets"], indent=1))
 
