@@ -17,7 +17,7 @@ the residual RMS, in per cent. `targets`: whether each scene's plan is within 1 
 (required volume, sprayed volume, cycle time) and executable, with the measured figures.
 
     python bench/bench_scene_plan.py --out bench/results [--cases face ...] [--seed 1] [--note TEXT]
-        [--set clearance.nozzle_lean_fade_rad_per_m=0.01 ...]
+        [--set clearance.nozzle_lean_fade_rad_per_m=0.01 --set robot.base_position_m=[0.2,0,-1.2] ...]
 
 `--set` applies to every case (the bay alone too) and is validated as a config file would be; the
 scene (`synth.context_*`) and the seed are the cases' and `--seed`'s.
@@ -33,10 +33,8 @@ import platform
 import time
 from pathlib import Path
 
-import numpy as np
-
-import shotcrete
 from shotcrete import _core
+from shotcrete.config import _bool_keys, check_config_text
 from shotcrete.robot import load_robot
 
 CASES = {
@@ -48,35 +46,26 @@ CASES = {
 }
 
 
-def apply_setting(cfg, text: str) -> None:
-    """`section.key=value` onto the config (numbers, true/false, comma-separated lists, text)."""
-    key, _, value = text.partition("=")
-    section, _, name = key.partition(".")
-    if not value or not name or not hasattr(cfg, section) or not hasattr(getattr(cfg, section), name):
-        raise SystemExit(f"--set {text!r}: expected section.key=value with a key of the config")
-    if section == "synth" and (name == "seed" or name.startswith("context_")):
-        raise SystemExit(f"--set {text!r}: the cases set the scene and --seed the seed")
-    old = getattr(getattr(cfg, section), name)
+def config_with(settings: list[str]):
+    """The default config with `section.key=value` settings, read as a config file holding them
+    (the package's checks and the core's reader: types, ranges, unknown keys; lists as [a, b, c])."""
+    sections: dict[str, list[str]] = {}
+    for text in settings:
+        key, _, value = text.partition("=")
+        section, _, name = key.partition(".")
+        if not (section and name and value.strip()):
+            raise SystemExit(f"--set {text!r}: expected section.key=value")
+        if section == "synth" and (name == "seed" or name.startswith("context_")):
+            raise SystemExit(f"--set {text!r}: the cases set the scene and --seed the seed")
+        if key in _bool_keys() and value.strip() not in ("true", "false"):
+            raise SystemExit(f"--set {text!r}: expected true or false")
+        sections.setdefault(section, []).append(f"  {name}: {value}\n")
+    yaml_text = "".join(f"{section}:\n" + "".join(lines) for section, lines in sections.items())
     try:
-        setattr(getattr(cfg, section), name, _parse(old, value))
-    except (ValueError, TypeError) as e:
-        raise SystemExit(f"--set {text!r}: {e}") from None
-
-
-def _parse(old, value: str):
-    if isinstance(old, bool):
-        if value.lower() not in ("true", "false"):
-            raise ValueError(f"expected true or false, got {value!r}")
-        new = value.lower() == "true"
-    elif isinstance(old, int):
-        new = int(value)
-    elif isinstance(old, float):
-        new = float(value)
-    elif isinstance(old, str):
-        new = value
-    else:
-        new = [float(v) for v in value.split(",")]
-    return new
+        check_config_text(yaml_text.encode(), Path("--set"))
+        return _core.Config.from_yaml(yaml_text)
+    except ValueError as e:
+        raise SystemExit(f"--set: {e}") from None
 
 
 def _round(x, digits: int):
@@ -166,13 +155,7 @@ def main() -> None:
                     help="a config value for every case (repeatable)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    cfg = shotcrete.load_config()
-    for text in args.settings:
-        apply_setting(cfg, text)
-    try:
-        cfg.validate()
-    except ValueError as e:
-        raise SystemExit(f"--set: {e}") from None
+    cfg = config_with(args.settings)
     cases = list(dict.fromkeys(["bay alone", *args.cases]))  # the reference first, always
     rows = []
     for name in cases:
