@@ -20,14 +20,15 @@ namespace {
 
 constexpr double kR = 4.5;  // the narrow bay's wall radius
 
-// Half cylinder of radius kR about the x axis over x in [x0, x1], points every ~4 cm.
-Points narrow_wall(double x0, double x1) {
-  const int n_theta = static_cast<int>(M_PI * kR / 0.04), n_d = static_cast<int>((x1 - x0) / 0.04);
+// Half cylinder of radius R (the narrow bay's by default) about the x axis over x in [x0, x1],
+// points every ~4 cm.
+Points narrow_wall(double x0, double x1, double R = kR) {
+  const int n_theta = static_cast<int>(M_PI * R / 0.04), n_d = static_cast<int>((x1 - x0) / 0.04);
   Points p(n_theta * n_d, 3);
   for (int i = 0; i < n_theta; ++i)
     for (int j = 0; j < n_d; ++j) {
       const double th = M_PI * (i + 0.5) / n_theta, x = x0 + (x1 - x0) * (j + 0.5) / n_d;
-      p.row(i * n_d + j) << x, kR * std::cos(th), kR * std::sin(th);
+      p.row(i * n_d + j) << x, R * std::cos(th), R * std::sin(th);
     }
   return p;
 }
@@ -161,4 +162,91 @@ TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
     EXPECT_LT((grad - ref).norm(), 1e-6 * (1.0 + ref.norm())) << "sample " << i << "\n" << grad.transpose() << "\n" << ref.transpose();
   }
   EXPECT_GE(checked, 6);
+}
+
+// A face across a bay of the default radius (5.7 m) 0.6 m ahead of the base (x = 1.2) and a
+// pass right of the crown (y < 0) near it. Tracked from the posture a face scene's plan had
+// reached there (the slew pointing the boom ahead and to the right, measured on the default bay
+// with the face), the boom goes through the face: the path breaks a margin, by posture_allowance
+// (the room the tracking judges) and by the links' exact distances to the points. With the term's
+// room, timing_joint_path starts from the roomiest solution of the slew turns instead: a path whose
+// links keep their margins, every pose tracked exactly within the joint limits. With the face 8 m
+// off the room changes nothing (the same path to the bit). Gain 0 gives neither drift nor room.
+TEST(ClearanceTerm, APathThroughTheFaceStartsFromARoomierPosture) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const double x_face = 1.2, R = 5.7;
+  Points wall_pts = narrow_wall(-1.5, x_face, R);
+  std::vector<Eigen::Vector3d> face;
+  for (double y = -R; y <= R; y += 0.04)
+    for (double z = -1.5; z <= R; z += 0.04)
+      if (y * y + z * z < R * R) face.emplace_back(x_face, y, z);
+  Points all(wall_pts.rows() + static_cast<Eigen::Index>(face.size()), 3);
+  all.topRows(wall_pts.rows()) = wall_pts;
+  for (std::size_t k = 0; k < face.size(); ++k) all.row(wall_pts.rows() + static_cast<Eigen::Index>(k)) = face[k].transpose();
+  const WallOctree wall(all, 0.05);
+  const RobotConfig rc;
+  const ClearanceConfig cc;
+  const NullSpaceObjective term = clearance_objective(robot, wall, cc);
+  ASSERT_TRUE(term.active());
+  ASSERT_TRUE(static_cast<bool>(term.room));
+  NullSpaceObjective no_room = term;
+  no_room.room = nullptr;
+  // One pass, x 0.1 -> 0.6 at theta 2.27 rad (y < 0, right of the crown), 1 m off the wall.
+  const std::vector<Pass> pass = test::axial_region(1, 0.5, 0.2, 0.1, 2.27, {0.3}, R - 1.0, R);
+  const std::vector<NozzlePose>& poses = pass.front().waypoints;
+  Eigen::VectorXd seed(8);
+  seed << -0.86, 0.77, 1.57, 1.05, 2.01, 1.46, -0.03, -1.73;
+  bool tracked = false;
+  const auto before = timing_joint_path(robot, poses, seed, rc, &tracked, no_room);
+  ASSERT_TRUE(tracked);
+  const auto after = timing_joint_path(robot, poses, seed, rc, &tracked, term);
+  ASSERT_TRUE(tracked);
+  const auto least_room = [&](const std::vector<Eigen::VectorXd>& path) {
+    double least = std::numeric_limits<double>::infinity();
+    for (const auto& q : path) least = std::min(least, term.room(q));
+    return least;
+  };
+  // Independently: the exact distances of the links the spare degrees of freedom move (not the
+  // base, not the nozzle links) to the wall's points, against clearance.link_margin_m.
+  const std::vector<char> fixed = fixed_shapes(robot);
+  const auto least_exact = [&](const std::vector<Eigen::VectorXd>& path) {
+    double least = std::numeric_limits<double>::infinity();
+    for (const auto& q : path) {
+      const auto frames = robot.link_frames(q);
+      const auto& shapes = robot.collision_shapes();
+      for (std::size_t k = 0; k < shapes.size(); ++k)
+        if (!fixed[k] && shapes[k].link.rfind("nozzle", 0) != 0)
+          least = std::min(least, wall.exact_distance(shapes[k], frames[shapes[k].frame]));
+    }
+    return least;
+  };
+  const double r_before = least_room(before), r_after = least_room(after);
+  std::printf("room before %.3f (slew %.2f), after %.3f (slew %.2f) m\n", r_before, before.front()[0], r_after, after.front()[0]);
+  EXPECT_LT(r_before, 0.0);
+  EXPECT_GE(r_after, 0.0);
+  EXPECT_LT(least_exact(before), cc.link_margin_m);
+  EXPECT_GE(least_exact(after), cc.link_margin_m);
+  // With the face far off (x = 8 m) no path breaks a margin: the room changes nothing.
+  Points far = all;
+  for (Eigen::Index k = wall_pts.rows(); k < far.rows(); ++k) far(k, 0) = 8.0;
+  const WallOctree far_wall(far, 0.05);
+  const NullSpaceObjective far_term = clearance_objective(robot, far_wall, cc);
+  NullSpaceObjective far_no_room = far_term;
+  far_no_room.room = nullptr;
+  const auto far_with = timing_joint_path(robot, poses, seed, rc, &tracked, far_term);
+  const auto far_without = timing_joint_path(robot, poses, seed, rc, &tracked, far_no_room);
+  ASSERT_EQ(far_with.size(), far_without.size());
+  for (std::size_t k = 0; k < far_with.size(); ++k) EXPECT_EQ(far_with[k], far_without[k]) << k;
+  // Gain 0: no drift and no room (without the drift the settling takes a roomier start back).
+  ClearanceConfig no_drift = cc;
+  no_drift.null_space_gain = 0.0;
+  const NullSpaceObjective off = clearance_objective(robot, wall, no_drift);
+  EXPECT_FALSE(off.active());
+  EXPECT_FALSE(static_cast<bool>(off.room));
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    EXPECT_TRUE(robot.within_limits(after[k])) << k;
+    const TaskError te = task_error(robot, after[k], poses[k]);
+    EXPECT_LE(te.position_m, rc.ik_position_tolerance_m) << k;
+    EXPECT_LE(te.angle_rad, rc.ik_angle_tolerance_rad) << k;
+  }
 }

@@ -185,9 +185,12 @@ TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   // Axial passes over a uniform 100 mm bay (wall radius 5.7 m, d in [0, 0.8]) with a lean toward +d
   // that ramps from 0 at d = 0.4 m to 0.3 rad at the end: every waypoint's spray axis meets the wall
   // at the standoff, tipped off radial by the ramp's angle there, toward +d; the passes run on past
-  // the square start (edge_overrun_m) but not past the leaning end.
+  // the square start (edge_overrun_m) and past the leaning end by leaned_edge_overrun_m (less than
+  // edge_overrun_m here) with the lean held; with leaned_edge_overrun_m = 0 not past that end; the
+  // same ramp mirrored runs on past the front end.
   Surface s = analytic_bay(uniform_100mm);
   PlannerConfig pc;
+  pc.leaned_edge_overrun_m = 0.06;
   std::vector<int> all;
   for (int c = 0; c < s.grid.size(); ++c)
     if (s.grid.valid[c]) all.push_back(c);
@@ -213,7 +216,31 @@ TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   EXPECT_LT(worst_angle, 0.01);
   EXPECT_NEAR(steepest, 0.3, 0.01);
   EXPECT_NEAR(d_lo, 0.025 - pc.edge_overrun_m, 0.005);
-  EXPECT_NEAR(d_hi, 0.775, 0.005);
+  EXPECT_NEAR(d_hi, 0.775 + 0.06, 0.005);
+  pc.leaned_edge_overrun_m = 0.0;
+  double d_hi_none = -1e9;
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &lean))
+    for (const auto& w : p.waypoints) d_hi_none = std::max(d_hi_none, (w.position_m + pc.standoff_m * w.axis).x());
+  EXPECT_NEAR(d_hi_none, 0.775, 0.005);
+  // Mirrored: the lean toward -d at the front end (0.3 rad at d = 0.025 m, 0 from 0.4 m on). The
+  // run-on goes out past the front, the lean held, and the back end (square) runs on edge_overrun_m.
+  pc.leaned_edge_overrun_m = 0.06;
+  std::vector<Eigen::Vector3d> front(lean.size(), Eigen::Vector3d::Zero());
+  auto mirrored = [&](double d) { return ramp(0.8 - d); };
+  for (int c = 0; c < s.grid.size(); ++c) front[static_cast<std::size_t>(c)] = -mirrored(s.grid.d_center(s.grid.col_of(c))) * Eigen::Vector3d::UnitX();
+  double f_lo = 1e9, f_hi = -1e9, f_worst = 0;
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &front))
+    for (const auto& w : p.waypoints) {
+      const Eigen::Vector3d hit = w.position_m + pc.standoff_m * w.axis;
+      const Eigen::Vector3d radial = Eigen::Vector3d(0, hit.y(), hit.z()).normalized();
+      f_worst = std::max(f_worst, std::abs(std::acos(std::min(1.0, w.axis.dot(radial))) - mirrored(hit.x())));
+      if (mirrored(hit.x()) > 0.01) EXPECT_LT(w.axis.x(), 0.0);
+      f_lo = std::min(f_lo, hit.x());
+      f_hi = std::max(f_hi, hit.x());
+    }
+  EXPECT_NEAR(f_lo, 0.025 - 0.06, 0.005);
+  EXPECT_NEAR(f_hi, 0.775 + pc.edge_overrun_m, 0.005);
+  EXPECT_LT(f_worst, 0.01);
   lean.pop_back();
   EXPECT_THROW(plan_passes(s.grid, all, 0.2, pc, &lean), std::invalid_argument);
 }

@@ -253,7 +253,8 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
     """The same bay with the nozzle free to lean (default max_nozzle_lean_rad): no cell is
     obstructed; every cell's leaned pose keeps the nozzle link (brute force over the obstacle
     points) its margin from the face, leans toward the face and no further than allowed, the
-    cells far from the face stay square, and along each row the nozzle's place moves forward
+    cells far from the face stay square, the last column's poses keep the margin after the passes'
+    run-on there (planner.leaned_edge_overrun_m), and along each row the nozzle's place moves forward
     with the cell (the lean fades at clearance.nozzle_lean_fade_rad_per_m, 0.5 rad/m: at a 1 m
     standoff, half the spot's speed or more)."""
     cfg, surface, ob, pts = face_scene_obstruction(length_m=2.0)
@@ -272,6 +273,9 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
         a = leaned_axis(z, lean[row, col])
         tip = wall - S * a
         assert nozzle_distance(tip, a, pts).min() >= margin
+        if col == g.n_d - 1:  # the passes' run-on at the leaning end, the lean held
+            run_on = np.array([min(cfg.planner.edge_overrun_m, cfg.planner.leaned_edge_overrun_m), 0.0, 0.0])
+            assert nozzle_distance(tip + run_on, a, pts).min() >= margin
         tips[row, col] = tip[0]
         if angle[row, col] > 0:
             assert lean[row, col] @ np.array([1.0, 0, 0]) > 0.99 * angle[row, col]  # toward the face

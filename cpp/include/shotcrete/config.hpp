@@ -192,6 +192,8 @@ struct PlannerConfig {
   double time_weight_mm2_per_s = 500.0;  // optimal mode: squared residual (mm^2, summed over cells) worth 1 s
   double finish_tolerance_m = 0.02;    // optimal mode: stop when every cell is within this of flush
   double edge_overrun_m = 0.1;     // passes run on this far past the bay's ends (the arches)
+  double leaned_edge_overrun_m = 0.1;  // at most this far where the nozzle leans at that end (a face past
+                                       // it), the lean held; clearance room kept for it [m]; 0 = none
   double levelling_spacing_ratio = 0.5;  // optimal mode: pass spacing as a share of the two-pass spacing
   double levelling_late_spacing_ratio = 1.0;  // optimal mode: levelling_spacing_ratio once the layer left is thin
   double levelling_pitch_window = 0.15;  // optimal mode: the lines' pitch is the one of least ripple within +- this share of ratio x two-pass spacing (0: exactly that)

@@ -126,6 +126,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("time_weight_mm2_per_s", &PlannerConfig::time_weight_mm2_per_s, 0.0, 1e6, "optimal mode: residual mm^2 traded per s of spraying");
   f("finish_tolerance_m", &PlannerConfig::finish_tolerance_m, 0.001, 0.05, "optimal mode: flush tolerance [m]");
   f("edge_overrun_m", &PlannerConfig::edge_overrun_m, 0.0, 0.5, "pass run-on past the bay ends [m]");
+  f("leaned_edge_overrun_m", &PlannerConfig::leaned_edge_overrun_m, 0.0, 0.5, "at most this run-on where the nozzle leans at a bay end (a face past it), the lean held; the nozzle's lean keeps room for it [m]; 0 = none");
   f("levelling_spacing_ratio", &PlannerConfig::levelling_spacing_ratio, 0.2, 1.0, "optimal mode: pass spacing / two-pass spacing");
   f("levelling_late_spacing_ratio", &PlannerConfig::levelling_late_spacing_ratio, 0.2, 1.0, "optimal mode: levelling_spacing_ratio of the rounds after the first once the layer left is thin (fewer, longer pump spells)");
   f("levelling_pitch_window", &PlannerConfig::levelling_pitch_window, 0.0, 0.2, "optimal mode: the pass lines' pitch is the one of least ripple across equal lines (deposition.least_ripple_pitch) within +- this share of the spacing ratio x the two-pass spacing (0: exactly that; at most 0.2: the ripple falls with the pitch overall, a wider window slides to its low end)");

@@ -1,4 +1,5 @@
 #include "shotcrete/collision/clearance.hpp"
+#include "shotcrete/collision/transit.hpp"
 
 #include <fcl/fcl.h>
 #include <fcl/geometry/octree/octree.h>
@@ -919,10 +920,21 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
   NullSpaceObjective out;
   out.gain = config.null_space_gain;
   if (!(out.gain > 0.0)) return out;
-  const std::vector<ClearanceKeyPoint> keys = clearance_key_points(robot);
-  const double d0 = config.null_space_influence_m;
   const Robot* rb = &robot;
   const WallOctree* w = &wall;
+  // The room a posture leaves: the shapes the spare degrees of freedom move (not the base, not
+  // the nozzle links, which the task places), read up to 1 m past their margins. Only with the
+  // drift: without it the tracking's settling toward mid-range (the slew's 0 points the boom
+  // ahead) takes a roomier start back where it came from.
+  std::vector<char> skip = fixed_shapes(robot);
+  const auto& shapes = robot.collision_shapes();
+  for (std::size_t k = 0; k < shapes.size(); ++k)
+    if (shapes[k].link.rfind("nozzle", 0) == 0) skip[k] = 1;
+  const auto pairs = self_check_pairs(robot);
+  const ClearanceConfig cc = config;
+  out.room = [rb, w, skip, pairs, cc](const Eigen::VectorXd& q) { return posture_allowance(*rb, q, *w, cc, pairs, 1.0, &skip); };
+  const std::vector<ClearanceKeyPoint> keys = clearance_key_points(robot);
+  const double d0 = config.null_space_influence_m;
   out.gradient = [rb, w, keys, d0](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
     grad.setZero(q.size());
     std::vector<JointAxis> joints;

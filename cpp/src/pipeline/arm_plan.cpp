@@ -327,8 +327,19 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   auto leaned = [&](int c, const Eigen::Vector3d& lean) { return leaned_axis(square[static_cast<std::size_t>(c)], lean); };
   // 1. Where the square pose is too close, the least lean (steps of 0.05 rad, along the axis or
   //    around it, either way) that clears the obstacles, with half a cell and 1 cm to spare (a
-  //    one-cell pass runs half a cell either side; the spline between knots).
-  const double max_lean = config.clearance.max_nozzle_lean_rad, step = 0.05, spare = 0.5 * grid.cell_size_m + 0.01;
+  //    one-cell pass runs half a cell either side; the spline between knots); at the bay's end
+  //    columns of axial passes with the run-on at a leaning end (planner.leaned_edge_overrun_m),
+  //    the lean held, and 1 cm to spare.
+  const double max_lean = config.clearance.max_nozzle_lean_rad, step = 0.05, spare_inner = 0.5 * grid.cell_size_m + 0.01;
+  const bool axial_runon = config.planner.pass_direction == PassDirection::axial;
+  const PlannerConfig& pc = config.planner;
+  const double leaned_runon = std::min(pc.leaned_edge_overrun_m, std::max({pc.edge_overrun_m, pc.levelling_late_edge_overrun_m,
+                                                                           pc.graded_last_edge_overrun_m}));
+  const double spare_end = leaned_runon > 0.0 ? std::max(spare_inner, leaned_runon + 0.01) : spare_inner;
+  auto spare_of = [&](int c) {
+    const int col = grid.col_of(c);
+    return axial_runon && (col == 0 || col == grid.n_d - 1) ? spare_end : spare_inner;
+  };
   std::vector<Eigen::Vector3d> need(static_cast<std::size_t>(n), Eigen::Vector3d::Zero());
   std::vector<int> square_blocked;
   for (int c = 0; c < n; ++c) {
@@ -347,7 +358,7 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
     for (const double angle : angles) {
       if (found) break;
       for (const auto& t : dirs)
-        if (clearance_at(p, leaned(c, angle * t), nullptr) >= out.margin_m + spare) {
+        if (clearance_at(p, leaned(c, angle * t), nullptr) >= out.margin_m + spare_of(c)) {
           need[static_cast<std::size_t>(c)] = angle * t;
           found = true;
           break;

@@ -311,20 +311,44 @@ void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots, b
 }
 
 // At the bay's ends (the arches) run on past the last cell, so the end cells see the whole
-// spot like the others instead of half of it. Not where the nozzle leans there: it leans to keep
-// clear of something past that end (a face), and running on would bring it nearer.
-void add_edge_overrun(LineKnots& k, int n_u, double overrun_m) {
+// spot like the others instead of half of it. Where the nozzle leans at that end (to keep clear of
+// a face past it) it runs on at most leaned_overrun_m with the lean held: a leaned spot lays most
+// of its concrete on the side nearer the nozzle, so without a run-on the end cell gets only the
+// far tail and the cells behind it the peak. obstructed_cells keeps that much room for it.
+void add_edge_overrun(LineKnots& k, int n_u, double overrun_m, double leaned_overrun_m, const Eigen::Vector3d& ex) {
   auto& knots = k.poses;
-  if (k.u.front() == 0 && !k.leaned.front()) {
-    NozzlePose extra = knots.front();
-    extra.position_m -= overrun_m * (knots[1].position_m - knots[0].position_m).normalized();
-    knots.insert(knots.begin(), extra);
+  // Knots past `end` (its neighbour `inner`) over `run` metres, outward along `out` (the lines are
+  // built with u, i.e. d, increasing: -ex at the front, +ex at the back). A leaned nozzle's place
+  // also moves toward or off the wall as its lean changes: there the run-on goes along the
+  // tunnel's axis, which keeps the held spray axis on the wall, in steps no longer than the last
+  // knots' (the axes are splined on the nozzle's path: one long step after short ones would
+  // overshoot the lean).
+  auto run_on = [&](const NozzlePose& end, const NozzlePose& inner, bool leaned, const Eigen::Vector3d& out_dir) {
+    const Eigen::Vector3d along = end.position_m - inner.position_m;
+    const double run = leaned ? std::min(overrun_m, leaned_overrun_m) : overrun_m;
+    std::vector<NozzlePose> out;
+    if (!(run > 0)) return out;
+    if (!leaned) {
+      out.push_back(end);
+      out.back().position_m += run * along.normalized();
+      return out;
+    }
+    const double last = std::max(std::abs(along.dot(ex)), 1e-3);
+    const int n = std::min(50, static_cast<int>(std::ceil(run / last - 1e-9)));
+    for (int i = 1; i <= n; ++i) {
+      out.push_back(end);
+      out.back().position_m += (run * i / n) * out_dir;
+    }
+    return out;
+  };
+  // (k.u and k.leaned keep describing the cells' knots only: nothing reads them after this.)
+  if (k.u.front() == 0) {
+    auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex);
+    knots.insert(knots.begin(), extra.rbegin(), extra.rend());
   }
-  if (k.u.back() == n_u - 1 && !k.leaned.back()) {
-    const std::size_t m = knots.size();
-    NozzlePose extra = knots.back();
-    extra.position_m += overrun_m * (knots[m - 1].position_m - knots[m - 2].position_m).normalized();
-    knots.push_back(extra);
+  if (k.u.back() == n_u - 1) {
+    auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex);
+    knots.insert(knots.end(), extra.begin(), extra.end());
   }
 }
 
@@ -426,7 +450,7 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
       if (knots.poses.empty()) continue;
       const bool leaned = std::any_of(knots.leaned.begin(), knots.leaned.end(), [](char l) { return l != 0; });
       smooth_knot_radii(grid.axis, knots.poses, leaned, config.standoff_m);
-      if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m);
+      if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m, config.leaned_edge_overrun_m, grid.axis.ex);
       Pass pass;
       pass.line = line;
       pass.waypoints = spline_poses(knots.poses, config.sample_step_m);

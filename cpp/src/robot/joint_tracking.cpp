@@ -205,6 +205,37 @@ std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::ve
     jp = solve_path(robot, poses, seed, rc);
     ok = track_from(jp.q.front(), q);
   }
+  // The seed carries the last region's posture family: the boom may then stand in what lies
+  // beyond the wall (a face: a link wholly past it reads far from the scan's points, so the
+  // clearance term cannot pull it back). A path that breaks a margin gives way to the one tracked
+  // from the roomiest solution of its first pose from the seed turned about the slew, if that
+  // path has more room (the least at five postures along it).
+  if (ok && objective.room) {
+    const auto path_room = [&](const std::vector<Eigen::VectorXd>& path) {
+      double least = std::numeric_limits<double>::infinity();
+      for (int k = 0; k <= 4; ++k) least = std::min(least, objective.room(path[(path.size() - 1) * k / 4]));
+      return least;
+    };
+    const double have = path_room(q);
+    if (have < 0.0) {
+      double best_room = objective.room(q.front());
+      Eigen::VectorXd best;
+      for (const double turn : {0.25, -0.25, 0.5, -0.5, 0.75, -0.75, 1.0}) {
+        Eigen::VectorXd s = seed;
+        s[0] = std::clamp(s[0] + turn * M_PI, robot.lower_limits()[0], robot.upper_limits()[0]);
+        Eigen::VectorXd cand;
+        try {
+          cand = solve_path(robot, {poses.front()}, s, rc).q.front();
+        } catch (const std::exception&) {
+          continue;  // no solution from this turn
+        }
+        const double room = objective.room(cand);
+        if (room > best_room + 1e-3) best_room = room, best = cand;
+      }
+      std::vector<Eigen::VectorXd> alt;
+      if (best.size() > 0 && track_from(best, alt) && path_room(alt) > have + 1e-3) q = std::move(alt);
+    }
+  }
   if (tracked) *tracked = ok;
   return ok ? q : jp.q;
 }

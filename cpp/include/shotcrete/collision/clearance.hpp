@@ -167,7 +167,10 @@ std::vector<ClearanceKeyPoint> clearance_key_points(const Robot& robot);
 /// The tracking's clearance term (clearance.null_space_gain, null_space_influence_m d0): the
 /// gradient in joint space of U(q) = sum over the key points of 0.5 (d0 - d)^2 / d0 where d < d0,
 /// d the field's smooth reading at the point less its radius. Point Jacobians from the joints' axes
-/// (Robot::link_frames(q, joints)). `wall` must outlive the objective. gain 0: an inactive objective.
+/// (Robot::link_frames(q, joints)). `wall` must outlive the objective. It also gives `room`
+/// (posture_allowance without the base and the nozzle links, read up to 1 m past the margins).
+/// gain 0: an inactive objective, no room either (without the drift the tracking's settling
+/// toward mid-range takes a roomier start back).
 NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config);
 
 /// The transit router's screen (transit.cpp): the same check on the octree's reading alone (no

@@ -29,6 +29,9 @@ void finite_differences(const std::vector<double>& t, const std::vector<Eigen::V
 struct NullSpaceObjective {
   std::function<void(const Eigen::VectorXd& q, Eigen::VectorXd& gradient)> gradient;
   double gain = 0.0;
+  // Optional: the room of posture q (least distance less margin over the links the spare degrees
+  // of freedom move; < 0: a margin broken). timing_joint_path picks the start posture by it.
+  std::function<double(const Eigen::VectorXd& q)> room;
   bool active() const { return gain > 0.0 && static_cast<bool>(gradient); }
 };
 
@@ -49,7 +52,11 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
 /// configuration, then track_joint_path follows the poses exactly from there. If that leaves the
 /// limits or misses a target by more than the config's tolerances, solve_path's result is used and
 /// *tracked (optional) is false. With an active `objective` (the clearance term) the tracking
-/// tries it at each limit gain, then at a quarter of its gain, then without it.
+/// tries it at each limit gain, then at a quarter of its gain, then without it. With
+/// `objective.room`, a tracked path that breaks a margin (the least room at five postures along
+/// it) is replaced by the one tracked from the roomiest of the first pose's solutions from the
+/// seed turned about the first joint (the slew) by +-45, +-90, +-135 and 180 deg, when that path
+/// has more room.
 std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                                const Eigen::VectorXd& seed, const RobotConfig& robot_config,
                                                bool* tracked = nullptr, const NullSpaceObjective& objective = {});
