@@ -559,8 +559,10 @@ double point_shape_distance(const Eigen::Vector3d& p_world, const CollisionShape
   return local_shape_distance(p, shape);
 }
 
+bool nozzle_shape(const CollisionShape& shape) { return shape.link.rfind("nozzle", 0) == 0; }
+
 double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config) {
-  return shape.link.rfind("nozzle", 0) == 0 ? config.nozzle_margin_m : config.link_margin_m;
+  return nozzle_shape(shape) ? config.nozzle_margin_m : config.link_margin_m;
 }
 
 std::vector<char> fixed_shapes(const Robot& robot) {
@@ -904,7 +906,7 @@ ClearanceReport run_check(const Robot& robot, const TimedTrajectory& trajectory,
 std::vector<ClearanceKeyPoint> clearance_key_points(const Robot& robot) {
   std::vector<ClearanceKeyPoint> keys;
   for (const CollisionShape& s : robot.collision_shapes()) {
-    if (s.link.rfind("nozzle", 0) == 0) continue;  // placed by the task: the null space cannot move them
+    if (nozzle_shape(s)) continue;  // placed by the task: the null space cannot move them
     if (s.kind == CollisionShape::Kind::cylinder) {
       const int m = std::max(1, static_cast<int>(std::ceil(s.length_m / 0.25)));
       for (int k = 0; k < m; ++k)
@@ -929,7 +931,7 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
   std::vector<char> skip = fixed_shapes(robot);
   const auto& shapes = robot.collision_shapes();
   for (std::size_t k = 0; k < shapes.size(); ++k)
-    if (shapes[k].link.rfind("nozzle", 0) == 0) skip[k] = 1;
+    if (nozzle_shape(shapes[k])) skip[k] = 1;
   const auto pairs = self_check_pairs(robot);
   const ClearanceConfig cc = config;
   out.room = [rb, w, skip, pairs, cc](const Eigen::VectorXd& q) { return posture_allowance(*rb, q, *w, cc, pairs, 1.0, &skip); };

@@ -274,7 +274,7 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   const Eigen::Isometry3d t0 = robot.fk(q0), t1 = robot.fk(q1);
   std::vector<std::pair<CollisionShape, Eigen::Isometry3d>> rigid;  // shape, its link's pose in the tip frame
   for (const auto& sh : robot.collision_shapes()) {
-    if (sh.link.rfind("nozzle", 0) != 0) continue;
+    if (!nozzle_shape(sh)) continue;
     const Eigen::Isometry3d r0 = t0.inverse() * f0[static_cast<std::size_t>(sh.frame)];
     const Eigen::Isometry3d r1 = t1.inverse() * f1[static_cast<std::size_t>(sh.frame)];
     if (!r0.matrix().isApprox(r1.matrix(), 1e-9)) continue;
@@ -331,8 +331,8 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   //    columns of axial passes with the run-on at a leaning end (planner.leaned_edge_overrun_m),
   //    the lean held, and 1 cm to spare.
   const double max_lean = config.clearance.max_nozzle_lean_rad, step = 0.05, spare_inner = 0.5 * grid.cell_size_m + 0.01;
-  const bool axial_runon = config.planner.pass_direction == PassDirection::axial;
   const PlannerConfig& pc = config.planner;
+  const bool axial_runon = pc.pass_direction == PassDirection::axial;
   const double leaned_runon = std::min(pc.leaned_edge_overrun_m, std::max({pc.edge_overrun_m, pc.levelling_late_edge_overrun_m,
                                                                            pc.graded_last_edge_overrun_m}));
   const double spare_end = leaned_runon > 0.0 ? std::max(spare_inner, leaned_runon + 0.01) : spare_inner;

@@ -88,7 +88,10 @@ double shape_distance(const CollisionShape& a, const Eigen::Isometry3d& pose_a, 
 /// the octree query is checked against.
 double point_shape_distance(const Eigen::Vector3d& p, const CollisionShape& shape, const Eigen::Isometry3d& link_pose);
 
-/// The wall margin of a shape: nozzle_margin_m for links named nozzle*, else link_margin_m.
+/// A shape of the nozzle links (named nozzle*): the task places them, the null space cannot move them.
+bool nozzle_shape(const CollisionShape& shape);
+
+/// The wall margin of a shape: nozzle_margin_m for the nozzle links (nozzle_shape), else link_margin_m.
 double shape_margin_m(const CollisionShape& shape, const ClearanceConfig& config);
 
 /// Shape pairs checked against each other: every pair on links that are not neighbours on the
