@@ -22,7 +22,7 @@ the residual RMS, in per cent. `targets`: whether each scene's plan is within 1 
 `--set` applies to every case (the bay alone too) and is validated as a config file would be; the
 scene (`synth.context_*`) and the seed are the cases' and `--seed`'s.
 
-The scenes take 9-13 min each on 2 idle cores (the stages are printed as they start).
+The scenes take 3-9 min each on 2 idle cores (the stages are printed as they start).
 Writes <out>/scene_plan.json.
 """
 from __future__ import annotations

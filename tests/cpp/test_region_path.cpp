@@ -646,6 +646,86 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   }
 }
 
+// A leaning nozzle's axis turns along its passes (the lean fades over the bay). The runs, turns,
+// stop-and-go runs and leads carry that turn down to 0 over at most 0.1 m instead of holding the
+// axis (the turn stepped from 0.05 deg per 50 Hz sample to 0 within one sample there: joint
+// accelerations of 3-4x their limits in the face scene); the path's positions are those of square
+// axes.
+TEST(RegionPath, JoinsAndLeadsCarryTheAxisTurnOfThePassesWithoutAStep) {
+  Config cfg;
+  const double rate = 0.3;  // rad per metre of pass, about x: sideways, no pass end leans ahead
+  auto tilted = [&](double z, bool back) {
+    Pass p = line_along_x(z, 0.25);
+    for (auto& w : p.waypoints) {
+      const double a = rate * w.position_m.x();
+      w.axis = Eigen::Vector3d(0.0, std::sin(a), std::cos(a));
+    }
+    if (back) std::reverse(p.waypoints.begin(), p.waypoints.end());
+    return p;
+  };
+  // Serpentine (turns) and same-direction lines (stop-and-go), each with leads.
+  for (const bool serpentine : {true, false}) {
+    const std::vector<Pass> passes = {tilted(4.6, false), tilted(4.8, serpentine), tilted(5.0, false)};
+    const CartesianPath path = timing_region_path(passes, 0.2, 0.2, cfg.timing);
+    std::vector<Pass> square = passes;
+    for (auto& p : square)
+      for (auto& w : p.waypoints) w.axis = Eigen::Vector3d::UnitZ();
+    const CartesianPath plain = timing_region_path(square, 0.2, 0.2, cfg.timing);
+    ASSERT_NEAR(path.length_m(), plain.length_m(), 1e-9) << serpentine;
+    const double h = 0.001;
+    double prev_rate = 0.0, worst_step = 0.0, peak_rate = 0.0;
+    bool prev_middle = false;
+    int stops = 0, off_positions = 0;
+    for (const auto& piece : path.pieces()) stops += piece.motion == PieceMotion::StopAtEnd;
+    EXPECT_EQ(stops, serpentine ? 0 : 2);
+    for (double s = 0.0; s + h <= path.length_m(); s += h) {
+      const NozzlePose a = path.pose_at(s), b = path.pose_at(s + h);
+      off_positions += (a.position_m - plain.pose_at(s).position_m).norm() > 1e-9;
+      const double r = std::acos(std::clamp(a.axis.normalized().dot(b.axis.normalized()), -1.0, 1.0)) / h;
+      // (A stop-and-go middle goes from rest to rest: its turn in time starts and ends at 0.)
+      double local = 0.0;
+      const bool middle = path.pieces()[path.locate(s, local)].motion == PieceMotion::RestToRest ||
+                          path.pieces()[path.locate(s + h, local)].motion == PieceMotion::RestToRest;
+      if (s > 0.0 && !middle && !prev_middle) worst_step = std::max(worst_step, std::abs(r - prev_rate));
+      prev_middle = middle;
+      peak_rate = std::max(peak_rate, r);
+      prev_rate = r;
+    }
+    // The passes turn at 0.3 rad/m; nothing steps by more than a tenth of that per millimetre.
+    EXPECT_NEAR(peak_rate, rate, 0.5 * rate) << serpentine;
+    EXPECT_LT(worst_step, 0.1 * rate) << serpentine;
+    EXPECT_EQ(off_positions, 0) << serpentine;
+    // The runs' far ends turn no more: the lead-in starts and the lead-out ends with rate 0.
+    const double end = path.length_m();
+    for (const auto& [s0, s1] : {std::pair{0.0, 0.002}, std::pair{end - 0.002, end}}) {
+      const NozzlePose l0 = path.pose_at(s0), l1 = path.pose_at(s1);
+      EXPECT_LT(std::acos(std::min(1.0, l0.axis.dot(l1.axis))) / 0.002, 0.02 * rate) << serpentine << " " << s0;
+    }
+  }
+  // A long lead (1 m: the timing swarm's, or an eased one) carries the turn over its last 0.1 m
+  // only: its start is turned rate x 0.05 m from the pass's, and the axis is held before that.
+  {
+    const std::vector<Pass> passes = {tilted(4.6, false), tilted(4.8, true)};
+    const CartesianPath long_leads = timing_region_path(passes, 1.0, 1.0, cfg.timing);
+    const Eigen::Vector3d first = passes[0].waypoints.front().axis;
+    EXPECT_NEAR(std::acos(std::min(1.0, long_leads.pose_at(0.0).axis.dot(first))), rate * 0.05, 2e-3);
+    EXPECT_LT((long_leads.pose_at(0.0).axis - long_leads.pose_at(0.85).axis).norm(), 1e-9);
+  }
+  // An axis turning at 0.05 rad/m (a rough wall's square passes turn at up to 0.03) keeps its
+  // runs and leads as before: straight, the axis held.
+  auto slow = [&](double z) {
+    Pass p = line_along_x(z, 0.25);
+    for (auto& w : p.waypoints) w.axis = Eigen::Vector3d(0.0, std::sin(0.05 * w.position_m.x()), std::cos(0.05 * w.position_m.x()));
+    return p;
+  };
+  const CartesianPath held = timing_region_path({slow(4.6), slow(4.8)}, 0.2, 0.2, cfg.timing);
+  for (const auto& piece : held.pieces())
+    if (piece.kind == SegmentKind::Lead || piece.motion == PieceMotion::StopAtEnd || piece.motion == PieceMotion::StartFromRest) {
+      EXPECT_EQ(piece.poses.size(), 2u);
+      EXPECT_LT((piece.poses.front().axis - piece.poses.back().axis).norm(), 1e-12);
+    }
+}
+
 // What the planner deposits with: the region's passes timed as time_plan times them, with the
 // pump's flow over the spraying flags.
 TEST(RegionSpray, IdealPumpSpraysExactlyThePassTimes) {

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <stdexcept>
 
+#include <Eigen/Geometry>
+
 #include "detail.hpp"
 
 namespace shotcrete {
@@ -34,6 +36,64 @@ PathPiece polyline_piece(SegmentKind kind, std::vector<NozzlePose> poses, double
   return p;
 }
 
+namespace {
+// Axis turns slower than this are left to the runs as before (held): the default bay's square
+// passes turn at most 0.03 rad/m (a rough wall's knots); a lean fading over a 1.2 m bay, 0.5.
+constexpr double kMinCarriedTurn_radpm = 0.1;
+// The turn rate is read over at least this much of the pass's end (one 1 cm step's axis noise of
+// 1 mrad would read as 0.1 rad/m), and carried down to 0 over at most this much of a run (eased
+// runs are metres long; the turn carried on is at most rate x 5 cm, 1.4 deg at 0.5 rad/m).
+constexpr double kRateChord_m = 0.02, kCarryFade_m = 0.1;
+// Vertex spacing of the dense polylines built here (below a 50 Hz sample step at the top speed).
+constexpr double kVertexStep_m = 0.005;
+}  // namespace
+
+Eigen::Vector3d axis_turn_rate(const std::vector<NozzlePose>& waypoints, bool at_end) {
+  const std::size_t n = waypoints.size();
+  if (n < 2) return Eigen::Vector3d::Zero();
+  const NozzlePose& q = at_end ? waypoints[n - 1] : waypoints[0];
+  // The waypoint at least kRateChord_m back along the pass (or its far end).
+  std::size_t k = 1;
+  double ds = 0.0;
+  for (; k < n; ++k) {
+    ds += (waypoints[at_end ? n - 1 - k : k].position_m - waypoints[at_end ? n - k : k - 1].position_m).norm();
+    if (ds >= kRateChord_m) break;
+  }
+  const NozzlePose& p = waypoints[at_end ? n - 1 - std::min(k, n - 1) : std::min(k, n - 1)];
+  // Turn from p to q (at_end: along the travel; at the start: q -> p is along it).
+  const Eigen::Vector3d a = (at_end ? p : q).axis.normalized(), b = (at_end ? q : p).axis.normalized(), c = a.cross(b);
+  if (!(ds > 1e-9) || !(c.norm() > 1e-15) || !c.allFinite()) return Eigen::Vector3d::Zero();
+  return c.normalized() * std::atan2(c.norm(), a.dot(b)) / ds;
+}
+
+void carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate, bool leaving) {
+  const double w = rate.norm();
+  if (poses.size() < 2 || !(w > kMinCarriedTurn_radpm)) return;
+  std::vector<double> cum(poses.size(), 0.0);
+  for (std::size_t k = 1; k < poses.size(); ++k) cum[k] = cum[k - 1] + (poses[k].position_m - poses[k - 1].position_m).norm();
+  const double L = cum.back(), F = std::min(L, kCarryFade_m);
+  if (!(L > 0.0)) return;
+  // Turned by w (s - s^2 / 2F) at distance s <= F from the pass, held beyond: rate w at the pass,
+  // 0 from F on (the same axes on a run of any length past F: the timing swarm's longer leads).
+  const Eigen::Vector3d anchor = leaving ? poses.front().axis : poses.back().axis, dir = rate / w;
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    const double s = std::min(leaving ? cum[k] : L - cum[k], F);
+    const double angle = w * (s - 0.5 * s * s / F);
+    poses[k].axis = Eigen::AngleAxisd(leaving ? angle : -angle, dir) * anchor;
+  }
+}
+
+std::vector<NozzlePose> run_carrying_axis_turn(const NozzlePose& a, const NozzlePose& b, const Eigen::Vector3d& rate,
+                                               bool leaving) {
+  const double length_m = (b.position_m - a.position_m).norm();
+  if (!(rate.norm() > kMinCarriedTurn_radpm) || !std::isfinite(length_m)) return {a, b};
+  const int n = std::max(2, static_cast<int>(std::ceil(length_m / kVertexStep_m)));
+  std::vector<NozzlePose> poses(static_cast<std::size_t>(n) + 1, leaving ? a : b);
+  for (int k = 0; k <= n; ++k) poses[static_cast<std::size_t>(k)].position_m = a.position_m + (b.position_m - a.position_m) * k / n;
+  carry_axis_turn(poses, rate, leaving);
+  return poses;
+}
+
 // Cubic Bezier from a (leaving along unit ta) to b (arriving along unit tb), control points a third
 // of the chord out, as a dense polyline; the axis blends linearly. Joins two pieces whose
 // directions differ without a corner.
@@ -43,7 +103,7 @@ std::vector<NozzlePose> tangent_curve(const NozzlePose& a, const Eigen::Vector3d
   const Eigen::Vector3d p0 = a.position_m, p1 = p0 + c * ta, p3 = b.position_m, p2 = p3 - c * tb;
   // Vertices every ~5 mm (less than a 50 Hz sample step at the top speed), so the polyline's small
   // corners do not show up in the finite-difference accelerations.
-  const int kSteps = std::max(8, static_cast<int>(std::ceil(3.0 * c / 0.005)));
+  const int kSteps = std::max(8, static_cast<int>(std::ceil(3.0 * c / kVertexStep_m)));
   std::vector<NozzlePose> poses;
   for (int k = 0; k <= kSteps; ++k) {
     const double t = static_cast<double>(k) / kSteps, r = 1.0 - t;
@@ -207,7 +267,24 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
     throw std::invalid_argument("turn-around: the end of one pass and the start of the next coincide across the pass "
                                 "direction (spacing " + num(diameter) + " m)");
   std::vector<PathPiece> out;
-  if (x_arc > 1e-9) out.push_back(polyline_piece(SegmentKind::Link, {end_a, pa}, speed_a, spraying, -1));
+  if (x_arc > 1e-9) {
+    const auto run = run_carrying_axis_turn(end_a, pa, o.axis_rate_a, true);
+    pa.axis = run.back().axis;
+    out.push_back(polyline_piece(SegmentKind::Link, run, speed_a, spraying, -1));
+  }
+  // Run-in: the arc leaves along -d, the next pass starts along dir_b. Wall-following passes are
+  // not exactly antiparallel, and a straight run-in would kink where it meets the pass (up to
+  // 40 deg on real plans, a step in the joint velocities). A cubic Bezier tangent to both turns
+  // the difference over the whole run instead.
+  const double run_in = (pb.position_m - start_b.position_m).norm();
+  std::vector<NozzlePose> run_in_poses;
+  if (run_in > 1e-9) {
+    const Eigen::Vector3d db = dir_b.squaredNorm() > 0.0 ? normalized_or(dir_b, -d) : Eigen::Vector3d(-d);
+    const bool straight = (db + d).norm() < 1e-4;
+    run_in_poses = straight ? run_carrying_axis_turn(pb, start_b, o.axis_rate_b, false) : tangent_curve(pb, -d, start_b, db);
+    if (!straight) carry_axis_turn(run_in_poses, o.axis_rate_b, false);
+    pb.axis = run_in_poses.front().axis;
+  }
   PathPiece arc;
   arc.kind = SegmentKind::Turn;
   arc.spraying = spraying;
@@ -218,21 +295,10 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
   arc.center = 0.5 * (pa.position_m + pb.position_m);
   arc.u = w / diameter;
   arc.d = d;
-  arc.axis0 = end_a.axis;
-  arc.axis1 = start_b.axis;
+  arc.axis0 = pa.axis;
+  arc.axis1 = pb.axis;
   out.push_back(arc);
-  const double run_in = (pb.position_m - start_b.position_m).norm();
-  if (run_in <= 1e-9) return out;
-  // Run-in: the arc leaves along -d, the next pass starts along dir_b. Wall-following passes are
-  // not exactly antiparallel, and a straight run-in would kink where it meets the pass (up to
-  // 40 deg on real plans, a step in the joint velocities). A cubic Bezier tangent to both turns
-  // the difference over the whole run instead.
-  const Eigen::Vector3d db = dir_b.squaredNorm() > 0.0 ? normalized_or(dir_b, -d) : Eigen::Vector3d(-d);
-  if ((db + d).norm() < 1e-4) {
-    out.push_back(polyline_piece(SegmentKind::Link, {pb, start_b}, speed_b, spraying, -1));
-    return out;
-  }
-  out.push_back(polyline_piece(SegmentKind::Link, tangent_curve(pb, -d, start_b, db), speed_b, spraying, -1));
+  if (!run_in_poses.empty()) out.push_back(polyline_piece(SegmentKind::Link, run_in_poses, speed_b, spraying, -1));
   return out;
 }
 

@@ -30,6 +30,20 @@ double shape_peak_dg(SpeedShape s);
 Eigen::Vector3d normalized_or(const Eigen::Vector3d& v, const Eigen::Vector3d& fallback);
 /// Polyline piece through the poses (repeated points dropped), one speed, not an arc.
 PathPiece polyline_piece(SegmentKind kind, std::vector<NozzlePose> poses, double speed, bool spraying, int pass_index);
+/// Rotation of the spray axis per metre of path at a pass's end (at_end) or start, along the
+/// travel, as a rotation vector, read over its last or first 2 cm (zero for fewer than two
+/// waypoints).
+Eigen::Vector3d axis_turn_rate(const std::vector<NozzlePose>& waypoints, bool at_end);
+/// A straight run from a to b as poses about 5 mm apart, the axis a's (leaving: the run leaves a
+/// pass at a, whose axis turns at `rate` there) or b's (entering: it enters a pass at b) turned on
+/// at a rate that falls linearly from `rate` at the pass to 0 over min(run, 0.1 m), then held.
+/// Runs that held the axis stopped a leaning nozzle's turn at once: a step in the joints'
+/// velocities. Rates up to 0.1 rad/m are left held ({a, b} as before).
+std::vector<NozzlePose> run_carrying_axis_turn(const NozzlePose& a, const NozzlePose& b, const Eigen::Vector3d& rate,
+                                               bool leaving);
+/// The same on given poses (positions in order along the run, e.g. a curve): their axes set from
+/// the pass end's axis (poses.front() leaving, poses.back() entering).
+void carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate, bool leaving);
 /// Cubic Bezier from a (leaving along unit ta) to b (arriving along unit tb), control points a third
 /// of the chord out, as a dense polyline; the axis blends linearly. Joins two pieces whose
 /// directions differ without a corner.

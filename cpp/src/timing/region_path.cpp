@@ -139,6 +139,8 @@ void append_turn(CartesianPath& path, const Join& j, const RegionPathOptions& o)
   turn.run_out_m = run_out;
   turn.run_in_m = run_in;
   turn.dir_b_start = j.db;
+  turn.axis_rate_a = axis_turn_rate(j.p.waypoints, true);
+  turn.axis_rate_b = axis_turn_rate(j.q.waypoints, false);
   for (auto& t : turn_around(j.p.waypoints.back(), j.da, j.q.waypoints.front(), turn)) {
     if (t.kind == SegmentKind::Turn) t.accel_scale = j.gap_scale;  // the profile eases the arc speed alike
     path.append(std::move(t));
@@ -163,13 +165,18 @@ void append_stop_and_go(CartesianPath& path, const Join& j, const RegionPathOpti
   NozzlePose a = j.p.waypoints.back(), b = j.q.waypoints.front();
   a.position_m += run_out * j.da;
   b.position_m -= run_in * j.db;
-  PathPiece out = polyline_piece(SegmentKind::Link, {j.p.waypoints.back(), a}, v_out, false, -1);
+  // The runs carry the axis's turn on the passes down to 0 at the stop.
+  const auto stop = run_carrying_axis_turn(j.p.waypoints.back(), a, axis_turn_rate(j.p.waypoints, true), true);
+  const auto start = run_carrying_axis_turn(b, j.q.waypoints.front(), axis_turn_rate(j.q.waypoints, false), false);
+  a.axis = stop.back().axis;
+  b.axis = start.front().axis;
+  PathPiece out = polyline_piece(SegmentKind::Link, stop, v_out, false, -1);
   out.motion = PieceMotion::StopAtEnd;
   path.append(std::move(out));
   PathPiece mid = polyline_piece(SegmentKind::Link, {a, b}, std::max(v_out, v_in), false, -1);
   mid.motion = PieceMotion::RestToRest;
   path.append(std::move(mid));
-  PathPiece in = polyline_piece(SegmentKind::Link, {b, j.q.waypoints.front()}, v_in, false, -1);
+  PathPiece in = polyline_piece(SegmentKind::Link, start, v_in, false, -1);
   in.motion = PieceMotion::StartFromRest;
   path.append(std::move(in));
 }
@@ -190,7 +197,10 @@ CartesianPath region_path(const std::vector<Pass>& passes, const RegionPathOptio
   const Pass& first = passes.front();
   NozzlePose lead0 = first.waypoints.front();
   lead0.position_m -= o.lead_in_m * start_direction(first);
-  path.append(polyline_piece(SegmentKind::Lead, {lead0, first.waypoints.front()}, first_speed(first), false, -1));
+  // The leads carry the axis's turn at the pass ends down to 0 at rest (as the joins' runs).
+  path.append(polyline_piece(SegmentKind::Lead,
+                             run_carrying_axis_turn(lead0, first.waypoints.front(), axis_turn_rate(first.waypoints, false), false),
+                             first_speed(first), false, -1));
   for (std::size_t i = 0; i < passes.size(); ++i) {
     const Pass& p = passes[i];
     path.append(pass_piece(p, i, o.first_pass_index + static_cast<int>(i)));
@@ -204,7 +214,9 @@ CartesianPath region_path(const std::vector<Pass>& passes, const RegionPathOptio
   const Pass& last = passes.back();
   NozzlePose lead1 = last.waypoints.back();
   lead1.position_m += o.lead_out_m * end_direction(last);
-  path.append(polyline_piece(SegmentKind::Lead, {last.waypoints.back(), lead1}, last_speed(last), false, -1));
+  path.append(polyline_piece(SegmentKind::Lead,
+                             run_carrying_axis_turn(last.waypoints.back(), lead1, axis_turn_rate(last.waypoints, true), true),
+                             last_speed(last), false, -1));
   return path;
 }
 

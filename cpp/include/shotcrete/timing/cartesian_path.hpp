@@ -73,6 +73,9 @@ struct TurnAroundOptions {
   double run_out_m = 0.0;  // > 0: straight run of that length before the arc
   double run_in_m = -1.0;  // straight run after the arc; < 0: run_out_m
   Eigen::Vector3d dir_b_start = Eigen::Vector3d::Zero();  // pass b's start direction; zero: -dir_a
+  // Turn of the spray axis per metre at pass a's end and pass b's start (rotation vectors, along
+  // the travel): the runs carry it down to 0 at the arc (a leaning nozzle's axis turns on the passes).
+  Eigen::Vector3d axis_rate_a = Eigen::Vector3d::Zero(), axis_rate_b = Eigen::Vector3d::Zero();
 };
 
 /// Half circle from the end of pass a (position pa, unit direction da) to the start of pass b:
@@ -81,7 +84,8 @@ struct TurnAroundOptions {
 /// Returns 1 to 3 pieces (extension of a, arc, extension before b), kinds Link / Turn.
 /// The runs before and after the arc carry the speed change to and from the turn speed, so the arc
 /// is entered at the turn speed. When dir_b_start is not exactly -dir_a the run-in is a cubic
-/// Bezier tangent to the arc and to the pass, so the path has no corner.
+/// Bezier tangent to the arc and to the pass, so the path has no corner. The runs carry the axis
+/// turns axis_rate_a / _b down to 0, and the arc blends the axis between the runs' far ends.
 std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3d& dir_a, const NozzlePose& start_b,
                                    const TurnAroundOptions& options);
 
