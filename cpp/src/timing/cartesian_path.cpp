@@ -283,7 +283,9 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
     const bool straight = (db + d).norm() < 1e-4;
     run_in_poses = straight ? run_carrying_axis_turn(pb, start_b, o.axis_rate_b, false) : tangent_curve(pb, -d, start_b, db);
     if (!straight) carry_axis_turn(run_in_poses, o.axis_rate_b, false);
-    pb.axis = run_in_poses.front().axis;
+    // (Only where the turn is carried: a held curve's first axis is start_b's normalised, and
+    // the arc kept start_b's own, to the bit.)
+    if (straight || o.axis_rate_b.norm() > kMinCarriedTurn_radpm) pb.axis = run_in_poses.front().axis;
   }
   PathPiece arc;
   arc.kind = SegmentKind::Turn;
