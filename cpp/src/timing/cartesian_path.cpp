@@ -66,13 +66,13 @@ Eigen::Vector3d axis_turn_rate(const std::vector<NozzlePose>& waypoints, bool at
   return c.normalized() * std::atan2(c.norm(), a.dot(b)) / ds;
 }
 
-void carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate, bool leaving) {
+bool carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate, bool leaving) {
   const double w = rate.norm();
-  if (poses.size() < 2 || !(w > kMinCarriedTurn_radpm)) return;
+  if (poses.size() < 2 || !(w > kMinCarriedTurn_radpm)) return false;
   std::vector<double> cum(poses.size(), 0.0);
   for (std::size_t k = 1; k < poses.size(); ++k) cum[k] = cum[k - 1] + (poses[k].position_m - poses[k - 1].position_m).norm();
   const double L = cum.back(), F = std::min(L, kCarryFade_m);
-  if (!(L > 0.0)) return;
+  if (!(L > 0.0)) return false;
   // Turned by w (s - s^2 / 2F) at distance s <= F from the pass, held beyond: rate w at the pass,
   // 0 from F on (the same axes on a run of any length past F: the timing swarm's longer leads).
   const Eigen::Vector3d anchor = leaving ? poses.front().axis : poses.back().axis, dir = rate / w;
@@ -81,6 +81,7 @@ void carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate
     const double angle = w * (s - 0.5 * s * s / F);
     poses[k].axis = Eigen::AngleAxisd(leaving ? angle : -angle, dir) * anchor;
   }
+  return true;
 }
 
 std::vector<NozzlePose> run_carrying_axis_turn(const NozzlePose& a, const NozzlePose& b, const Eigen::Vector3d& rate,
@@ -280,12 +281,15 @@ std::vector<PathPiece> turn_around(const NozzlePose& end_a, const Eigen::Vector3
   std::vector<NozzlePose> run_in_poses;
   if (run_in > 1e-9) {
     const Eigen::Vector3d db = dir_b.squaredNorm() > 0.0 ? normalized_or(dir_b, -d) : Eigen::Vector3d(-d);
-    const bool straight = (db + d).norm() < 1e-4;
-    run_in_poses = straight ? run_carrying_axis_turn(pb, start_b, o.axis_rate_b, false) : tangent_curve(pb, -d, start_b, db);
-    if (!straight) carry_axis_turn(run_in_poses, o.axis_rate_b, false);
-    // (Only where the turn is carried: a held curve's first axis is start_b's normalised, and
-    // the arc kept start_b's own, to the bit.)
-    if (straight || o.axis_rate_b.norm() > kMinCarriedTurn_radpm) pb.axis = run_in_poses.front().axis;
+    // (A held curve's first axis is start_b's normalised: the arc keeps start_b's own, to the bit.)
+    bool carried = true;
+    if ((db + d).norm() < 1e-4) {
+      run_in_poses = run_carrying_axis_turn(pb, start_b, o.axis_rate_b, false);
+    } else {
+      run_in_poses = tangent_curve(pb, -d, start_b, db);
+      carried = carry_axis_turn(run_in_poses, o.axis_rate_b, false);
+    }
+    if (carried) pb.axis = run_in_poses.front().axis;
   }
   PathPiece arc;
   arc.kind = SegmentKind::Turn;

@@ -42,8 +42,8 @@ Eigen::Vector3d axis_turn_rate(const std::vector<NozzlePose>& waypoints, bool at
 std::vector<NozzlePose> run_carrying_axis_turn(const NozzlePose& a, const NozzlePose& b, const Eigen::Vector3d& rate,
                                                bool leaving);
 /// The same on given poses (positions in order along the run, e.g. a curve): their axes set from
-/// the pass end's axis (poses.front() leaving, poses.back() entering).
-void carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate, bool leaving);
+/// the pass end's axis (poses.front() leaving, poses.back() entering). False: left as they were.
+bool carry_axis_turn(std::vector<NozzlePose>& poses, const Eigen::Vector3d& rate, bool leaving);
 /// Cubic Bezier from a (leaving along unit ta) to b (arriving along unit tb), control points a third
 /// of the chord out, as a dense polyline; the axis blends linearly. Joins two pieces whose
 /// directions differ without a corner.

@@ -34,6 +34,15 @@ Eigen::Vector3d end_direction(const Pass& p) {
 double first_speed(const Pass& p) { return p.speed_at(0); }
 double last_speed(const Pass& p) { return p.speed_at(p.waypoints.size() - 1); }
 
+// A run off pass p's end to `to`, and one from `from` onto pass q's start, carrying the axis's
+// turn on the pass down to 0 (run_carrying_axis_turn).
+std::vector<NozzlePose> run_off(const Pass& p, const NozzlePose& to) {
+  return run_carrying_axis_turn(p.waypoints.back(), to, axis_turn_rate(p.waypoints, true), true);
+}
+std::vector<NozzlePose> run_onto(const NozzlePose& from, const Pass& q) {
+  return run_carrying_axis_turn(from, q.waypoints.front(), axis_turn_rate(q.waypoints, false), false);
+}
+
 // Constant-speed runs of a pass with a per-waypoint speed profile, with the planner's dwell
 // semantics: waypoint i owns half of each neighbouring interval at speed_at(i).
 void speed_runs(const Pass& p, std::vector<double>& len, std::vector<double>& speed) {
@@ -166,8 +175,8 @@ void append_stop_and_go(CartesianPath& path, const Join& j, const RegionPathOpti
   a.position_m += run_out * j.da;
   b.position_m -= run_in * j.db;
   // The runs carry the axis's turn on the passes down to 0 at the stop.
-  const auto stop = run_carrying_axis_turn(j.p.waypoints.back(), a, axis_turn_rate(j.p.waypoints, true), true);
-  const auto start = run_carrying_axis_turn(b, j.q.waypoints.front(), axis_turn_rate(j.q.waypoints, false), false);
+  const auto stop = run_off(j.p, a);
+  const auto start = run_onto(b, j.q);
   a.axis = stop.back().axis;
   b.axis = start.front().axis;
   PathPiece out = polyline_piece(SegmentKind::Link, stop, v_out, false, -1);
@@ -198,9 +207,7 @@ CartesianPath region_path(const std::vector<Pass>& passes, const RegionPathOptio
   NozzlePose lead0 = first.waypoints.front();
   lead0.position_m -= o.lead_in_m * start_direction(first);
   // The leads carry the axis's turn at the pass ends down to 0 at rest (as the joins' runs).
-  path.append(polyline_piece(SegmentKind::Lead,
-                             run_carrying_axis_turn(lead0, first.waypoints.front(), axis_turn_rate(first.waypoints, false), false),
-                             first_speed(first), false, -1));
+  path.append(polyline_piece(SegmentKind::Lead, run_onto(lead0, first), first_speed(first), false, -1));
   for (std::size_t i = 0; i < passes.size(); ++i) {
     const Pass& p = passes[i];
     path.append(pass_piece(p, i, o.first_pass_index + static_cast<int>(i)));
@@ -214,9 +221,7 @@ CartesianPath region_path(const std::vector<Pass>& passes, const RegionPathOptio
   const Pass& last = passes.back();
   NozzlePose lead1 = last.waypoints.back();
   lead1.position_m += o.lead_out_m * end_direction(last);
-  path.append(polyline_piece(SegmentKind::Lead,
-                             run_carrying_axis_turn(last.waypoints.back(), lead1, axis_turn_rate(last.waypoints, true), true),
-                             last_speed(last), false, -1));
+  path.append(polyline_piece(SegmentKind::Lead, run_off(last, lead1), last_speed(last), false, -1));
   return path;
 }
 
