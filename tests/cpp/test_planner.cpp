@@ -1046,6 +1046,55 @@ TEST(LevellingDwells, LaterLinesTakeTheLookAheadsRestWithinTheirOwnBound) {
   EXPECT_FALSE(flow_spell_fix(p, w_short, flow, 0.5).empty());
 }
 
+// A sprayed run too short for the pump is lengthened over its off neighbours at the least dwell
+// they can take (1 / cap); where the machine's caps are low that least dwell lays more than the
+// cells beside can take (past the guard's upper limit), and the run is switched off instead.
+// One pass line of five 0.1 m segments, each laying 3 mm per s/m on its own cell; the middle
+// one sprayed 1.5 s (between half and all of the 2.4 s the pump needs with its margin).
+TEST(LevellingDwells, AShortRunIsLengthenedOnlyWhereItsNeighboursDoNotOverFill) {
+  auto line = [](double cap_mps, double td_beside_mm) {
+    DwellProblem p;
+    for (std::size_t j = 0; j < 5; ++j) {
+      Segment seg;
+      seg.pass = 0;
+      seg.first = 10 * j, seg.last = 10 * (j + 1);
+      seg.length_m = 0.1;
+      seg.cap_mps = cap_mps;
+      p.segments.push_back(seg);
+      Sparse u;
+      u.idx = {static_cast<int>(j)};
+      u.val = {3.0};
+      p.unit_mm.push_back(u);
+    }
+    Eigen::VectorXd td(5);
+    td << td_beside_mm, td_beside_mm, 45.0, td_beside_mm, td_beside_mm;
+    p.target_mm = td;
+    p.w_max_s_per_m = 20.0;
+    set_guard(p, td, 20.0, 100.0);
+    return p;
+  };
+  const std::vector<double> w = {0.0, 0.0, 15.0, 0.0, 0.0};  // 1.5 s on
+  FlowConfig flow;
+  auto has = [](const std::vector<std::size_t>& v, std::size_t j) { return std::find(v.begin(), v.end(), j) != v.end(); };
+  // Caps at 1 m/s: a neighbour at its least dwell (1 s/m) lays 3 mm on a flush cell, within the
+  // 20 mm band: lengthened on both sides.
+  const FlowSpellFix fast = flow_spell_fix(line(1.0, 0.0), w, flow, 0.5);
+  EXPECT_TRUE(fast.force_off.empty());
+  EXPECT_TRUE(has(fast.force_on, 1) && has(fast.force_on, 3));
+  // Caps at 0.07 m/s: 14.3 s/m lays 43 mm on flush cells, 23 mm past the band: switched off.
+  const FlowSpellFix slow = flow_spell_fix(line(0.07, 0.0), w, flow, 0.5);
+  EXPECT_TRUE(slow.force_on.empty());
+  EXPECT_EQ(slow.force_off, std::vector<std::size_t>{2});
+  // The same caps beside cells still 40 mm short: 43 mm ends 3 mm past flush, within the band.
+  const FlowSpellFix short_beside = flow_spell_fix(line(0.07, 40.0), w, flow, 0.5);
+  EXPECT_TRUE(short_beside.force_off.empty());
+  EXPECT_FALSE(short_beside.force_on.empty());
+  // Without a guard there is no over-fill to weigh: lengthened as before.
+  DwellProblem unguarded = line(0.07, 0.0);
+  set_guard(unguarded, unguarded.target_mm, 20.0, 0.0);
+  EXPECT_TRUE(flow_spell_fix(unguarded, w, flow, 0.5).force_off.empty());
+}
+
 // What the timed passes lay beyond the solve (turns sprayed through, ramps) enters as a fixed
 // deposit: the solve then fills only what is left, as if the target were lowered by it, and the
 // guard counts it (the brute-force search of the guarded objective with the background added).
