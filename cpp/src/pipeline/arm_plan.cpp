@@ -333,8 +333,7 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   const double max_lean = config.clearance.max_nozzle_lean_rad, step = 0.05, spare_inner = 0.5 * grid.cell_size_m + 0.01;
   const PlannerConfig& pc = config.planner;
   const bool axial_runon = pc.pass_direction == PassDirection::axial;
-  const double leaned_runon = std::min(pc.leaned_edge_overrun_m, std::max({pc.edge_overrun_m, pc.levelling_late_edge_overrun_m,
-                                                                           pc.graded_last_edge_overrun_m}));
+  const double leaned_runon = leaned_edge_overrun_m(pc, longest_edge_overrun_m(pc));
   const double spare_end = leaned_runon > 0.0 ? std::max(spare_inner, leaned_runon + 0.01) : spare_inner;
   auto spare_of = [&](int c) {
     const int col = grid.col_of(c);

@@ -315,7 +315,8 @@ void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots, b
 // a face past it) it runs on at most leaned_overrun_m with the lean held: a leaned spot lays most
 // of its concrete on the side nearer the nozzle, so without a run-on the end cell gets only the
 // far tail and the cells behind it the peak. obstructed_cells keeps that much room for it.
-void add_edge_overrun(LineKnots& k, int n_u, double overrun_m, double leaned_overrun_m, const Eigen::Vector3d& ex) {
+void add_edge_overrun(LineKnots& k, int n_u, const PlannerConfig& config, const Eigen::Vector3d& ex) {
+  const double overrun_m = config.edge_overrun_m;
   auto& knots = k.poses;
   // Knots past `end` (its neighbour `inner`) over `run` metres, outward along `out` (the lines are
   // built with u, i.e. d, increasing: -ex at the front, +ex at the back). A leaned nozzle's place
@@ -325,7 +326,7 @@ void add_edge_overrun(LineKnots& k, int n_u, double overrun_m, double leaned_ove
   // overshoot the lean).
   auto run_on = [&](const NozzlePose& end, const NozzlePose& inner, bool leaned, const Eigen::Vector3d& out_dir) {
     const Eigen::Vector3d along = end.position_m - inner.position_m;
-    const double run = leaned ? std::min(overrun_m, leaned_overrun_m) : overrun_m;
+    const double run = leaned ? leaned_edge_overrun_m(config, overrun_m) : overrun_m;
     std::vector<NozzlePose> out;
     if (!(run > 0)) return out;
     if (!leaned) {
@@ -398,6 +399,15 @@ LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const Pl
 
 }  // namespace
 
+double longest_edge_overrun_m(const PlannerConfig& config) {
+  const double own = config.mode == PlannerMode::optimal ? config.levelling_late_edge_overrun_m : config.graded_last_edge_overrun_m;
+  return std::max(config.edge_overrun_m, own);
+}
+
+double leaned_edge_overrun_m(const PlannerConfig& config, double overrun_m) {
+  return std::min(overrun_m, config.leaned_edge_overrun_m);
+}
+
 std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, double spacing_m,
                               const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean,
                               double split_gap_m) {
@@ -450,7 +460,7 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
       if (knots.poses.empty()) continue;
       const bool leaned = std::any_of(knots.leaned.begin(), knots.leaned.end(), [](char l) { return l != 0; });
       smooth_knot_radii(grid.axis, knots.poses, leaned, config.standoff_m);
-      if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config.edge_overrun_m, config.leaned_edge_overrun_m, grid.axis.ex);
+      if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config, grid.axis.ex);
       Pass pass;
       pass.line = line;
       pass.waypoints = spline_poses(knots.poses, config.sample_step_m);

@@ -37,6 +37,15 @@ double polyline_length(const std::vector<NozzlePose>& poses);
 /// The pass run the other way (waypoints and speed profile reversed).
 void reverse_pass(Pass& pass);
 
+/// The longest run-on past the bay's ends that the rounds of config.mode give their lines [m]:
+/// edge_overrun_m, or the late levelling rounds' (optimal mode) or the level-1 rounds' (graded
+/// mode) where longer. The clearance check keeps room for it (obstructed_cells).
+double longest_edge_overrun_m(const PlannerConfig& config);
+
+/// The run-on of lines that run on overrun_m at an end where the nozzle leans (a face past it):
+/// at most leaned_edge_overrun_m [m].
+double leaned_edge_overrun_m(const PlannerConfig& config, double overrun_m);
+
 /// Pass lines over a set of grid cells (docs/architecture.md §5): envelope box in (d, s), slicing planes
 /// `spacing_m` apart (through the axis for axial passes, across it for circumferential ones),
 /// crossing points from pairs of neighbouring cells on either side of each plane, offset by the
