@@ -250,3 +250,70 @@ TEST(ClearanceTerm, APathThroughTheFaceStartsFromARoomierPosture) {
     EXPECT_LE(te.angle_rad, rc.ik_angle_tolerance_rad) << k;
   }
 }
+
+// The same face, and a path from the crown down the right wall (a circumferential line at x 0.6,
+// theta pi/2 -> pi/2 + 1.2, 1 m off the wall), tracked from the posture the face scene's region over
+// the crown started in: the left wall's family (slew 2.82 rad, the boom back and to the left, where
+// the region before it ended). From there the boom luffs over the top and the slew turns it toward
+// the face as the path goes down. The right wall's family (slew near -2.8 rad) is 5.6 rad away: a
+// slew turned by a clamped eighth of a turn stops at the joint's limit (3.05) and never reaches it;
+// turned around the range, the roomiest of the tracked starts keeps every margin.
+TEST(ClearanceTerm, APathOverTheCrownStartsInTheFamilyOfTheWallItGoesDown) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const double x_face = 1.2, R = 5.7;
+  Points wall_pts = narrow_wall(-1.5, x_face, R);
+  std::vector<Eigen::Vector3d> face;
+  for (double y = -R; y <= R; y += 0.04)
+    for (double z = -1.5; z <= R; z += 0.04)
+      if (y * y + z * z < R * R) face.emplace_back(x_face, y, z);
+  Points all(wall_pts.rows() + static_cast<Eigen::Index>(face.size()), 3);
+  all.topRows(wall_pts.rows()) = wall_pts;
+  for (std::size_t k = 0; k < face.size(); ++k) all.row(wall_pts.rows() + static_cast<Eigen::Index>(k)) = face[k].transpose();
+  const WallOctree wall(all, 0.05);
+  const RobotConfig rc;
+  const ClearanceConfig cc;
+  const NullSpaceObjective term = clearance_objective(robot, wall, cc);
+  ASSERT_TRUE(static_cast<bool>(term.room));
+  NullSpaceObjective no_room = term;
+  no_room.room = nullptr;
+  std::vector<NozzlePose> poses;
+  const double rn = R - 1.0;
+  for (double th = 0.5 * test::kPi; th <= 0.5 * test::kPi + 1.2 + 1e-9; th += 0.01 / rn) {
+    NozzlePose w;
+    w.position_m = Eigen::Vector3d(0.6, rn * std::cos(th), rn * std::sin(th));
+    w.axis = Eigen::Vector3d(0, std::cos(th), std::sin(th));
+    poses.push_back(w);
+  }
+  Eigen::VectorXd seed(8);
+  seed << 2.819, 0.974, 1.439, -0.028, 1.852, 1.264, -0.312, -0.714;
+  bool tracked = false;
+  const auto before = timing_joint_path(robot, poses, seed, rc, &tracked, no_room);
+  ASSERT_TRUE(tracked);
+  const auto after = timing_joint_path(robot, poses, seed, rc, &tracked, term);
+  ASSERT_TRUE(tracked);
+  const std::vector<char> fixed = fixed_shapes(robot);
+  // The exact distances of the links the spare degrees of freedom move to the points, every
+  // tenth posture.
+  const auto least_exact = [&](const std::vector<Eigen::VectorXd>& path) {
+    double least = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < path.size(); i += 10) {
+      const auto frames = robot.link_frames(path[i]);
+      const auto& shapes = robot.collision_shapes();
+      for (std::size_t k = 0; k < shapes.size(); ++k)
+        if (!fixed[k] && shapes[k].link.rfind("nozzle", 0) != 0)
+          least = std::min(least, wall.exact_distance(shapes[k], frames[shapes[k].frame]));
+    }
+    return least;
+  };
+  std::printf("slew at start / end: before %.2f / %.2f, after %.2f / %.2f; least link distance %.3f -> %.3f m\n",
+              before.front()[0], before.back()[0], after.front()[0], after.back()[0], least_exact(before), least_exact(after));
+  EXPECT_LT(least_exact(before), cc.link_margin_m);
+  EXPECT_GE(least_exact(after), cc.link_margin_m);
+  EXPECT_LT(after.front()[0], 0.0);  // the right wall's family
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    EXPECT_TRUE(robot.within_limits(after[k])) << k;
+    const TaskError te = task_error(robot, after[k], poses[k]);
+    EXPECT_LE(te.position_m, rc.ik_position_tolerance_m) << k;
+    EXPECT_LE(te.angle_rad, rc.ik_angle_tolerance_rad) << k;
+  }
+}

@@ -152,6 +152,9 @@ std::vector<Eigen::VectorXd> track_joint_path(const Robot& robot, const std::vec
 // warm-started solver that stops inside them returns a staircase whose finite differences are
 // meaningless: so the samples are tracked exactly (minimal-norm steps + smooth null-space limit
 // avoidance) from solve_path's first solution.
+// Start postures tracked for a path that breaks a margin (each a whole tracking of the path).
+constexpr std::size_t kMostStartsTried = 3;
+
 std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::vector<NozzlePose>& poses,
                                                const Eigen::VectorXd& seed, const RobotConfig& rc, bool* tracked,
                                                const NullSpaceObjective& objective) {
@@ -207,33 +210,46 @@ std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::ve
   }
   // The seed carries the last region's posture family: the boom may then stand in what lies
   // beyond the wall (a face: a link wholly past it reads far from the scan's points, so the
-  // clearance term cannot pull it back). A path that breaks a margin gives way to the one tracked
-  // from the roomiest solution of its first pose from the seed turned about the slew, if that
-  // path has more room (the least at five postures along it).
+  // clearance term cannot pull it back). A path that breaks a margin gives way to the roomiest of
+  // the paths tracked from the first pose's solutions from the seed's slew turned by eighths of a
+  // turn (the least room at five postures along each). The turns wrap around the slew's range: a
+  // region from the crown down the right wall that starts in the left wall's family (slew 2.8 rad,
+  // the boom back and left) luffs over the top and slews the boom toward the face as it goes down
+  // (the face scene); the right wall's own family (-2.8 rad) is 5.6 rad away, past the limit a
+  // clamped turn stops at. Candidates whose first posture has less room than the path's own first
+  // are left out, and at most kMostStartsTried of the roomiest are tracked.
   if (ok && objective.room) {
     const auto path_room = [&](const std::vector<Eigen::VectorXd>& path) {
       double least = std::numeric_limits<double>::infinity();
       for (int k = 0; k <= 4; ++k) least = std::min(least, objective.room(path[(path.size() - 1) * k / 4]));
       return least;
     };
-    const double have = path_room(q);
+    double have = path_room(q);
     if (have < 0.0) {
-      double best_room = objective.room(q.front());
-      Eigen::VectorXd best;
+      const double own_room = objective.room(q.front());
+      std::vector<std::pair<double, Eigen::VectorXd>> starts;  // (-room, first posture)
       for (const double turn : {0.25, -0.25, 0.5, -0.5, 0.75, -0.75, 1.0}) {
         Eigen::VectorXd s = seed;
-        s[0] = std::clamp(s[0] + turn * M_PI, robot.lower_limits()[0], robot.upper_limits()[0]);
+        s[0] = std::clamp(std::remainder(s[0] + turn * M_PI, 2.0 * M_PI), robot.lower_limits()[0], robot.upper_limits()[0]);
         Eigen::VectorXd cand;
         try {
           cand = solve_path(robot, {poses.front()}, s, rc).q.front();
         } catch (const std::exception&) {
           continue;  // no solution from this turn
         }
+        const bool seen = (cand - q.front()).norm() < 1e-3 ||
+                          std::any_of(starts.begin(), starts.end(), [&](const auto& c) { return (c.second - cand).norm() < 1e-3; });
         const double room = objective.room(cand);
-        if (room > best_room + 1e-3) best_room = room, best = cand;
+        if (!seen && room >= own_room - 1e-3) starts.emplace_back(-room, std::move(cand));
       }
-      std::vector<Eigen::VectorXd> alt;
-      if (best.size() > 0 && track_from(best, alt) && path_room(alt) > have + 1e-3) q = std::move(alt);
+      std::sort(starts.begin(), starts.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+      if (starts.size() > kMostStartsTried) starts.resize(kMostStartsTried);
+      for (const auto& start : starts) {
+        std::vector<Eigen::VectorXd> alt;
+        if (!track_from(start.second, alt)) continue;
+        const double room = path_room(alt);
+        if (room > have + 1e-3) have = room, q = std::move(alt);
+      }
     }
   }
   if (tracked) *tracked = ok;
