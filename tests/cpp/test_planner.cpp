@@ -1095,6 +1095,46 @@ TEST(LevellingDwells, AShortRunIsLengthenedOnlyWhereItsNeighboursDoNotOverFill) 
   EXPECT_TRUE(flow_spell_fix(unguarded, w, flow, 0.5).force_off.empty());
 }
 
+// A spray-off gap too short for the pump is sprayed through at its fastest dwell (1 / cap), unless
+// that lays more than the cells under it can take (past the guard's upper limit): then the gap is
+// widened, the ends of the runs beside it switched off (each step the one sprayed for less time),
+// until the nozzle takes the pump's off spell to cross it. One line of seven 0.1 m segments, each
+// laying 3 mm per s/m on its own cell; segment 3 off over a flush cell, 1.2 s to cross.
+TEST(LevellingDwells, AShortGapIsSprayedThroughOnlyWhereItDoesNotOverFill) {
+  auto line = [](double cap_mps) {
+    DwellProblem p;
+    for (std::size_t j = 0; j < 7; ++j) {
+      Segment seg;
+      seg.first = 10 * j, seg.last = 10 * (j + 1);
+      seg.length_m = 0.1;
+      seg.cap_mps = cap_mps;
+      p.segments.push_back(seg);
+      Sparse u;
+      u.idx = {static_cast<int>(j)};
+      u.val = {3.0};
+      p.unit_mm.push_back(u);
+    }
+    Eigen::VectorXd td = Eigen::VectorXd::Constant(7, 36.0);
+    td[3] = 0.0;
+    p.target_mm = td;
+    p.w_max_s_per_m = 20.0;
+    set_guard(p, td, 20.0, 100.0);
+    return p;
+  };
+  const std::vector<double> w = {12.0, 12.0, 12.0, 0.0, 11.5, 13.0, 12.0};  // runs of 3.6 and 3.6 s
+  FlowConfig flow;
+  // Caps at 1 m/s: 1 s/m lays 3 mm on the flush cell: sprayed through.
+  const FlowSpellFix fast = flow_spell_fix(line(1.0), w, flow, 0.5);
+  EXPECT_EQ(fast.force_on, std::vector<std::size_t>{3});
+  EXPECT_TRUE(fast.force_off.empty());
+  // Caps at 0.09 m/s: 11.1 s/m lays 33 mm, 13 mm past the band: segment 4 (1.15 s sprayed,
+  // against segment 2's 1.2 s) is switched off, and the gap of 0.2 m then takes 2.5 s to cross
+  // (at the mean of 1/12 and 1/13 s/m), past the 2.4 s the pump needs.
+  const FlowSpellFix slow = flow_spell_fix(line(0.09), w, flow, 0.5);
+  EXPECT_TRUE(slow.force_on.empty());
+  EXPECT_EQ(slow.force_off, std::vector<std::size_t>{4});
+}
+
 // What the timed passes lay beyond the solve (turns sprayed through, ramps) enters as a fixed
 // deposit: the solve then fills only what is left, as if the target were lowered by it, and the
 // guard counts it (the brute-force search of the guarded objective with the background added).

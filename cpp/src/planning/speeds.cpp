@@ -631,6 +631,22 @@ Change spray_gap(const std::vector<Segment>& segs, const SpellRun& r) {
   return c;
 }
 
+// Switch off the ends of the sprayed runs on either side of a short gap (each step the one sprayed
+// for less time) until the nozzle takes min_s to cross it, or a run is off altogether (the gap
+// then reaches the next gap or the line's end).
+Change widen_gap(const std::vector<Segment>& segs, const std::vector<double>& w, const SpellRun& left, const SpellRun& gap,
+                 const SpellRun& right, double min_s) {
+  Change c;
+  std::size_t lo = gap.a, hi = gap.b;  // the gap [lo, hi)
+  while (lo > left.a && hi < right.b && crossing_time_s(segs, w, SpellRun{lo, hi, false}) < min_s) {
+    const bool take_left = w[lo - 1] * segs[lo - 1].length_m <= w[hi] * segs[hi].length_m;
+    const std::size_t j = take_left ? --lo : hi++;
+    c.seg.push_back(j);
+    c.w.push_back(0.0);
+  }
+  return c;
+}
+
 Change switch_off(const SpellRun& r) {
   Change c;
   for (std::size_t j = r.a; j < r.b; ++j) c.seg.push_back(j), c.w.push_back(0.0);
@@ -651,14 +667,15 @@ Eigen::VectorXd own_deposit_mm(const DwellProblem& problem, const std::vector<do
   return dep;
 }
 
-// A lengthening lays at least its segments' fastest dwell (the floor the next solve gets). It
-// over-fills when that pushes a cell more than kLengthenOverfill_mm past the guard's upper limit:
-// with the machine's caps low (a leaned nozzle's joints, 0.07 m/s) a 0.1 m segment lays 38 mm at
-// its fastest, and lengthening short runs side by side laid 80 mm where 30 were left (the face
-// scene's level -1 cells). A round cannot take concrete back; the cells the run leaves go to the
-// next round's lines.
-constexpr double kLengthenOverfill_mm = 5.0;
-bool lengthening_overfills(const DwellProblem& problem, const Eigen::VectorXd& dep, const Change& c) {
+// Segments forced on (a short run lengthened over its neighbours, a short gap sprayed through)
+// lay at least their fastest dwell (1 / cap, the floor the next solve gets). That over-fills
+// when it pushes a cell more than kForcedOverfill_mm past the guard's upper limit: with the
+// machine's caps low (a leaned nozzle's joints, 0.07 m/s) a 0.1 m segment lays 38 mm at its
+// fastest, and lengthening short runs side by side laid 80 mm where 30 were left (the face
+// scene's level -1 cells). A round cannot take concrete back; the cells a run switched off
+// leaves go to the next round's lines.
+constexpr double kForcedOverfill_mm = 5.0;
+bool forcing_on_overfills(const DwellProblem& problem, const Eigen::VectorXd& dep, const Change& c) {
   if (problem.guard_hi_mm.size() != dep.size()) return false;  // no guard: no over-fill defined
   std::vector<std::pair<int, double>> added;
   for (std::size_t k = 0; k < c.seg.size(); ++k) {
@@ -671,7 +688,7 @@ bool lengthening_overfills(const DwellProblem& problem, const Eigen::VectorXd& d
     const int cell = added[i].first;
     double more = 0.0;
     for (; i < added.size() && added[i].first == cell; ++i) more += added[i].second;
-    if (dep[cell] + more > std::max(dep[cell], problem.guard_hi_mm[cell]) + kLengthenOverfill_mm) return true;
+    if (dep[cell] + more > std::max(dep[cell], problem.guard_hi_mm[cell]) + kForcedOverfill_mm) return true;
   }
   return false;
 }
@@ -705,17 +722,26 @@ FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<doubl
     for (std::size_t k = 0; k < runs.size(); ++k) {
       const SpellRun& r = runs[k];
       if (!r.on && k > 0 && k + 1 < runs.size() && crossing_time_s(segs, w, r) < min_off) {
-        apply(spray_gap(segs, r));
+        // A gap that would over-fill sprayed through (forcing_on_overfills) is kept, and the
+        // shorter of the runs beside it switched off instead.
+        const Change through = spray_gap(segs, r);
+        if (!forcing_on_overfills(problem, dep, through)) {
+          apply(through);
+        } else {
+          const Change wider = widen_gap(segs, w, runs[k - 1], r, runs[k + 1], min_off);
+          apply(wider);
+          if (!wider.seg.empty() && wider.seg.back() >= runs[k + 1].a) ++k;  // the run after is settled
+        }
       } else if (r.on && on_time_s(segs, w, r) < min_on) {
         // Measured on the default bay (seed 1): dropping only the stretches shorter than half
         // the minimum and lengthening the others leaves the smallest residual (weighing the two
         // by the objective at fixed dwells left RMS 10-11 mm instead of 9).
-        // A lengthening that would over-fill (lengthening_overfills) is dropped instead.
+        // A lengthening that would over-fill (forcing_on_overfills) is dropped instead.
         if (on_time_s(segs, w, r) < 0.5 * min_on) {
           apply(switch_off(r));
         } else {
           const Change longer = lengthen_run(segs, w, r, a, b, min_on, accel_mps2);
-          apply(lengthening_overfills(problem, dep, longer) ? switch_off(r) : longer);
+          apply(forcing_on_overfills(problem, dep, longer) ? switch_off(r) : longer);
         }
       }
     }
