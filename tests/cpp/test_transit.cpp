@@ -330,3 +330,63 @@ TEST(Transit, StartPostureKeepsAClearStowAndLeavesOneInTheFace) {
   EXPECT_LE(sp.allowance_m, exact + 1e-6);
   EXPECT_EQ(sp.preferred, robot.stow());
 }
+
+// A rock over the crown where the move from the stow posture swings (0.6 m past the nozzle's room
+// above its margin, radius 0.8 m): no via keeps every margin, so no clear route replaces that move.
+// The straight swing comes 0.4 m short of a margin (a link wholly in the rock); the route through
+// the via with the fewest link-samples below a margin replaces it all the same ("eased", still counted as
+// failed; fewer link-samples below a margin). Independently, every fifth sample of the new move by
+// the brute-force distances to the wall's points: never nearer than the route's reported
+// allowance (the octree reads short, never long), and less short than the straight move; the
+// move within the joint limits, and the time it costs reported.
+TEST(Transit, AMoveNoRouteClearsIsEasedThroughItsBestRoute) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimingConfig timing;
+  const ClearanceConfig cfg;
+  TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  const auto moves = joint_moves(tr);
+  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  ASSERT_NE(it, moves.end());
+  double least = std::numeric_limits<double>::infinity(), x_c = 0.0, th_c = 0.0;
+  for (std::size_t k = it->start; k <= it->end; ++k) {
+    const Eigen::Vector3d p = tr.nozzle[k].position_m;
+    const double room = kR - std::hypot(p.y(), p.z());
+    if (room < least) least = room, x_c = p.x(), th_c = std::atan2(p.z(), p.y());
+  }
+  const Points wall = wall_with_protrusion(-0.6, 2.0, x_c, th_c, least - cfg.nozzle_margin_m + 0.6, 0.8);
+  const WallOctree octree(wall, cfg.octree_resolution_m);
+  const auto pairs = self_check_pairs(robot);
+  const JointMove first = moves.front();
+  double straight = std::numeric_limits<double>::infinity();
+  for (std::size_t k = first.start; k <= first.end; k += 5) straight = std::min(straight, brute_allowance(robot, tr.q[k], wall, cfg, pairs));
+  const double duration_before = tr.duration_s;
+  const TransitReport rep = clear_transits(robot, tr, octree, cfg, timing);
+  const auto d = std::find_if(rep.detours.begin(), rep.detours.end(), [](const TransitDetour& x) { return x.move == 0; });
+  ASSERT_NE(d, rep.detours.end());
+  EXPECT_FALSE(d->rerouted);
+  ASSERT_TRUE(d->eased) << d->reason;
+  EXPECT_EQ(rep.rerouted, 0);
+  EXPECT_EQ(rep.failed, static_cast<int>(rep.detours.size()));
+  EXPECT_LT(d->min_allowance_m, 0.0);
+  EXPECT_GT(d->min_allowance_m, d->straight_min_allowance_m);
+  EXPECT_FALSE(d->vias.empty());
+  EXPECT_NE(d->reason.find("replaced the move"), std::string::npos);
+  const JointMove m = joint_moves(tr).front();
+  EXPECT_NEAR(m.duration_s(tr), d->duration_s, 1e-9);
+  double worst = std::numeric_limits<double>::infinity();
+  for (std::size_t k = m.start; k <= m.end; k += 5) worst = std::min(worst, brute_allowance(robot, tr.q[k], wall, cfg, pairs));
+  worst = std::min(worst, brute_allowance(robot, tr.q[m.end], wall, cfg, pairs));
+  std::printf("straight %.3f m, eased route %.3f m (reported %.3f) short of the margins\n", -straight, -worst, -d->min_allowance_m);
+  EXPECT_GE(worst, d->min_allowance_m - 1e-6);
+  EXPECT_GT(worst, straight);
+  // Fewer link-samples below a margin than the straight move, by the octree's readings as the
+  // router counted them.
+  TimedTrajectory new_move;
+  for (std::size_t k = m.start; k <= m.end; ++k) new_move.t_s.push_back(tr.t_s[k]), new_move.q.push_back(tr.q[k]);
+  EXPECT_LT(check_clearance_octree(robot, new_move, octree, cfg).moving_samples_below_margin(), d->straight_samples_below);
+  for (std::size_t k = m.start + 1; k <= m.end; ++k) {
+    ASSERT_TRUE(robot.within_limits(tr.q[k], 1e-9));
+    EXPECT_LE(tr.qd[k].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff(), 1.0 + 1e-6);
+  }
+  EXPECT_NEAR(tr.duration_s, duration_before + rep.detour_time_s, 1e-9);
+}

@@ -137,6 +137,26 @@ struct Router {
   std::vector<std::pair<int, int>> pairs;
   std::vector<char> fixed;  // fixed_shapes: left out of every judgement of a posture or a move
   int optimisations = 0;
+  // Of the one-via and fold-swing-unfold routes tried that break a margin, the one with the fewest
+  // link-samples below a margin (then the one least short of them: report_allowance) and its
+  // postures after qa: what may replace a move no clear route was found for (eased_enough).
+  int best_effort_below = std::numeric_limits<int>::max();
+  double best_effort_allowance_m = -std::numeric_limits<double>::infinity();
+  std::vector<Eigen::VectorXd> best_effort;
+  // Whether `piece` (postures `route` after qa) keeps every margin; a route that does not is
+  // remembered when it comes less short of them than any before.
+  // Only routes of the whole move (the outermost route call, depth top_depth) are remembered.
+  int top_depth = 2;
+  bool clear_or_note(const TimedTrajectory& piece, const std::vector<Eigen::VectorXd>& route, bool whole_move) {
+    if (piece.size() == 0) return true;
+    const ClearanceReport rep = check_clearance_octree(robot, piece, wall, config);
+    if (rep.moving_samples_below_margin() == 0) return true;
+    const int below = rep.moving_samples_below_margin();
+    const double allowance = report_allowance(rep, config);
+    if (whole_move && (below < best_effort_below || (below == best_effort_below && allowance > best_effort_allowance_m)))
+      best_effort_below = below, best_effort_allowance_m = allowance, best_effort = route;
+    return false;
+  }
 
   // The samples of a move (its start excluded) keep every margin.
   bool clear(const TimedTrajectory& piece) const {
@@ -198,7 +218,8 @@ struct Router {
       double best_s = std::numeric_limits<double>::infinity();
       for (std::size_t k = first_new; k < vias.size(); ++k) {
         const TimedTrajectory piece = joint_move_through(robot, {qa, vias[k], qb}, timing, region_index);
-        if (piece.duration_s < best_s && clear(piece)) best = std::vector<Eigen::VectorXd>{vias[k], qb}, best_s = piece.duration_s;
+        const std::vector<Eigen::VectorXd> legs{vias[k], qb};
+        if (piece.duration_s < best_s && clear_or_note(piece, legs, depth == top_depth)) best = legs, best_s = piece.duration_s;
       }
       if (best) return best;
     }
@@ -208,7 +229,7 @@ struct Router {
       const Eigen::VectorXd fa = via_from(folded(qa), folded(qa), config.via_allowance_m);
       const Eigen::VectorXd fb = via_from(folded(qb), folded(qb), config.via_allowance_m);
       if (allowance(fa, 0.0) >= 0.0 && allowance(fb, 0.0) >= 0.0 &&
-          clear(joint_move_through(robot, {qa, fa, fb, qb}, timing, region_index)))
+          clear_or_note(joint_move_through(robot, {qa, fa, fb, qb}, timing, region_index), {fa, fb, qb}, depth == top_depth))
         return std::vector<Eigen::VectorXd>{fa, fb, qb};
     }
     if (depth == 1) return std::nullopt;
@@ -238,6 +259,11 @@ TimedTrajectory move_samples(const TimedTrajectory& tr, const JointMove& m) {
 }
 
 }  // namespace
+
+// A route that breaks a margin with fewer link-samples than the straight move but more than half
+// as many replaces it only when it comes at least this much less short of the margins [m]: a real
+// gain, not one leaf of the octree's reading.
+constexpr double kBestEffortGain_m = 0.1;
 
 TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall,
                              const ClearanceConfig& config, const TimingConfig& timing) {
@@ -272,7 +298,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       d.reason = "its start or goal posture is itself closer than the margins";
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
-    } else if (const auto route = router.route(qa, qb, 2)) {
+    } else if (const auto route = router.route(qa, qb, router.top_depth)) {
       std::vector<Eigen::VectorXd> postures{qa};
       postures.insert(postures.end(), route->begin(), route->end());
       const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
@@ -286,6 +312,30 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       replace_joint_move(robot, trajectory, move, piece);
       moves = joint_moves(trajectory);  // the later samples moved
       d.rerouted = true;
+    } else if (!router.best_effort.empty() && router.best_effort_below < d.straight_samples_below &&
+               (router.best_effort_below <= d.straight_samples_below / 2 ||
+                router.best_effort_allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m)) {
+      // No clear route, but one with at most half the straight move's link-samples below a margin
+      // (a straight swing through a face: 2,000 of them, every one 0.4 m short, where the reading
+      // saturates), or fewer that come 0.1 m less short: it replaces the move, which still counts
+      // as failed, and the clearance check counts what it breaks.
+      std::vector<Eigen::VectorXd> postures{qa};
+      postures.insert(postures.end(), router.best_effort.begin(), router.best_effort.end());
+      const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+      d.vias.assign(router.best_effort.begin(), router.best_effort.end() - 1);
+      for (const auto& v : d.vias) d.via_allowance_m.push_back(router.allowance(v, 10.0));
+      d.min_allowance_m = router.best_effort_allowance_m;
+      d.duration_s = piece.duration_s;
+      std::ostringstream why;
+      why.precision(3);
+      why << "no via posture found whose route keeps the margins; the route with the fewest link-samples below them ("
+          << router.best_effort_below << ", " << -d.min_allowance_m << " m short; the straight move " << d.straight_samples_below
+          << ", " << -d.straight_min_allowance_m << " m) replaced the move";
+      d.reason = why.str();
+      d.eased = true;
+      replace_joint_move(robot, trajectory, move, piece);
+      moves = joint_moves(trajectory);
+      rep.detour_time_s += d.duration_s - d.straight_duration_s;
     } else {
       d.reason = "no via posture found whose route keeps the margins";
     }

@@ -174,7 +174,7 @@ void write(JsonWriter& w, const TransitReport& t) {
   for (const auto& d : t.detours) {
     w.begin_object().field("move", d.move).field("region_index", d.region_index).field("start_time_s", d.start_time_s);
     w.field("straight_samples_below", d.straight_samples_below).field("straight_worst", d.straight_worst);
-    w.field("straight_min_allowance_m", d.straight_min_allowance_m).field("rerouted", d.rerouted).key("reason");
+    w.field("straight_min_allowance_m", d.straight_min_allowance_m).field("rerouted", d.rerouted).field("eased", d.eased).key("reason");
     if (d.reason.empty()) w.null();
     else w.value(d.reason);
     w.key("vias").begin_array();
@@ -186,7 +186,7 @@ void write(JsonWriter& w, const TransitReport& t) {
     w.end_array().key("via_allowance_m").begin_array();
     for (double a : d.via_allowance_m) w.value(a);
     w.end_array().key("min_allowance_m");
-    if (d.rerouted) w.value(d.min_allowance_m);
+    if (d.rerouted || d.eased) w.value(d.min_allowance_m);
     else w.null();
     w.field("straight_duration_s", d.straight_duration_s).field("duration_s", d.duration_s).end_object();
   }
@@ -520,13 +520,16 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
     if (c->self.samples_below_margin > 0)
       worst += (worst.empty() ? "" : ", ") + c->self.link_a + "-" + c->self.link_b + " " + fmt(c->self.min_m, 2) + " m";
     std::string moves;
-    if (s.transits && s.transits->failed > 0)
+    if (s.transits && s.transits->failed > 0) {
+      const auto eased = std::count_if(s.transits->detours.begin(), s.transits->detours.end(), [](const auto& d) { return d.eased; });
       for (const auto& d : s.transits->detours)
         if (!d.rerouted) {
-          moves = "; " + std::to_string(s.transits->failed) + " joint move(s) not re-routed (move " + std::to_string(d.move) +
-                  ": " + d.reason + ")";
+          moves = "; " + std::to_string(s.transits->failed) + " joint move(s) not re-routed clear" +
+                  (eased > 0 ? " (" + std::to_string(eased) + " of them eased onto the route with the fewest samples below)" : "") +
+                  " (move " + std::to_string(d.move) + ": " + d.reason + ")";
           break;
         }
+    }
     out.push_back({"clearance", "the arm comes closer than its margins at " + std::to_string(c->moving_samples_below_margin()) +
                                     " link-samples: " + worst + moves});
   }

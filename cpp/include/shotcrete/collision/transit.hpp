@@ -34,10 +34,14 @@ struct TransitDetour {
   std::string straight_worst;      // the link (or link pair) that came closest, and how close [m]
   double straight_min_allowance_m = 0.0;  // least distance less margin on it (< 0)
   bool rerouted = false;           // a clear route was found and replaced the move
+  bool eased = false;              // no clear route, but one with at most half the straight move's
+                                   // link-samples below a margin (or fewer, 0.1 m less short of them)
+                                   // replaced it (still a failure)
   std::string reason;              // why not, when not rerouted
   std::vector<Eigen::VectorXd> vias;      // the postures passed through, in order
   std::vector<double> via_allowance_m;    // posture_allowance of each (>= 0)
-  double min_allowance_m = 0.0;    // least distance less margin along the new move (check_clearance_octree, >= 0)
+  double min_allowance_m = 0.0;    // least distance less margin along the new move (check_clearance_octree;
+                                   // >= 0 when rerouted, < 0 when eased)
   double straight_duration_s = 0.0, duration_s = 0.0;  // of the move before and after
   int optimisations = 0;           // via postures searched (BOBYQA runs)
 };
