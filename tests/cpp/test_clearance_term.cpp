@@ -292,11 +292,11 @@ TEST(ClearanceTerm, APathOverTheCrownStartsInTheFamilyOfTheWallItGoesDown) {
   const auto after = timing_joint_path(robot, poses, seed, rc, &tracked, term);
   ASSERT_TRUE(tracked);
   const std::vector<char> fixed = fixed_shapes(robot);
-  // The exact distances of the links the spare degrees of freedom move to the points, every
-  // tenth posture.
+  // The exact distances of the links the spare degrees of freedom move to the points, at every
+  // posture.
   const auto least_exact = [&](const std::vector<Eigen::VectorXd>& path) {
     double least = std::numeric_limits<double>::infinity();
-    for (std::size_t i = 0; i < path.size(); i += 10) {
+    for (std::size_t i = 0; i < path.size(); ++i) {
       const auto frames = robot.link_frames(path[i]);
       const auto& shapes = robot.collision_shapes();
       for (std::size_t k = 0; k < shapes.size(); ++k)

@@ -1099,7 +1099,7 @@ TEST(LevellingDwells, AShortRunIsLengthenedOnlyWhereItsNeighboursDoNotOverFill) 
 // that lays more than the cells under it can take (past the guard's upper limit): then the gap is
 // widened, the ends of the runs beside it switched off (each step the one sprayed for less time),
 // until the nozzle takes the pump's off spell to cross it. One line of seven 0.1 m segments, each
-// laying 3 mm per s/m on its own cell; segment 3 off over a flush cell, 1.2 s to cross.
+// laying 3 mm per s/m on its own cell; segment 3 off over a flush cell, 1.17 s to cross.
 TEST(LevellingDwells, AShortGapIsSprayedThroughOnlyWhereItDoesNotOverFill) {
   auto line = [](double cap_mps) {
     DwellProblem p;
@@ -1121,7 +1121,7 @@ TEST(LevellingDwells, AShortGapIsSprayedThroughOnlyWhereItDoesNotOverFill) {
     set_guard(p, td, 20.0, 100.0);
     return p;
   };
-  const std::vector<double> w = {12.0, 12.0, 12.0, 0.0, 11.5, 13.0, 12.0};  // runs of 3.6 and 3.6 s
+  const std::vector<double> w = {12.0, 12.0, 12.0, 0.0, 11.5, 13.0, 12.0};  // runs of 3.6 and 3.65 s
   FlowConfig flow;
   // Caps at 1 m/s: 1 s/m lays 3 mm on the flush cell: sprayed through.
   const FlowSpellFix fast = flow_spell_fix(line(1.0), w, flow, 0.5);

@@ -139,13 +139,13 @@ struct Router {
   int optimisations = 0;
   // Of the one-via and fold-swing-unfold routes tried that break a margin, the one with the fewest
   // link-samples below a margin (then the one least short of them: report_allowance) and its
-  // postures after qa: what may replace a move no clear route was found for (eased_enough).
+  // postures after qa: what may replace a move no clear route was found for (clear_transits).
   int best_effort_below = std::numeric_limits<int>::max();
   double best_effort_allowance_m = -std::numeric_limits<double>::infinity();
   std::vector<Eigen::VectorXd> best_effort;
-  // Whether `piece` (postures `route` after qa) keeps every margin; a route that does not is
-  // remembered when it comes less short of them than any before.
-  // Only routes of the whole move (the outermost route call, depth top_depth) are remembered.
+  // Whether `piece` (postures `route` after qa) keeps every margin; a route of the whole move (the
+  // outermost route call, depth top_depth; not a leg of it) that does not is remembered when it
+  // breaks them less than any before.
   int top_depth = 2;
   bool clear_or_note(const TimedTrajectory& piece, const std::vector<Eigen::VectorXd>& route, bool whole_move) {
     if (piece.size() == 0) return true;
@@ -158,10 +158,6 @@ struct Router {
     return false;
   }
 
-  // The samples of a move (its start excluded) keep every margin.
-  bool clear(const TimedTrajectory& piece) const {
-    return piece.size() == 0 || check_clearance_octree(robot, piece, wall, config).moving_samples_below_margin() == 0;
-  }
   // Posture of the move's sample where a link comes closest to breaking its margin.
   static Eigen::VectorXd worst_posture(const TimedTrajectory& piece, const ClearanceReport& rep, const ClearanceConfig& cfg) {
     double least = std::numeric_limits<double>::infinity(), at = 0.0;
@@ -294,23 +290,28 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
     d.straight_duration_s = d.duration_s = move.duration_s(trajectory);
     const Eigen::VectorXd qa = trajectory.q[move.start], qb = trajectory.q[move.end];
     Router router{robot, wall, config, timing, move.region_index, pairs, fixed};
+    // The move replaced by the postures after qa (the last one qb): vias, durations, the detour.
+    const auto replace_by = [&](const std::vector<Eigen::VectorXd>& route) {
+      std::vector<Eigen::VectorXd> postures{qa};
+      postures.insert(postures.end(), route.begin(), route.end());
+      const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+      d.vias.assign(route.begin(), route.end() - 1);
+      for (const auto& v : d.vias) d.via_allowance_m.push_back(router.allowance(v, 10.0));
+      d.duration_s = piece.duration_s;
+      rep.detour_time_s += d.duration_s - d.straight_duration_s;
+      replace_joint_move(robot, trajectory, move, piece);
+      moves = joint_moves(trajectory);  // the later samples moved
+      return piece;
+    };
     if (router.allowance(qa, 0.0) < 0.0 || router.allowance(qb, 0.0) < 0.0) {
       d.reason = "its start or goal posture is itself closer than the margins";
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
     } else if (const auto route = router.route(qa, qb, router.top_depth)) {
-      std::vector<Eigen::VectorXd> postures{qa};
-      postures.insert(postures.end(), route->begin(), route->end());
-      const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
-      d.vias.assign(route->begin(), route->end() - 1);
-      for (const auto& v : d.vias) d.via_allowance_m.push_back(router.allowance(v, 10.0));
-      TimedTrajectory checked = piece;
+      TimedTrajectory checked = replace_by(*route);
       checked.t_s.insert(checked.t_s.begin(), 0.0);
       checked.q.insert(checked.q.begin(), qa);
       d.min_allowance_m = report_allowance(check_clearance_octree(robot, checked, wall, config), config);
-      d.duration_s = piece.duration_s;
-      replace_joint_move(robot, trajectory, move, piece);
-      moves = joint_moves(trajectory);  // the later samples moved
       d.rerouted = true;
     } else if (!router.best_effort.empty() && router.best_effort_below < d.straight_samples_below &&
                (router.best_effort_below <= d.straight_samples_below / 2 ||
@@ -319,13 +320,8 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       // (a straight swing through a face: 2,000 of them, every one 0.4 m short, where the reading
       // saturates), or fewer that come 0.1 m less short: it replaces the move, which still counts
       // as failed, and the clearance check counts what it breaks.
-      std::vector<Eigen::VectorXd> postures{qa};
-      postures.insert(postures.end(), router.best_effort.begin(), router.best_effort.end());
-      const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
-      d.vias.assign(router.best_effort.begin(), router.best_effort.end() - 1);
-      for (const auto& v : d.vias) d.via_allowance_m.push_back(router.allowance(v, 10.0));
+      replace_by(router.best_effort);
       d.min_allowance_m = router.best_effort_allowance_m;
-      d.duration_s = piece.duration_s;
       std::ostringstream why;
       why.precision(3);
       why << "no via posture found whose route keeps the margins; the route with the fewest link-samples below them ("
@@ -333,14 +329,11 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
           << ", " << -d.straight_min_allowance_m << " m) replaced the move";
       d.reason = why.str();
       d.eased = true;
-      replace_joint_move(robot, trajectory, move, piece);
-      moves = joint_moves(trajectory);
-      rep.detour_time_s += d.duration_s - d.straight_duration_s;
     } else {
       d.reason = "no via posture found whose route keeps the margins";
     }
     d.optimisations = router.optimisations;
-    if (d.rerouted) ++rep.rerouted, rep.detour_time_s += d.duration_s - d.straight_duration_s;
+    if (d.rerouted) ++rep.rerouted;
     else ++rep.failed;
     rep.detours.push_back(std::move(d));
   }

@@ -312,7 +312,7 @@ void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots, b
 
 // At the bay's ends (the arches) run on past the last cell, so the end cells see the whole
 // spot like the others instead of half of it. Where the nozzle leans at that end (to keep clear of
-// a face past it) it runs on at most leaned_overrun_m with the lean held: a leaned spot lays most
+// a face past it) it runs on at most leaned_edge_overrun_m with the lean held: a leaned spot lays most
 // of its concrete on the side nearer the nozzle, so without a run-on the end cell gets only the
 // far tail and the cells behind it the peak. obstructed_cells keeps that much room for it.
 void add_edge_overrun(LineKnots& k, int n_u, const PlannerConfig& config, const Eigen::Vector3d& ex) {

@@ -701,13 +701,18 @@ FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<doubl
   if (w.size() != segs.size() || problem.unit_mm.size() != segs.size())
     throw std::invalid_argument("flow_spell_fix: one dwell and one unit deposit per segment");
   FlowSpellFix fix;
-  Eigen::VectorXd dep = own_deposit_mm(problem, w);  // as the changes so far leave it
+  // The dwells and the deposit as the changes so far leave them (a segment forced on at its
+  // floor); a change to the state a segment is already in is no change.
+  std::vector<double> cur = w;
+  Eigen::VectorXd dep = own_deposit_mm(problem, w);
   auto apply = [&](const Change& c) {
     for (std::size_t k = 0; k < c.seg.size(); ++k) {
-      (c.w[k] > 0 ? fix.force_on : fix.force_off).push_back(c.seg[k]);
-      const double was = w[c.seg[k]] > 0 ? w[c.seg[k]] : 0.0;
-      const double now = c.w[k] > 0 ? std::max(1.0 / segs[c.seg[k]].cap_mps, was) : 0.0;  // forced on: the floor
-      if (now != was) add_deposit(dep, problem.unit_mm[c.seg[k]], now - was);
+      const std::size_t j = c.seg[k];
+      if ((c.w[k] > 0) == (cur[j] > 0)) continue;
+      (c.w[k] > 0 ? fix.force_on : fix.force_off).push_back(j);
+      const double now = c.w[k] > 0 ? 1.0 / segs[j].cap_mps : 0.0;  // forced on: the floor
+      add_deposit(dep, problem.unit_mm[j], now - std::max(cur[j], 0.0));
+      cur[j] = now;
     }
   };
   const double min_on = margin_ratio * flow.min_on_s, min_off = margin_ratio * flow.min_off_s;
@@ -722,15 +727,15 @@ FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<doubl
     for (std::size_t k = 0; k < runs.size(); ++k) {
       const SpellRun& r = runs[k];
       if (!r.on && k > 0 && k + 1 < runs.size() && crossing_time_s(segs, w, r) < min_off) {
-        // A gap that would over-fill sprayed through (forcing_on_overfills) is kept, and the
-        // shorter of the runs beside it switched off instead.
+        // A gap that would over-fill sprayed through (forcing_on_overfills) is widened instead
+        // (widen_gap); the run after it, trimmed, is left to the check after the next solve.
         const Change through = spray_gap(segs, r);
         if (!forcing_on_overfills(problem, dep, through)) {
           apply(through);
         } else {
           const Change wider = widen_gap(segs, w, runs[k - 1], r, runs[k + 1], min_off);
           apply(wider);
-          if (!wider.seg.empty() && wider.seg.back() >= runs[k + 1].a) ++k;  // the run after is settled
+          if (std::any_of(wider.seg.begin(), wider.seg.end(), [&](std::size_t j) { return j >= runs[k + 1].a; })) ++k;
         }
       } else if (r.on && on_time_s(segs, w, r) < min_on) {
         // Measured on the default bay (seed 1): dropping only the stretches shorter than half

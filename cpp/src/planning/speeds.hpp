@@ -141,7 +141,10 @@ std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::v
 /// margin_ratio: the trajectory's speed changes shift the times a little). A short gap is sprayed
 /// through; a stretch shorter than half the minimum is switched off, a longer one lengthened over
 /// its off neighbours (their time counted at the fastest speed accel_mps2 lets the nozzle reach
-/// from the stretch, as limit_speed_changes allows).
+/// from the stretch, as limit_speed_changes allows). Where the segments forced on would lay, at
+/// their fastest dwell, more than 5 mm past the guard's upper limit of a cell (guarded problems
+/// only), the stretch is switched off instead of lengthened and the gap widened instead of sprayed
+/// through (the ends of the stretches beside it switched off until it lasts min_off_s).
 struct FlowSpellFix {
   std::vector<std::size_t> force_on, force_off;
   bool empty() const { return force_on.empty() && force_off.empty(); }
