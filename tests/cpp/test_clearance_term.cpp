@@ -164,6 +164,19 @@ TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
   EXPECT_GE(checked, 6);
 }
 
+// The wall's points with a face across the axis at x_face (a disc of radius R down to z = -1.5,
+// points every 4 cm) appended.
+static Points with_face(const Points& wall_pts, double x_face, double R) {
+  std::vector<Eigen::Vector3d> face;
+  for (double y = -R; y <= R; y += 0.04)
+    for (double z = -1.5; z <= R; z += 0.04)
+      if (y * y + z * z < R * R) face.emplace_back(x_face, y, z);
+  Points all(wall_pts.rows() + static_cast<Eigen::Index>(face.size()), 3);
+  all.topRows(wall_pts.rows()) = wall_pts;
+  for (std::size_t k = 0; k < face.size(); ++k) all.row(wall_pts.rows() + static_cast<Eigen::Index>(k)) = face[k].transpose();
+  return all;
+}
+
 // A face across a bay of the default radius (5.7 m) 0.6 m ahead of the base (x = 1.2) and a
 // pass right of the crown (y < 0) near it. Tracked from the posture a face scene's plan had
 // reached there (the slew pointing the boom ahead and to the right, measured on the default bay
@@ -175,14 +188,8 @@ TEST(ClearanceTerm, GradientMatchesCentralDifferencesOfTheLinks) {
 TEST(ClearanceTerm, APathThroughTheFaceStartsFromARoomierPosture) {
   const Robot robot = Robot::load(RobotConfig{});
   const double x_face = 1.2, R = 5.7;
-  Points wall_pts = narrow_wall(-1.5, x_face, R);
-  std::vector<Eigen::Vector3d> face;
-  for (double y = -R; y <= R; y += 0.04)
-    for (double z = -1.5; z <= R; z += 0.04)
-      if (y * y + z * z < R * R) face.emplace_back(x_face, y, z);
-  Points all(wall_pts.rows() + static_cast<Eigen::Index>(face.size()), 3);
-  all.topRows(wall_pts.rows()) = wall_pts;
-  for (std::size_t k = 0; k < face.size(); ++k) all.row(wall_pts.rows() + static_cast<Eigen::Index>(k)) = face[k].transpose();
+  const Points wall_pts = narrow_wall(-1.5, x_face, R);
+  const Points all = with_face(wall_pts, x_face, R);
   const WallOctree wall(all, 0.05);
   const RobotConfig rc;
   const ClearanceConfig cc;
@@ -261,14 +268,8 @@ TEST(ClearanceTerm, APathThroughTheFaceStartsFromARoomierPosture) {
 TEST(ClearanceTerm, APathOverTheCrownStartsInTheFamilyOfTheWallItGoesDown) {
   const Robot robot = Robot::load(RobotConfig{});
   const double x_face = 1.2, R = 5.7;
-  Points wall_pts = narrow_wall(-1.5, x_face, R);
-  std::vector<Eigen::Vector3d> face;
-  for (double y = -R; y <= R; y += 0.04)
-    for (double z = -1.5; z <= R; z += 0.04)
-      if (y * y + z * z < R * R) face.emplace_back(x_face, y, z);
-  Points all(wall_pts.rows() + static_cast<Eigen::Index>(face.size()), 3);
-  all.topRows(wall_pts.rows()) = wall_pts;
-  for (std::size_t k = 0; k < face.size(); ++k) all.row(wall_pts.rows() + static_cast<Eigen::Index>(k)) = face[k].transpose();
+  const Points wall_pts = narrow_wall(-1.5, x_face, R);
+  const Points all = with_face(wall_pts, x_face, R);
   const WallOctree wall(all, 0.05);
   const RobotConfig rc;
   const ClearanceConfig cc;

@@ -1046,6 +1046,27 @@ TEST(LevellingDwells, LaterLinesTakeTheLookAheadsRestWithinTheirOwnBound) {
   EXPECT_FALSE(flow_spell_fix(p, w_short, flow, 0.5).empty());
 }
 
+// One pass line of 0.1 m segments, one per cell of td_mm, each laying 3 mm per s/m on its own cell
+// at most at cap_mps; the target is the TD, guarded at +-20 mm (weight 100).
+static DwellProblem spell_line(const Eigen::VectorXd& td_mm, double cap_mps) {
+  DwellProblem p;
+  for (Eigen::Index j = 0; j < td_mm.size(); ++j) {
+    Segment seg;
+    seg.first = 10 * static_cast<std::size_t>(j), seg.last = 10 * static_cast<std::size_t>(j + 1);
+    seg.length_m = 0.1;
+    seg.cap_mps = cap_mps;
+    p.segments.push_back(seg);
+    Sparse u;
+    u.idx = {static_cast<int>(j)};
+    u.val = {3.0};
+    p.unit_mm.push_back(u);
+  }
+  p.target_mm = td_mm;
+  p.w_max_s_per_m = 20.0;
+  set_guard(p, td_mm, 20.0, 100.0);
+  return p;
+}
+
 // A sprayed run too short for the pump is lengthened over its off neighbours at the least dwell
 // they can take (1 / cap); where the machine's caps are low that least dwell lays more than the
 // cells beside can take (past the guard's upper limit), and the run is switched off instead.
@@ -1053,25 +1074,9 @@ TEST(LevellingDwells, LaterLinesTakeTheLookAheadsRestWithinTheirOwnBound) {
 // one sprayed 1.5 s (between half and all of the 2.4 s the pump needs with its margin).
 TEST(LevellingDwells, AShortRunIsLengthenedOnlyWhereItsNeighboursDoNotOverFill) {
   auto line = [](double cap_mps, double td_beside_mm) {
-    DwellProblem p;
-    for (std::size_t j = 0; j < 5; ++j) {
-      Segment seg;
-      seg.pass = 0;
-      seg.first = 10 * j, seg.last = 10 * (j + 1);
-      seg.length_m = 0.1;
-      seg.cap_mps = cap_mps;
-      p.segments.push_back(seg);
-      Sparse u;
-      u.idx = {static_cast<int>(j)};
-      u.val = {3.0};
-      p.unit_mm.push_back(u);
-    }
-    Eigen::VectorXd td(5);
-    td << td_beside_mm, td_beside_mm, 45.0, td_beside_mm, td_beside_mm;
-    p.target_mm = td;
-    p.w_max_s_per_m = 20.0;
-    set_guard(p, td, 20.0, 100.0);
-    return p;
+    Eigen::VectorXd td = Eigen::VectorXd::Constant(5, td_beside_mm);
+    td[2] = 45.0;
+    return spell_line(td, cap_mps);
   };
   const std::vector<double> w = {0.0, 0.0, 15.0, 0.0, 0.0};  // 1.5 s on
   FlowConfig flow;
@@ -1102,24 +1107,9 @@ TEST(LevellingDwells, AShortRunIsLengthenedOnlyWhereItsNeighboursDoNotOverFill) 
 // laying 3 mm per s/m on its own cell; segment 3 off over a flush cell, 1.17 s to cross.
 TEST(LevellingDwells, AShortGapIsSprayedThroughOnlyWhereItDoesNotOverFill) {
   auto line = [](double cap_mps) {
-    DwellProblem p;
-    for (std::size_t j = 0; j < 7; ++j) {
-      Segment seg;
-      seg.first = 10 * j, seg.last = 10 * (j + 1);
-      seg.length_m = 0.1;
-      seg.cap_mps = cap_mps;
-      p.segments.push_back(seg);
-      Sparse u;
-      u.idx = {static_cast<int>(j)};
-      u.val = {3.0};
-      p.unit_mm.push_back(u);
-    }
     Eigen::VectorXd td = Eigen::VectorXd::Constant(7, 36.0);
     td[3] = 0.0;
-    p.target_mm = td;
-    p.w_max_s_per_m = 20.0;
-    set_guard(p, td, 20.0, 100.0);
-    return p;
+    return spell_line(td, cap_mps);
   };
   const std::vector<double> w = {12.0, 12.0, 12.0, 0.0, 11.5, 13.0, 12.0};  // runs of 3.6 and 3.65 s
   FlowConfig flow;

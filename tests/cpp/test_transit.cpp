@@ -71,6 +71,21 @@ std::vector<std::vector<Pass>> two_regions() {
           shotcrete::test::axial_region(2, 0.6, 0.2, 0.3, 2.45, {0.3}, kR - 1.0, kR)};
 }
 
+// Where the nozzle of the move [start, end] comes nearest the plain wall: its room to the wall [m]
+// and the place (x, theta) on the wall.
+struct NearestWall {
+  double room_m = std::numeric_limits<double>::infinity(), x_m = 0.0, theta_rad = 0.0;
+};
+NearestWall nearest_wall(const TimedTrajectory& tr, const JointMove& m) {
+  NearestWall n;
+  for (std::size_t k = m.start; k <= m.end; ++k) {
+    const Eigen::Vector3d p = tr.nozzle[k].position_m;
+    const double room = kR - std::hypot(p.y(), p.z());
+    if (room < n.room_m) n = {room, p.x(), std::atan2(p.z(), p.y())};
+  }
+  return n;
+}
+
 }  // namespace
 
 TEST(Transit, JointMovesAndTheirReplacement) {
@@ -142,12 +157,8 @@ TEST(Transit, ProtrusionInTheTransitIsRerouted) {
   const JointMove transit = *it;
   // Where the straight transit's nozzle comes nearest the plain wall: the protrusion goes there,
   // standing 0.3 m further in than the nozzle's room above its margin.
-  double least = std::numeric_limits<double>::infinity(), x_c = 0.0, th_c = 0.0;
-  for (std::size_t k = transit.start; k <= transit.end; ++k) {
-    const Eigen::Vector3d p = tr.nozzle[k].position_m;
-    const double room = kR - std::hypot(p.y(), p.z());
-    if (room < least) least = room, x_c = p.x(), th_c = std::atan2(p.z(), p.y());
-  }
+  const NearestWall near = nearest_wall(tr, transit);
+  const double least = near.room_m, x_c = near.x_m, th_c = near.theta_rad;
   const double height = least - cfg.nozzle_margin_m + 0.3;
   const Points wall = wall_with_protrusion(-0.6, 2.0, x_c, th_c, height, 0.8);
   const WallOctree octree(wall, cfg.octree_resolution_m);
@@ -347,13 +358,8 @@ TEST(Transit, AMoveNoRouteClearsIsEasedThroughItsBestRoute) {
   const auto moves = joint_moves(tr);
   const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
   ASSERT_NE(it, moves.end());
-  double least = std::numeric_limits<double>::infinity(), x_c = 0.0, th_c = 0.0;
-  for (std::size_t k = it->start; k <= it->end; ++k) {
-    const Eigen::Vector3d p = tr.nozzle[k].position_m;
-    const double room = kR - std::hypot(p.y(), p.z());
-    if (room < least) least = room, x_c = p.x(), th_c = std::atan2(p.z(), p.y());
-  }
-  const Points wall = wall_with_protrusion(-0.6, 2.0, x_c, th_c, least - cfg.nozzle_margin_m + 0.6, 0.8);
+  const NearestWall near = nearest_wall(tr, *it);
+  const Points wall = wall_with_protrusion(-0.6, 2.0, near.x_m, near.theta_rad, near.room_m - cfg.nozzle_margin_m + 0.6, 0.8);
   const WallOctree octree(wall, cfg.octree_resolution_m);
   const auto pairs = self_check_pairs(robot);
   const JointMove first = moves.front();
