@@ -142,7 +142,7 @@ struct Router {
   // postures after qa: what may replace a move no clear route was found for (clear_transits).
   int best_effort_below = std::numeric_limits<int>::max();
   double best_effort_allowance_m = -std::numeric_limits<double>::infinity();
-  std::vector<Eigen::VectorXd> best_effort;
+  std::vector<Eigen::VectorXd> best_effort{};
   // Whether `piece` (postures `route` after qa) keeps every margin; a route of the whole move (the
   // outermost route call, depth top_depth; not a leg of it) that does not is remembered when it
   // breaks them less than any before.
@@ -150,8 +150,8 @@ struct Router {
   bool clear_or_note(const TimedTrajectory& piece, const std::vector<Eigen::VectorXd>& route, bool whole_move) {
     if (piece.size() == 0) return true;
     const ClearanceReport rep = check_clearance_octree(robot, piece, wall, config);
-    if (rep.moving_samples_below_margin() == 0) return true;
     const int below = rep.moving_samples_below_margin();
+    if (below == 0) return true;
     const double allowance = report_allowance(rep, config);
     if (whole_move && (below < best_effort_below || (below == best_effort_below && allowance > best_effort_allowance_m)))
       best_effort_below = below, best_effort_allowance_m = allowance, best_effort = route;

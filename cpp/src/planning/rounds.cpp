@@ -682,15 +682,6 @@ SprayedRound sprayed_round(const std::vector<RegionPlan>& regions, const CellSur
   return out;
 }
 
-// The deposit the solve meant: sum_j w_j U_j [mm per slot].
-Eigen::VectorXd solved_deposit_mm(const DwellProblem& problem, const std::vector<double>& w) {
-  Eigen::VectorXd dep = Eigen::VectorXd::Zero(problem.target_mm.size());
-  for (std::size_t j = 0; j < w.size(); ++j)
-    if (!problem.segments[j].later)
-      for (std::size_t k = 0; k < problem.unit_mm[j].idx.size(); ++k) dep[problem.unit_mm[j].idx[k]] += w[j] * problem.unit_mm[j].val[k];
-  return dep;
-}
-
 class LevellingRounds : public RoundStages {
  public:
   RoundKind kind() const override { return RoundKind::levelling; }

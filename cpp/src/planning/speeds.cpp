@@ -657,16 +657,6 @@ void add_deposit(Eigen::VectorXd& dep, const Sparse& unit_mm, double dwell) {
   for (std::size_t k = 0; k < unit_mm.idx.size(); ++k) dep[unit_mm.idx[k]] += dwell * unit_mm.val[k];
 }
 
-// What this round's sprayed segments and the background lay [mm per slot] (not the later lines').
-Eigen::VectorXd own_deposit_mm(const DwellProblem& problem, const std::vector<double>& w) {
-  Eigen::VectorXd dep = problem.background_mm.size() == problem.target_mm.size()
-                            ? problem.background_mm
-                            : Eigen::VectorXd::Zero(problem.target_mm.size());
-  for (std::size_t j = 0; j < w.size(); ++j)
-    if (!problem.segments[j].later && w[j] > 0) add_deposit(dep, problem.unit_mm[j], w[j]);
-  return dep;
-}
-
 // Segments forced on (a short run lengthened over its neighbours, a short gap sprayed through)
 // lay at least their fastest dwell (1 / cap, the floor the next solve gets). That over-fills
 // when it pushes a cell more than kForcedOverfill_mm past the guard's upper limit: with the
@@ -695,6 +685,13 @@ bool forcing_on_overfills(const DwellProblem& problem, const Eigen::VectorXd& de
 
 }  // namespace
 
+Eigen::VectorXd solved_deposit_mm(const DwellProblem& problem, const std::vector<double>& w) {
+  Eigen::VectorXd dep = Eigen::VectorXd::Zero(problem.target_mm.size());
+  for (std::size_t j = 0; j < w.size(); ++j)
+    if (!problem.segments[j].later) add_deposit(dep, problem.unit_mm[j], w[j]);
+  return dep;
+}
+
 FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<double>& w, const FlowConfig& flow,
                             double accel_mps2, double margin_ratio) {
   const std::vector<Segment>& segs = problem.segments;
@@ -704,7 +701,8 @@ FlowSpellFix flow_spell_fix(const DwellProblem& problem, const std::vector<doubl
   // The dwells and the deposit as the changes so far leave them (a segment forced on at its
   // floor); a change to the state a segment is already in is no change.
   std::vector<double> cur = w;
-  Eigen::VectorXd dep = own_deposit_mm(problem, w);
+  Eigen::VectorXd dep = solved_deposit_mm(problem, w);
+  if (problem.background_mm.size() == dep.size()) dep += problem.background_mm;
   auto apply = [&](const Change& c) {
     for (std::size_t k = 0; k < c.seg.size(); ++k) {
       const std::size_t j = c.seg[k];

@@ -135,6 +135,10 @@ double deposit_cost(const DwellProblem& problem, const Eigen::VectorXd& deposit_
 /// every pass line stay within accel_mps2 (see speeds.cpp).
 std::vector<double> limit_speed_changes(const std::vector<Segment>& segs, std::vector<double> w, double accel_mps2);
 
+/// The deposit the solve means: sum_j w_j U_j over this round's segments (not the later lines'),
+/// background not included [mm per cell slot].
+Eigen::VectorXd solved_deposit_mm(const DwellProblem& problem, const std::vector<double>& w);
+
 /// What the pump needs of the segments' on/off pattern: segments to force on (with at least
 /// their fastest dwell) and to force off, so that along every pass line each spray-off gap between
 /// two sprayed stretches lasts at least min_off_s and each sprayed stretch at least min_on_s (times

@@ -213,11 +213,10 @@ std::vector<Eigen::VectorXd> timing_joint_path(const Robot& robot, const std::ve
   // clearance term cannot pull it back). A path that breaks a margin gives way to the roomiest of
   // the paths tracked from the first pose's solutions from the seed's slew turned by eighths of a
   // turn (the least room at five postures along each). The turns wrap modulo 2 pi (then clamped to
-  // the slew's limits, +-3.05 rad, just inside +-pi): a
-  // region from the crown down the right wall that starts in the left wall's family (slew 2.8 rad,
-  // the boom back and left) luffs over the top and slews the boom toward the face as it goes down
-  // (the face scene); the right wall's own family (-2.8 rad) is 5.6 rad away, past the limit a
-  // clamped turn stops at. Candidates whose first posture has less room than the path's own first
+  // the slew's limits, +-3.05 rad, just inside +-pi): a region from the crown down the right wall
+  // that starts in the left wall's family (slew 2.8 rad, the boom back and left) luffs over the
+  // top and slews the boom toward the face as it goes down (the face scene); the right wall's own
+  // family (-2.8 rad) is 5.6 rad away, past the limit a clamped turn stops at. Candidates whose first posture has less room than the path's own first
   // are left out, and at most kMostStartsTried of the roomiest are tracked.
   if (ok && objective.room) {
     const auto path_room = [&](const std::vector<Eigen::VectorXd>& path) {
