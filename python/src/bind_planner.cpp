@@ -14,6 +14,10 @@ void bind_planner(py::module_& m) {
       .def_readwrite("length_m", &Pass::length_m)
       .def_readwrite("speed_profile_mps", &Pass::speed_profile_mps, "speed per waypoint (empty: constant)")
       .def_readwrite("line", &Pass::line, "index of the slicing plane")
+      .def_readwrite("tight_start", &Pass::tight_start,
+                     "the nozzle leans at the start to keep clear of something before it, with room for the run-on only "
+                     "(the joins there stop within v^2 / a: a tight turn)")
+      .def_readwrite("tight_end", &Pass::tight_end, "as tight_start, at the end")
       .def_property_readonly("positions_m", [](const Pass& p) { return pose_positions(p.waypoints); }, "(N, 3) nozzle positions [m]")
       .def_property_readonly("axes", [](const Pass& p) { return pose_axes(p.waypoints); }, "(N, 3) unit spray axes")
       .def("duration_s", &Pass::duration_s)

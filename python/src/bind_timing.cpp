@@ -116,7 +116,8 @@ void bind_timing(py::module_& m) {
       .value("STOP_AT_END", PieceMotion::StopAtEnd)
       .value("REST_TO_REST", PieceMotion::RestToRest)
       .value("START_FROM_REST", PieceMotion::StartFromRest)
-      .value("SPRAY_OFF_GAP", PieceMotion::SprayOffGap);
+      .value("SPRAY_OFF_GAP", PieceMotion::SprayOffGap)
+      .value("CREEP", PieceMotion::Creep);
 
   py::class_<SpeedPiece>(m, "SpeedPiece", "Speed change v0 -> v1 over duration_s (cycloid or quintic shape).")
       .def(py::init([](double v0, double v1, double T, SpeedShape s) { return SpeedPiece{v0, v1, T, s}; }),

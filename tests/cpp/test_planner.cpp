@@ -217,6 +217,24 @@ TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   EXPECT_NEAR(steepest, 0.3, 0.01);
   EXPECT_NEAR(d_lo, 0.025 - pc.edge_overrun_m, 0.005);
   EXPECT_NEAR(d_hi, 0.775 + 0.06, 0.005);
+  // The lean grows toward the back end (the face past it): that end is tight, whichever way the
+  // serpentine runs the pass, and the square front is not.
+  auto tight_at_back = [](const Pass& p) {
+    return p.waypoints.back().position_m.x() > p.waypoints.front().position_m.x() ? p.tight_end : p.tight_start;
+  };
+  auto tight_at_front = [](const Pass& p) {
+    return p.waypoints.back().position_m.x() > p.waypoints.front().position_m.x() ? p.tight_start : p.tight_end;
+  };
+  bool both_ways = false;
+  for (const auto& p : passes) {
+    EXPECT_TRUE(tight_at_back(p));
+    EXPECT_FALSE(tight_at_front(p));
+    both_ways = both_ways || p.waypoints.back().position_m.x() < p.waypoints.front().position_m.x();
+  }
+  EXPECT_TRUE(both_ways);
+  // A lean as steep everywhere does not grow toward either end: no end is tight.
+  std::vector<Eigen::Vector3d> even(lean.size(), 0.3 * Eigen::Vector3d::UnitX());
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &even)) EXPECT_FALSE(p.tight_start || p.tight_end);
   pc.leaned_edge_overrun_m = 0.0;
   double d_hi_none = -1e9;
   for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &lean))
@@ -241,6 +259,10 @@ TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   EXPECT_NEAR(f_lo, 0.025 - 0.06, 0.005);
   EXPECT_NEAR(f_hi, 0.775 + pc.edge_overrun_m, 0.005);
   EXPECT_LT(f_worst, 0.01);
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &front)) {
+    EXPECT_TRUE(tight_at_front(p));
+    EXPECT_FALSE(tight_at_back(p));
+  }
   lean.pop_back();
   EXPECT_THROW(plan_passes(s.grid, all, 0.2, pc, &lean), std::invalid_argument);
 }

@@ -646,6 +646,74 @@ TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   }
 }
 
+// A tight pass end (the nozzle leans there with room for the run-on only: Pass::tight_*) is
+// turned without running on: the nozzle stops within v^2 / a of the end, creeps across to the
+// next pass (tracked, not a joint move: the pump is not blocked there) and starts from rest, the
+// whole join lasting the pump's off spell (min_turn_s), at most the turn acceleration along it. The
+// other end keeps its turn-around, which runs on past the ends by its runs and more.
+TEST(RegionPath, ATightEndIsTurnedWithinItsStopAndTheTurnLastsThePumpSpell) {
+  auto passes = axial_region(3, 1.0, 0.2, 0.0, 1.0, {0.2});  // x = 0 -> 1, 1 -> 0, 0 -> 1
+  passes[0].tight_end = passes[1].tight_start = true;          // the end at x = 1
+  RegionPathOptions o = leads(0.1, 0.1, 0.1);
+  o.stop_accel_mps2 = 2.0;
+  o.turn_speed_mps = 0.5;
+  o.turn_accel_mps2 = 1.0;
+  o.min_turn_s = 2.1;
+  const CartesianPath path = region_path(passes, o);
+  std::vector<PieceMotion> motions;
+  int turns = 0;
+  for (const auto& p : path.pieces()) {
+    if (p.kind == SegmentKind::Turn) ++turns;
+    if (p.motion != PieceMotion::ByKind) motions.push_back(p.motion);
+  }
+  EXPECT_EQ(turns, 1);  // at x = 0
+  EXPECT_EQ(motions, (std::vector<PieceMotion>{PieceMotion::StopAtEnd, PieceMotion::Creep, PieceMotion::StartFromRest}));
+  TimingParams prm;
+  prm.turn_speed_mps = 0.5;
+  prm.turn_accel_mps2 = 1.0;
+  prm.min_turn_s = 2.1;
+  const CartesianSamples cs = sample_path(path, region_profile(path, prm), 1000.0);
+  double x_hi = -1e9, x_lo = 1e9, creep_accel = 0.0;
+  std::vector<double> gaps;
+  double last_end = -1.0;
+  int last_pass = -1;
+  for (std::size_t i = 0; i < cs.t_s.size(); ++i) {
+    if (cs.kind[i] != static_cast<char>(SegmentKind::Lead)) {
+      x_hi = std::max(x_hi, cs.nozzle[i].position_m.x());
+      x_lo = std::min(x_lo, cs.nozzle[i].position_m.x());
+    }
+    double local = 0.0;
+    if (path.pieces()[path.locate(cs.s_m[i], local)].motion == PieceMotion::Creep)
+      creep_accel = std::max(creep_accel, std::abs(cs.tangential_accel_mps2[i]));
+    if (cs.kind[i] != static_cast<char>(SegmentKind::Pass)) continue;
+    if (last_pass >= 0 && cs.pass_index[i] != last_pass) gaps.push_back(cs.t_s[i] - last_end);
+    last_pass = cs.pass_index[i];
+    last_end = cs.t_s[i];
+  }
+  // The stop from 0.2 m/s at 2 m/s^2 needs 0.02 m; the turn at x = 0 runs on 0.1 m and more.
+  EXPECT_LT(x_hi, 1.0 + 0.02 + 1e-6);
+  EXPECT_GT(x_hi, 1.0 + 0.02 - 1e-3);
+  EXPECT_LT(x_lo, -0.1);
+  ASSERT_EQ(gaps.size(), 2u);
+  EXPECT_NEAR(gaps[0], 2.1, 2e-3);
+  EXPECT_GT(creep_accel, 0.0);
+  EXPECT_LT(creep_accel, 1.0 + 1e-6);
+  // The pump runs over the tight turn as over any turn: nothing is blocked, and it switches off
+  // over it (three spells, the off spells at least min_off_s).
+  Config c;
+  c.timing.turn_run_m = 0.1;
+  for (auto& p : passes) p.speed_mps = 0.2;
+  const RegionSpray spray = region_spray(passes, c);
+  EXPECT_TRUE(std::none_of(spray.blocked.begin(), spray.blocked.end(), [](char b) { return b != 0; }));
+  EXPECT_EQ(spray.flow.on_s.size(), 3u);
+  EXPECT_GE(spray.flow.shortest_off_s(), c.flow.min_off_s - 1e-9);
+  // Without the tight flags both ends turn around.
+  passes[0].tight_end = passes[1].tight_start = false;
+  int plain_turns = 0;
+  for (const auto& p : region_path(passes, o).pieces()) plain_turns += p.kind == SegmentKind::Turn;
+  EXPECT_EQ(plain_turns, 2);
+}
+
 // A leaning nozzle's axis turns along its passes (the lean fades over the bay). The runs, turns,
 // stop-and-go runs and leads carry that turn down to 0 over at most 0.1 m instead of holding the
 // axis (the turn stepped from 0.05 deg per 50 Hz sample to 0 within one sample there: joint

@@ -34,6 +34,7 @@ std::vector<double> Pass::dwell_s() const {
 void reverse_pass(Pass& p) {
   std::reverse(p.waypoints.begin(), p.waypoints.end());
   std::reverse(p.speed_profile_mps.begin(), p.speed_profile_mps.end());
+  std::swap(p.tight_start, p.tight_end);
 }
 
 Eigen::Vector3d leaned_axis(const Eigen::Vector3d& square_axis, const Eigen::Vector3d& lean) {
@@ -214,6 +215,7 @@ struct LineKnots {
   std::vector<NozzlePose> poses;
   std::vector<int> u;
   std::vector<char> leaned;  // the knot's pose leans off square
+  std::vector<double> lean_rad;  // by this much
 };
 
 // Where the slicing plane at w = wk crosses the wall at u = iu: from the pair of cells that
@@ -314,8 +316,10 @@ void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots, b
 // spot like the others instead of half of it. Where the nozzle leans at that end (to keep clear of
 // a face past it) it runs on at most leaned_edge_overrun_m with the lean held: a leaned spot lays most
 // of its concrete on the side nearer the nozzle, so without a run-on the end cell gets only the
-// far tail and the cells behind it the peak. obstructed_cells keeps that much room for it.
-void add_edge_overrun(LineKnots& k, int n_u, const PlannerConfig& config, const Eigen::Vector3d& ex) {
+// far tail and the cells behind it the peak. obstructed_cells keeps that much room for it, and no
+// more: an end whose lean grows toward it (the obstacle lies past it) is tight (Pass::tight_*).
+// Returns whether the front and the back end are.
+std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfig& config, const Eigen::Vector3d& ex) {
   const double overrun_m = config.edge_overrun_m;
   auto& knots = k.poses;
   // Knots past `end` (its neighbour `inner`) over `run` metres, outward along `out` (the lines are
@@ -343,14 +347,19 @@ void add_edge_overrun(LineKnots& k, int n_u, const PlannerConfig& config, const 
     return out;
   };
   // (k.u and k.leaned keep describing the cells' knots only: nothing reads them after this.)
+  const std::size_t m = k.lean_rad.size();
+  std::pair<bool, bool> tight{false, false};
   if (k.u.front() == 0) {
     auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex);
+    tight.first = k.leaned.front() != 0 && m >= 2 && k.lean_rad[0] > k.lean_rad[1] + 1e-9;
     knots.insert(knots.begin(), extra.rbegin(), extra.rend());
   }
   if (k.u.back() == n_u - 1) {
     auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex);
+    tight.second = k.leaned.back() != 0 && m >= 2 && k.lean_rad[m - 1] > k.lean_rad[m - 2] + 1e-9;
     knots.insert(knots.end(), extra.begin(), extra.end());
   }
+  return tight;
 }
 
 // The u ranges of a pass line over the cells within half a spacing of the slicing plane w = wk:
@@ -382,6 +391,7 @@ LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const Pl
     k.poses.push_back(standoff_pose(f.grid.axis, f.grid.profile, crossing->point, crossing->normal, crossing->lean, config));
     k.u.push_back(iu);
     k.leaned.push_back(crossing->lean.norm() > 1e-9);
+    k.lean_rad.push_back(crossing->lean.norm());
   }
   if (k.poses.size() == 1) {
     // A one-cell-long line: a pass over that cell, from edge to edge.
@@ -393,6 +403,7 @@ LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const Pl
     k.poses = {a, b};
     k.u = {k.u[0], k.u[0]};
     k.leaned = {k.leaned[0], k.leaned[0]};
+    k.lean_rad = {k.lean_rad[0], k.lean_rad[0]};
   }
   return k;
 }
@@ -460,9 +471,12 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
       if (knots.poses.empty()) continue;
       const bool leaned = std::any_of(knots.leaned.begin(), knots.leaned.end(), [](char l) { return l != 0; });
       smooth_knot_radii(grid.axis, knots.poses, leaned, config.standoff_m);
-      if (f.axial && config.edge_overrun_m > 0) add_edge_overrun(knots, f.n_u, config, grid.axis.ex);
+      std::pair<bool, bool> tight{false, false};
+      if (f.axial && config.edge_overrun_m > 0) tight = add_edge_overrun(knots, f.n_u, config, grid.axis.ex);
       Pass pass;
       pass.line = line;
+      pass.tight_start = tight.first;
+      pass.tight_end = tight.second;
       pass.waypoints = spline_poses(knots.poses, config.sample_step_m);
       pass.length_m = polyline_length(pass.waypoints);
       pieces.push_back(std::move(pass));

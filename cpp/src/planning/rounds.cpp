@@ -628,6 +628,9 @@ std::vector<double> solve_dwells(DwellProblem problem, double accel_mps2, const 
   return w;
 }
 
+// How near a tight end of its line (Pass::tight_*) a run of it starts or ends to be tight [m].
+constexpr double kTightNearM = 0.4;
+
 // Rebuild the passes of one side: runs of sprayed segments become passes with a per-waypoint speed.
 RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector<Segment>& segs,
                         const std::vector<double>& w) {
@@ -652,7 +655,14 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
       }
       const double v = 1.0 / w[j];
       const std::size_t from = cur.waypoints.empty() ? segs[j].first : segs[j].first + 1;
-      if (cur.waypoints.empty()) cur.line = pass.line;
+      // A run that starts or ends near a tight end of its line is tight too: a turn there runs on
+      // 0.2 m and more, and 0.4 m back from the end the faded lean (0.5 rad/m) gains the nozzle
+      // about 0.25 m of room.
+      if (cur.waypoints.empty()) {
+        cur.line = pass.line;
+        cur.tight_start = pass.tight_start && polyline_length({pass.waypoints.begin(), pass.waypoints.begin() + segs[j].first + 1}) <= kTightNearM;
+      }
+      cur.tight_end = pass.tight_end && polyline_length({pass.waypoints.begin() + segs[j].last, pass.waypoints.end()}) <= kTightNearM;
       for (std::size_t a = from; a <= segs[j].last; ++a) {
         cur.waypoints.push_back(pass.waypoints[a]);
         cur.speed_profile_mps.push_back(v);

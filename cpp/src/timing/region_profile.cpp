@@ -127,8 +127,27 @@ void append_motion_piece(SpeedProfile& prof, const PieceSpec& s, const TimingPar
       break;
     }
     case PieceMotion::ByKind:
+    case PieceMotion::Creep:  // append_creep
       break;
   }
+}
+
+// Tight turn middle i (region_path): rest to rest along its line, lasting what the stop before
+// and the start after leave of the pump's off spell (min_turn_s), and no shorter than its
+// cycloidal peak acceleration (2 pi length / T^2) at the turn acceleration (eased by its scale).
+void append_creep(SpeedProfile& prof, const std::vector<PieceSpec>& specs, std::size_t i, const TimingParams& params) {
+  const auto& s = specs[i];
+  if (!(s.length_m > 0.0)) return;
+  auto rest_time = [&](const PieceSpec& r) {  // a cycloidal stop or start over r: 2 length / v
+    return (r.motion == PieceMotion::StopAtEnd || r.motion == PieceMotion::StartFromRest) && r.v_in > 0.0
+               ? 2.0 * r.length_m / r.v_in
+               : 0.0;
+  };
+  const double accel = s.accel_scale * (params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2);
+  double T = std::sqrt(2.0 * kPi * s.length_m / accel);
+  T = std::max(T, params.min_turn_s - rest_time(specs[i - 1]) - rest_time(specs[i + 1]));
+  // Short-move branch of rest_to_rest: peak speed 2 length / T, accelerating over T / 2.
+  prof.append(rest_to_rest(s.length_m, 4.0 * s.length_m / T, 0.5 * T, SpeedShape::Cycloid));
 }
 
 // Run-out before / run-in after turn arc i +- 1: the speed changes to / from the turn speed here.
@@ -176,6 +195,8 @@ SpeedProfile profile_from_specs(const std::vector<PieceSpec>& specs, const Timin
       prof.append(cycloid_start(s.length_m, s.v_in, params.k1));
     } else if (i + 1 == specs.size()) {
       prof.append(cycloid_end(s.length_m, s.v_in, params.k2));
+    } else if (s.motion == PieceMotion::Creep) {
+      append_creep(prof, specs, i, params);
     } else if (s.motion != PieceMotion::ByKind) {
       append_motion_piece(prof, s, params);
     } else if (s.kind == SegmentKind::Link &&

@@ -21,6 +21,10 @@ struct Pass {
   double length_m = 0.0;
   std::vector<double> speed_profile_mps;  // empty: constant speed_mps
   int line = 0;                           // index of the slicing plane the pass lies in
+  // The nozzle leans at this end to keep clear of something past it (a face) and the lean keeps
+  // room for the pass's run-on only (obstructed_cells): the joins there go no further than the
+  // nozzle needs to stop (timing: region_path's tight joins).
+  bool tight_start = false, tight_end = false;
 
   double speed_at(std::size_t waypoint) const {
     return speed_profile_mps.empty() ? speed_mps : speed_profile_mps[waypoint];

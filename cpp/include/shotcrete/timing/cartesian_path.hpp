@@ -18,6 +18,8 @@ enum class PieceMotion : char {
   RestToRest = 2,     // stop-and-go middle: rest to rest, cruising at speed_mps (a joint move in time_plan)
   StartFromRest = 3,  // stop-and-go run-in: cycloidal start from rest (cycloid start, k1 = 1)
   SprayOffGap = 4,    // spray-off gap on a pass line: cycloidal change from speed_mps to speed_out_mps
+  Creep = 5,          // tight turn's middle: rest to rest along the path (tracked, not a joint move), slow
+                      // enough that the turn lasts the pump's off spell (min_turn_s)
 };
 
 /// One geometric piece of a nozzle path: a polyline of poses or a half circle.
