@@ -221,8 +221,11 @@ def files_step(out: Path, surface, arm_plan, frame: LocalFrame | None = None, ro
                   qdd=trajectory.qdd, nozzle_position_m=frame.points_to_input(trajectory.positions),
                   nozzle_axis=trajectory.axes, base_position_m=_base_position(robot, frame),
                   spraying=trajectory.spraying, pass_index=trajectory.pass_index,
-                  region_index=trajectory.region_index, **_pump_arrays(arm_plan.executed, trajectory))
-        files["trajectory"] = "trajectory.npz"  # t_s, q, qd, qdd (joint order of the URDF), nozzle, flow
+                  region_index=trajectory.region_index, segment_kind=trajectory.kind,
+                  **_pump_arrays(arm_plan.executed, trajectory))
+        # t_s, q, qd, qdd (joint order of the URDF), nozzle, flow; segment_kind: 0 pass, 1 turn arc,
+        # 2 lead, 3 link (turn runs, stops, creeps, spray-off gaps), 4 joint move (_core.SegmentKind)
+        files["trajectory"] = "trajectory.npz"
     # Per cell, for surveyors' own tools: TD before, planned and executed deposit, residual, level.
     report.write_cells_csv(out / "cells.csv", report.cell_table(surface, plan, arm_plan.executed))
     files["cells"] = "cells.csv"

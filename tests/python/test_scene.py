@@ -346,6 +346,15 @@ def test_plan_of_a_bay_against_its_face_leans_the_nozzle_to_spray_it_all(tmp_pat
     link_front = pos[:, 0] + 0.05 * np.sqrt(np.clip(1 - ax[:, 0] ** 2, 0, 1))
     assert (face_d - link_front).min() >= margin - 1e-3
     assert ax[:, 0].max() > np.sin(0.3)  # leaned toward the face somewhere
+    # The joins at the face's end keep the margin too: a pass end there is tight (its lean leaves
+    # room for the run-on only), and the nozzle stops within v^2 / a of it and creeps across
+    # instead of turning around 0.2 m further on (it came 0.17 m inside the margin).
+    tr = np.load(tmp_path / "o" / "trajectory.npz")
+    kind, tip, tax = tr["segment_kind"], tr["nozzle_position_m"], tr["nozzle_axis"]
+    joins = np.isin(kind, [int(shotcrete._core.SegmentKind.TURN), int(shotcrete._core.SegmentKind.LINK)])
+    assert joins.any()
+    join_front = tip[joins, 0] + 0.05 * np.sqrt(np.clip(1 - tax[joins, 0] ** 2, 0, 1))
+    assert (face_d - join_front).min() >= margin - 0.03
     cells = np.genfromtxt(tmp_path / "o" / "cells.csv", delimiter=",", names=True)
     last = cells["d_m"] > face_d - 0.05
     assert last.any() and (cells["deposit_executed_mm"][last] > 5).all()
