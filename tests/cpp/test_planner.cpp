@@ -232,9 +232,17 @@ TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
     both_ways = both_ways || p.waypoints.back().position_m.x() < p.waypoints.front().position_m.x();
   }
   EXPECT_TRUE(both_ways);
-  // A lean as steep everywhere does not grow toward either end: no end is tight.
-  std::vector<Eigen::Vector3d> even(lean.size(), 0.3 * Eigen::Vector3d::UnitX());
-  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &even)) EXPECT_FALSE(p.tight_start || p.tight_end);
+  // A lean as steep everywhere (the cap reached by the face) still points out past the back end:
+  // that end is tight, the front (the lean points back into the bay) is not; a lean that falls
+  // toward the back end makes no end tight.
+  std::vector<Eigen::Vector3d> even(lean.size(), 0.3 * Eigen::Vector3d::UnitX()), falling(lean.size());
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &even)) {
+    EXPECT_TRUE(tight_at_back(p));
+    EXPECT_FALSE(tight_at_front(p));
+  }
+  for (int c = 0; c < s.grid.size(); ++c)
+    falling[static_cast<std::size_t>(c)] = ramp(0.8 - s.grid.d_center(s.grid.col_of(c))) * Eigen::Vector3d::UnitX();
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &falling)) EXPECT_FALSE(p.tight_start || p.tight_end);
   pc.leaned_edge_overrun_m = 0.0;
   double d_hi_none = -1e9;
   for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &lean))

@@ -698,6 +698,18 @@ TEST(RegionPath, ATightEndIsTurnedWithinItsStopAndTheTurnLastsThePumpSpell) {
   EXPECT_NEAR(gaps[0], 2.1, 2e-3);
   EXPECT_GT(creep_accel, 0.0);
   EXPECT_LT(creep_accel, 1.0 + 1e-6);
+  // Without the pump's spell the creep runs as fast as the turn acceleration allows: its peak.
+  TimingParams fast = prm;
+  fast.min_turn_s = 0.0;
+  const CartesianSamples cf = sample_path(path, region_profile(path, fast), 1000.0);
+  double peak = 0.0;
+  for (std::size_t i = 0; i < cf.t_s.size(); ++i) {
+    double local = 0.0;
+    if (path.pieces()[path.locate(cf.s_m[i], local)].motion == PieceMotion::Creep)
+      peak = std::max(peak, std::abs(cf.tangential_accel_mps2[i]));
+  }
+  EXPECT_GT(peak, 0.95);
+  EXPECT_LT(peak, 1.0 + 1e-3);
   // The pump runs over the tight turn as over any turn: nothing is blocked, and it switches off
   // over it (three spells, the off spells at least min_off_s).
   Config c;

@@ -215,7 +215,7 @@ struct LineKnots {
   std::vector<NozzlePose> poses;
   std::vector<int> u;
   std::vector<char> leaned;  // the knot's pose leans off square
-  std::vector<double> lean_rad;  // by this much
+  std::vector<Eigen::Vector3d> lean;  // by this (the lean field's vector: toward it, length = angle)
 };
 
 // Where the slicing plane at w = wk crosses the wall at u = iu: from the pair of cells that
@@ -317,8 +317,8 @@ void smooth_knot_radii(const TunnelAxis& axis, std::vector<NozzlePose>& knots, b
 // a face past it) it runs on at most leaned_edge_overrun_m with the lean held: a leaned spot lays most
 // of its concrete on the side nearer the nozzle, so without a run-on the end cell gets only the
 // far tail and the cells behind it the peak. obstructed_cells keeps that much room for it, and no
-// more: an end whose lean grows toward it (the obstacle lies past it) is tight (Pass::tight_*).
-// Returns whether the front and the back end are.
+// more: an end whose lean points out past it (the obstacle lies beyond) and is no less than its
+// neighbour's is tight (Pass::tight_*). Returns whether the front and the back end are.
 std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfig& config, const Eigen::Vector3d& ex) {
   const double overrun_m = config.edge_overrun_m;
   auto& knots = k.poses;
@@ -347,16 +347,21 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
     return out;
   };
   // (k.u and k.leaned keep describing the cells' knots only: nothing reads them after this.)
-  const std::size_t m = k.lean_rad.size();
+  const std::size_t m = k.lean.size();
+  // (Leans come in 0.05 rad steps up to a cap: the last two cells often lean alike by a face.)
+  auto tight_at = [&](std::size_t end, std::size_t inner, const Eigen::Vector3d& out) {
+    const Eigen::Vector3d& l = k.lean[end];
+    return k.leaned[end] != 0 && l.dot(out) > 0.5 * l.norm() && l.norm() >= k.lean[inner].norm() - 1e-9;
+  };
   std::pair<bool, bool> tight{false, false};
   if (k.u.front() == 0) {
     auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex);
-    tight.first = k.leaned.front() != 0 && m >= 2 && k.lean_rad[0] > k.lean_rad[1] + 1e-9;
+    tight.first = m >= 2 && tight_at(0, 1, -ex);
     knots.insert(knots.begin(), extra.rbegin(), extra.rend());
   }
   if (k.u.back() == n_u - 1) {
     auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex);
-    tight.second = k.leaned.back() != 0 && m >= 2 && k.lean_rad[m - 1] > k.lean_rad[m - 2] + 1e-9;
+    tight.second = m >= 2 && tight_at(m - 1, m - 2, ex);
     knots.insert(knots.end(), extra.begin(), extra.end());
   }
   return tight;
@@ -391,7 +396,7 @@ LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const Pl
     k.poses.push_back(standoff_pose(f.grid.axis, f.grid.profile, crossing->point, crossing->normal, crossing->lean, config));
     k.u.push_back(iu);
     k.leaned.push_back(crossing->lean.norm() > 1e-9);
-    k.lean_rad.push_back(crossing->lean.norm());
+    k.lean.push_back(crossing->lean);
   }
   if (k.poses.size() == 1) {
     // A one-cell-long line: a pass over that cell, from edge to edge.
@@ -403,7 +408,7 @@ LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const Pl
     k.poses = {a, b};
     k.u = {k.u[0], k.u[0]};
     k.leaned = {k.leaned[0], k.leaned[0]};
-    k.lean_rad = {k.lean_rad[0], k.lean_rad[0]};
+    k.lean = {k.lean[0], k.lean[0]};
   }
   return k;
 }

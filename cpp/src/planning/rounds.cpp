@@ -638,6 +638,9 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
   out.passes.clear();
   for (std::size_t p = 0; p < side.passes.size(); ++p) {
     const Pass& pass = side.passes[p];
+    std::vector<double> cum(pass.waypoints.size(), 0.0);  // length along the pass to each waypoint
+    for (std::size_t a = 1; a < cum.size(); ++a)
+      cum[a] = cum[a - 1] + (pass.waypoints[a].position_m - pass.waypoints[a - 1].position_m).norm();
     Pass cur;
     auto flush_cur = [&]() {
       if (cur.waypoints.size() >= 2) {
@@ -656,13 +659,13 @@ RegionPlan sprayed_runs(const RegionPlan& side, std::size_t s, const std::vector
       const double v = 1.0 / w[j];
       const std::size_t from = cur.waypoints.empty() ? segs[j].first : segs[j].first + 1;
       // A run that starts or ends near a tight end of its line is tight too: a turn there runs on
-      // 0.2 m and more, and 0.4 m back from the end the faded lean (0.5 rad/m) gains the nozzle
-      // about 0.25 m of room.
+      // 0.2 m and more, and 0.4 m back from the end the faded lean (clearance's default 0.5 rad/m
+      // at a 1 m standoff) gains the nozzle about 0.25 m of room.
       if (cur.waypoints.empty()) {
         cur.line = pass.line;
-        cur.tight_start = pass.tight_start && polyline_length({pass.waypoints.begin(), pass.waypoints.begin() + segs[j].first + 1}) <= kTightNearM;
+        cur.tight_start = pass.tight_start && cum[segs[j].first] <= kTightNearM;
       }
-      cur.tight_end = pass.tight_end && polyline_length({pass.waypoints.begin() + segs[j].last, pass.waypoints.end()}) <= kTightNearM;
+      cur.tight_end = pass.tight_end && cum.back() - cum[segs[j].last] <= kTightNearM;
       for (std::size_t a = from; a <= segs[j].last; ++a) {
         cur.waypoints.push_back(pass.waypoints[a]);
         cur.speed_profile_mps.push_back(v);

@@ -73,7 +73,7 @@ struct PieceSpec {
   double length_m, v_in, v_out;
   std::vector<double> run_len_m, run_speed_mps;  // pass with a speed profile: constant-speed runs
   PieceMotion motion;
-  double accel_scale;  // turn arc: share of the params' turn acceleration
+  double accel_scale;  // turn arc, tight turn's creep: share of the params' turn acceleration
 };
 std::vector<PieceSpec> specs_of(const CartesianPath& path);
 /// region_profile on piece specs (RegionJointModel changes the lead lengths of a fixed path).

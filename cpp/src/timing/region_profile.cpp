@@ -127,14 +127,16 @@ void append_motion_piece(SpeedProfile& prof, const PieceSpec& s, const TimingPar
       break;
     }
     case PieceMotion::ByKind:
-    case PieceMotion::Creep:  // append_creep
       break;
+    case PieceMotion::Creep:
+      throw std::logic_error("append_motion_piece: a creep is timed with its neighbours (append_creep)");
   }
 }
 
 // Tight turn middle i (region_path): rest to rest along its line, lasting what the stop before
-// and the start after leave of the pump's off spell (min_turn_s), and no shorter than its
-// cycloidal peak acceleration (2 pi length / T^2) at the turn acceleration (eased by its scale).
+// and the start after leave of the pump's off spell (min_turn_s), and no shorter than its peak
+// acceleration allows at the turn acceleration (eased by its scale): rest_to_rest's short move is
+// two cycloidal halves of T / 2, 0 -> 2 length / T and back, peaking at 8 length / T^2.
 void append_creep(SpeedProfile& prof, const std::vector<PieceSpec>& specs, std::size_t i, const TimingParams& params) {
   const auto& s = specs[i];
   if (!(s.length_m > 0.0)) return;
@@ -144,7 +146,7 @@ void append_creep(SpeedProfile& prof, const std::vector<PieceSpec>& specs, std::
                : 0.0;
   };
   const double accel = s.accel_scale * (params.turn_accel_mps2 > 0.0 ? params.turn_accel_mps2 : params.speed_change_accel_mps2);
-  double T = std::sqrt(2.0 * kPi * s.length_m / accel);
+  double T = std::sqrt(8.0 * s.length_m / accel);
   T = std::max(T, params.min_turn_s - rest_time(specs[i - 1]) - rest_time(specs[i + 1]));
   // Short-move branch of rest_to_rest: peak speed 2 length / T, accelerating over T / 2.
   prof.append(rest_to_rest(s.length_m, 4.0 * s.length_m / T, 0.5 * T, SpeedShape::Cycloid));

@@ -173,7 +173,12 @@ CycleTimeBreakdown piece_times(const CartesianPath& path, const SpeedProfile& pr
     const PathPiece& piece = path.pieces()[i];
     if (rest_to_rest_in_joint_space && piece.motion == PieceMotion::RestToRest) continue;
     const double end_s = i + 1 == n ? prof.duration_s() : prof.time_at_distance(path.piece_start_m(i + 1));
-    bucket_of(piece, b) += end_s - (i == 0 ? 0.0 : prof.time_at_distance(path.piece_start_m(i)));
+    // A tight turn (its stop, creep and start: region_path) is a turn-around.
+    const auto creep = [&](std::size_t k) { return k < n && path.pieces()[k].motion == PieceMotion::Creep; };
+    const bool tight_turn = !piece.spraying && (piece.motion == PieceMotion::Creep ||
+                                                (piece.motion == PieceMotion::StopAtEnd && creep(i + 1)) ||
+                                                (piece.motion == PieceMotion::StartFromRest && i > 0 && creep(i - 1)));
+    (tight_turn ? b.turn_arounds_s : bucket_of(piece, b)) += end_s - (i == 0 ? 0.0 : prof.time_at_distance(path.piece_start_m(i)));
   }
   return b;
 }

@@ -94,7 +94,7 @@ bool RegionJointModel::tuned_at(double s) const {
   double local = 0.0;
   const PathPiece& piece = path_.pieces()[path_.locate(s, local)];
   return piece.kind == SegmentKind::Lead || piece.kind == SegmentKind::Turn ||
-         (piece.kind == SegmentKind::Link && piece.motion == PieceMotion::ByKind);
+         (piece.kind == SegmentKind::Link && (piece.motion == PieceMotion::ByKind || piece.motion == PieceMotion::Creep));
 }
 
 void RegionJointModel::check_samples(const SpeedProfile& prof, double offset, double rate_hz, Evaluation& ev) const {

@@ -36,8 +36,9 @@ struct PathPiece {
   // arc: p(phi) = center + r (-cos(phi) u + sin(phi) d), phi in [0, pi]; the axis blends from
   // axis0 to axis1 with weight (1 - cos phi) / 2
   bool is_arc = false;
-  double accel_scale = 1.0;  // turn arc: share of the profile's turn acceleration that caps its
-                             // speed (region_path's gap scale: time_plan eases awkward joins)
+  double accel_scale = 1.0;  // turn arc (and a tight turn's creep): share of the profile's turn
+                             // acceleration that caps its speed (region_path's gap scale: time_plan
+                             // eases awkward joins)
   Eigen::Vector3d center{0, 0, 0}, u{1, 0, 0}, d{0, 1, 0};
   double radius_m = 0.0;
   Eigen::Vector3d axis0{0, 0, 1}, axis1{0, 0, 1};

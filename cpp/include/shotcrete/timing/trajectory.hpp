@@ -42,7 +42,8 @@ constexpr double kQuinticNozzleMargin = 1.01;
 struct CycleTimeBreakdown {
   double spraying_s = 0.0;      // pieces with the nozzle on, whatever their kind
   double turn_arounds_s = 0.0;  // nozzle off on a turn-around between serpentine neighbours (its arc,
-                                // straight runs and joining curves) or a spray-off gap along a pass line
+                                // straight runs and joining curves; a tight turn's stop, creep and
+                                // start) or a spray-off gap along a pass line
   double leads_s = 0.0;         // nozzle off on the lead-in / lead-out runs of a region or pass (Lead)
   double transits_s = 0.0;      // joint quintics between regions (and from the start configuration)
   double stop_and_go_s = 0.0;   // inside a region between passes that are no serpentine neighbours:

@@ -59,7 +59,8 @@ class RegionJointModel {
   // Stretch containing s, -1 inside a joint move.
   int stretch_at(double s) const;
   void interpolate(const Stretch& st, double s, Eigen::VectorXd& q, Eigen::VectorXd& dq, Eigen::VectorXd& ddq) const;
-  // The pieces the parameters shape at arc length s: the leads, and the turn arcs with their runs.
+  // The pieces the parameters shape at arc length s: the leads, the turn arcs with their runs, and
+  // the tight turns' creeps (timed at the turn acceleration).
   bool tuned_at(double s) const;
   // Joint velocity / acceleration ratios and nozzle figures on samples of the profile at rate_hz
   // (the joint path starting at arc length offset_m).
