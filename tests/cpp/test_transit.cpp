@@ -71,6 +71,12 @@ std::vector<std::vector<Pass>> two_regions() {
           shotcrete::test::axial_region(2, 0.6, 0.2, 0.3, 2.45, {0.3}, kR - 1.0, kR)};
 }
 
+// The first transit between two regions (no region's index), after the move from the start
+// posture; moves.end() when there is none.
+std::vector<JointMove>::const_iterator first_transit(const std::vector<JointMove>& moves) {
+  return std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+}
+
 // Where the nozzle of the move [start, end] comes nearest the plain wall: its room to the wall [m]
 // and the place (x, theta) on the wall.
 struct NearestWall {
@@ -105,7 +111,7 @@ TEST(Transit, JointMovesAndTheirReplacement) {
   }
   EXPECT_NEAR(moves_s, tr.transit_time_s, 1e-9);  // every joint move counted once
   // The transit between the regions through a via posture: later samples shift by the added time.
-  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  const auto it = first_transit(moves);
   ASSERT_NE(it, moves.end());
   const JointMove m = *it;
   const Eigen::VectorXd qa = tr.q[m.start], qb = tr.q[m.end];
@@ -152,7 +158,7 @@ TEST(Transit, ProtrusionInTheTransitIsRerouted) {
   const ClearanceConfig cfg;
   TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const auto moves = joint_moves(tr);
-  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  const auto it = first_transit(moves);
   ASSERT_NE(it, moves.end());
   const JointMove transit = *it;
   // Where the straight transit's nozzle comes nearest the plain wall: the protrusion goes there,
@@ -238,7 +244,7 @@ TEST(Transit, TheExactScreenReportsTheMovesTheOctreeReadingsFlag) {
   cfg.reroute_transits = false;  // every flagged move is reported as it is
   const TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const auto moves = joint_moves(tr);
-  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  const auto it = first_transit(moves);
   ASSERT_NE(it, moves.end());
   double least = std::numeric_limits<double>::infinity(), x_c = 0.0, th_c = 0.0;
   for (std::size_t k = it->start; k <= it->end; ++k) {
@@ -282,7 +288,7 @@ TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
   const ClearanceConfig cfg;
   TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const auto moves = joint_moves(tr);
-  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  const auto it = first_transit(moves);
   ASSERT_NE(it, moves.end());
   const Eigen::Vector3d goal = tr.nozzle[it->end].position_m;  // 1 m from the wall, facing it
   const Points wall = wall_with_protrusion(-0.6, 2.0, goal.x(), std::atan2(goal.z(), goal.y()), 0.8, 0.8);
@@ -356,7 +362,7 @@ TEST(Transit, AMoveNoRouteClearsIsEasedThroughItsBestRoute) {
   const ClearanceConfig cfg;
   TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const auto moves = joint_moves(tr);
-  const auto it = std::find_if(moves.begin() + 1, moves.end(), [](const JointMove& m) { return m.region_index < 0; });
+  const auto it = first_transit(moves);
   ASSERT_NE(it, moves.end());
   const NearestWall near = nearest_wall(tr, *it);
   const Points wall = wall_with_protrusion(-0.6, 2.0, near.x_m, near.theta_rad, near.room_m - cfg.nozzle_margin_m + 0.6, 0.8);
