@@ -89,6 +89,7 @@ def plan_case(name: str, base_cfg, seed: int) -> dict:
     surface = _core.build_surface(cloud, cfg)
     robot = load_robot(cfg)
     arm = _core.plan_for_arm(surface, cfg, robot, progress)
+    placement = arm.base_placement
     s = _core.summarise_job(surface, arm, robot, cfg, points_in=len(cloud)).to_dict()
     seconds = time.perf_counter() - t0
     levels = {int(k): int(v) for k, v in s["levels_after"].items()}
@@ -119,6 +120,8 @@ def plan_case(name: str, base_cfg, seed: int) -> dict:
         "clearance_least_m": {l["link"]: _round(l["min_m"], 3) for l in clear.get("links", [])},
         "obstructed_cells": ob.get("cells", 0), "leaned_cells": ob.get("leaned_cells", 0),
         "max_lean_deg": round(ob.get("max_lean_deg", 0.0), 1),
+        "base_shift_m": round(placement.shift_m, 2), "base_room_m": round(placement.room_m, 3),
+        "base_configured_room_m": round(placement.configured_room_m, 3), "base_place_found": placement.found,
         "wall_s": round(seconds, 1),
     }
 

@@ -50,10 +50,14 @@ def run_job(cloud: _core.Cloud | Callable[[], _core.Cloud], config: _core.Config
         surface, timings = surface_step(cloud, config, progress)
         robot = load_robot(config)
         arm_plan = plan_step(surface, config, robot, progress, timings)
+        robot = _core.placed_robot(robot, arm_plan.base_placement)  # where the job stood the arm (robot.place_base)
         summary = _core.summarise_job(surface, arm_plan, robot, config, points_in=len(cloud))
         result = summary.to_dict()
         result["local_origin_m"] = frame.origin_m.tolist()  # outputs are in the input's frame
         result["axis"]["origin_m"] = (np.asarray(result["axis"]["origin_m"]) + frame.origin_m).tolist()
+        if "base_placement" in result:
+            for key in ("configured_m", "position_m"):
+                result["base_placement"][key] = (np.asarray(result["base_placement"][key]) + frame.origin_m).tolist()
         if on_alignment is not None:
             result["alignment"] = alignment_entry(given_config.profile.alignment_path, on_alignment)
             if on_alignment.deviation_m > ALIGNMENT_WARN_M:
@@ -109,6 +113,7 @@ def plan_step(surface, config, robot, progress: Progress, timings: dict):
     timings["plan_simulate_and_time"] = time.perf_counter() - t_plan
     for k, v in arm_plan.plan.timings_s.items():
         timings[f"planner_{k}"] = float(v)
+    timings["base_placement"] = arm_plan.base_placement.seconds
     return arm_plan
 
 

@@ -211,8 +211,8 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
 
     T0 = np.eye(4) if initial is None else np.asarray(initial, float)
     # The one loop (register, measure, check, calibrate, correct) is the core's, as the ROS node runs it.
-    out = _core.rescan_job(job.grid, job.predicted_m, before, after, config, mask, T0,
-                           load_robot(config) if correct else None, progress)
+    robot = job_robot(job, load_robot(config)) if correct else None
+    out = _core.rescan_job(job.grid, job.predicted_m, before, after, config, mask, T0, robot, progress)
     timings = {"register": out.register_s, "measure": out.measure_s}
     reg, th, cal, cmp = out.registration, out.thickness, out.calibration, out.comparison
     measured = np.asarray(th.thickness_m)
@@ -235,7 +235,7 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
     correction, corr_surface, cal_cfg = out.correction, out.correction_surface, out.calibrated
     if correction is not None:
         timings["correction"] = out.correction_s
-        summary["correction"] = correction_summary(corr_surface, correction, out.correction_config)
+        summary["correction"] = correction_summary(corr_surface, correction, out.correction_config, robot)
     points = None
     if per_point > 0:
         t3 = time.perf_counter()
@@ -261,11 +261,16 @@ def rescan(before, after, job: Job, config, *, mask=None, initial: Optional[np.n
     return result
 
 
-def correction_summary(surface, arm_plan, config) -> dict:
-    """The corrective round in brief: the core's job summary's headline figures."""
-    from .robot import load_robot
+def job_robot(job: Job, robot):
+    """``robot`` where ``job`` placed its base (report.json base_placement, robot.place_base): the rig
+    that sprays the correction stands where it stood for the job."""
+    placed = job.report.get("base_placement") or {}
+    return robot.placed_at(np.asarray(placed["position_m"], float)) if placed.get("moved") else robot
 
-    s = _core.summarise_job(surface, arm_plan, load_robot(config), config, points_in=len(surface.cloud)).to_dict()
+
+def correction_summary(surface, arm_plan, config, robot) -> dict:
+    """The corrective round in brief: the core's job summary's headline figures (``robot``: the arm it was planned for)."""
+    s = _core.summarise_job(surface, arm_plan, robot, config, points_in=len(surface.cloud)).to_dict()
     keys = ("status", "problems", "levels_before", "levels_after", "rounds", "passes", "residual_mm", "spray_time_s",
             "total_time_s", "required_volume_m3", "td_before_mm", "warnings", "start_posture")
     out = {k: s[k] for k in keys if k in s}

@@ -159,6 +159,50 @@ void bind_collision(py::module_& m) {
       "`preferred` when it keeps every margin from the wall, else the nearest posture found that does (the transit "
       "router's search of maximum space allowance from it, its telescopes in, the neutral posture, turned about the "
       "first joint).");
+  py::class_<SwingRoom>(m, "SwingRoom", "How much room the arm has to slew all the way round (swing_room).")
+      .def_readonly("least_m", &SwingRoom::least_m,
+                    "over the slew directions, the most space allowance a posture has there (capped at via_allowance_m) [m]")
+      .def_readonly("worst_slew_rad", &SwingRoom::worst_slew_rad, "the direction with the least [rad]")
+      .def_readonly("worst_q", &SwingRoom::worst_q, "the roomiest posture found there")
+      .def_readonly("directions", &SwingRoom::directions)
+      .def_readonly("optimisations", &SwingRoom::optimisations);
+  m.def(
+      "swing_room",
+      [](const Robot& robot, const WallOctree& wall, const ClearanceConfig& config, double step_rad) {
+        py::gil_scoped_release release;
+        return swing_room(robot, wall, config, step_rad);
+      },
+      py::arg("robot"), py::arg("wall"), py::arg("config"), py::arg("step_rad") = kSwingStepRad,
+      "At every slew direction (step_rad apart), the posture of most space allowance with the slew held (saturated at "
+      "config.via_allowance_m); the least of those and where.");
+  m.def("base_room", &base_room, py::arg("robot"), py::arg("wall"), py::arg("config"),
+        "Least exact distance of the links no joint moves (the base) to the wall less base_margin_m [m].");
+  py::class_<BasePlacement>(m, "BasePlacement", "Where the job places the arm's base (place_base).")
+      .def_readonly("checked", &BasePlacement::checked, "the placement was measured (robot.place_base, clearance, a scan)")
+      .def_readonly("configured_m", &BasePlacement::configured_m, "robot.base_position_m [m]")
+      .def_readonly("position_m", &BasePlacement::position_m, "where the job places the base [m]")
+      .def_readonly("shift_m", &BasePlacement::shift_m, "along the tunnel axis from configured_m [m]")
+      .def_readonly("moved", &BasePlacement::moved)
+      .def_readonly("found", &BasePlacement::found, "position_m has room to slew every way")
+      .def_readonly("configured_room_m", &BasePlacement::configured_room_m, "swing_room's least at the configured place [m]")
+      .def_readonly("configured_short_slew_rad", &BasePlacement::configured_short_slew_rad,
+                    "the configured place's first slew direction short of room, from slew 0 outward [rad]")
+      .def_readonly("configured_base_room_m", &BasePlacement::configured_base_room_m)
+      .def_readonly("room_m", &BasePlacement::room_m, "swing_room's least at position_m [m]")
+      .def_readonly("base_room_m", &BasePlacement::base_room_m, "base_room at position_m [m]")
+      .def_readonly("places_tried", &BasePlacement::places_tried)
+      .def_readonly("seconds", &BasePlacement::seconds);
+  m.def(
+      "place_base_on_wall",
+      [](const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& along, const ClearanceConfig& config,
+         double max_shift_m) {
+        py::gil_scoped_release release;
+        return place_base(robot, wall, along, config, max_shift_m);
+      },
+      py::arg("robot"), py::arg("wall"), py::arg("along"), py::arg("config"), py::arg("max_shift_m"),
+      "The robot's base when the arm has room there to slew every way (swing_room >= via_allowance_m) and its fixed "
+      "links keep base_margin_m; else the nearest such place along `along` within max_shift_m (0.1 m steps), never "
+      "carrying the base's fixed links through a point of the wall.");
   m.def(
       "clear_transits",
       [](const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall, const ClearanceConfig& config,

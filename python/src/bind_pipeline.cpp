@@ -254,5 +254,6 @@ void bind_pipeline(py::module_& m) {
       py::arg("surface"), py::arg("arm_plan"), py::arg("robot"), py::arg("config"), py::arg("points_in") = 0,
       py::arg("check_every") = 10,
       "The summary of a bay planned for the arm (plan_for_arm) on surface; points_in: points of the raw cloud.\n"
-      "The IK check runs FK on every check_every-th trajectory sample.");
+      "The IK check runs FK on every check_every-th trajectory sample; robot: as given to plan_for_arm (placed\n"
+      "where arm_plan.base_placement says).");
 }

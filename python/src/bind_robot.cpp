@@ -53,6 +53,8 @@ void bind_robot(py::module_& m) {
       .def("fk", [](const Robot& r, const Eigen::VectorXd& q) { return Eigen::Matrix4d(r.fk(q).matrix()); },
            py::arg("q"), "4x4 pose of nozzle_tip in the tunnel frame; column 2 is the spray axis.")
       .def("jacobian", &Robot::jacobian, py::arg("q"), "6 x dof geometric Jacobian (linear; angular), tunnel frame.")
+      .def("placed_at", &Robot::placed_at, py::arg("base_position_m"),
+           "The same robot with base_link at base_position_m in the tunnel frame [m].")
       .def("neutral", &Robot::neutral, "Ready posture, the default IK seed.")
       .def("stow", &Robot::stow, "Folded posture every trajectory starts from (URDF stow=, default neutral).")
       .def("within_limits", &Robot::within_limits, py::arg("q"), py::arg("slack") = 1e-9);

@@ -496,7 +496,9 @@ void bind_timing(py::module_& m) {
                              "ObstructedCells: cells no clear pose sprays (clearance.enabled), or None")
       .def_property_readonly("start",
                              [](const ArmPlan& a) -> py::object { return a.start ? py::cast(*a.start) : py::none(); },
-                             "StartPosture the trajectory starts from (clearance.enabled), or None (the stow posture)");
+                             "StartPosture the trajectory starts from (clearance.enabled), or None (the stow posture)")
+      .def_readonly("base_placement", &ArmPlan::base_placement,
+                    "BasePlacement: where the base stood for the plan (place_base; placed_robot(robot, it) is the arm)");
   py::class_<ObstructedCells>(m, "ObstructedCells", "Cells of the bay no clear nozzle pose can spray.")
       .def_readonly("cells", &ObstructedCells::cells)
       .def_readonly("margin_m", &ObstructedCells::margin_m)
@@ -537,6 +539,16 @@ void bind_timing(py::module_& m) {
       py::arg("surface"), py::arg("trajectory"), py::arg("executed"), py::arg("robot"), py::arg("config"),
       py::arg("progress") = nullptr,
       "check_clearance of the trajectory against the wall as scanned and as sprayed (ArmPlan.clearance).");
+  m.def(
+      "place_base",
+      [](const Surface& surface, const Config& config, const Robot& robot) {
+        py::gil_scoped_release release;
+        return place_base(surface, config, robot);
+      },
+      py::arg("surface"), py::arg("config"), py::arg("robot"),
+      "Where the job places the arm's base: with robot.place_base, clearance.enabled and a scan, the nearest place\n"
+      "along the axis (robot.max_base_shift_m) where the arm has room to slew every way; else the configured one.");
+  m.def("placed_robot", &placed_robot, py::arg("robot"), py::arg("placement"), "`robot` at placement.position_m.");
   m.def(
       "plan_for_arm",
       [](const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {

@@ -271,17 +271,27 @@ class ShotcreteNode {
     std::shared_ptr<shotcrete::TimedTrajectory> trajectory;
     std::shared_ptr<shotcrete::ExecutedDeposit> executed;
     shotcrete::JobSummary job;
+    // Every plan starts from the configured base (a plan before may have placed robot_ elsewhere).
+    const shotcrete::Robot configured = robot_->placed_at(config.robot.base_position_m);
+    std::unique_ptr<shotcrete::Robot> placed;
     try {
       // Planned for the arm (speeds its joints can follow), timed, re-planned where needed.
       double last_report = -1.0;
-      shotcrete::ArmPlan arm = shotcrete::plan_for_arm(*surface, config, *robot_, [&](const std::string& stage, double fraction) {
+      shotcrete::ArmPlan arm = shotcrete::plan_for_arm(*surface, config, configured, [&](const std::string& stage, double fraction) {
         const double t = seconds_since(t0);
         if (t - last_report >= 2.0) {
           ROS_INFO("planning: %s %.0f %%", stage.c_str(), 100.0 * fraction);
           last_report = t;
         }
       });
-      job = shotcrete::summarise_job(*surface, arm, *robot_, config, {points_in});
+      job = shotcrete::summarise_job(*surface, arm, configured, config, {points_in});
+      // robot.place_base: the arm stands where the plan placed it (room to slew every way), from
+      // here on for the execution, the re-scan and the base's transform.
+      placed = std::make_unique<shotcrete::Robot>(shotcrete::placed_robot(configured, arm.base_placement));
+      if (arm.base_placement.moved)
+        ROS_WARN("robot.base_position_m lacks room (%.2f m of %.2f m to slew every way, %.2f m for the base): base "
+                 "placed %.1f m along the axis (~summary base_placement)", arm.base_placement.configured_room_m,
+                 config.clearance.via_allowance_m, arm.base_placement.configured_base_room_m, arm.base_placement.shift_m);
       *plan = std::move(arm.plan);
       // The plan stays usable (markers, summary) without a trajectory; only ~execute needs it.
       if (arm.trajectory) trajectory = std::make_shared<shotcrete::TimedTrajectory>(std::move(*arm.trajectory));
@@ -290,6 +300,8 @@ class ShotcreteNode {
       summary = std::string("planning failed: ") + e.what();
       return false;
     }
+    robot_ = std::move(placed);  // work_mutex_ held: no execution or re-scan runs
+    publish_base_transform();
     summary = job.to_json();
     // One line in the log; the whole summary goes to ~summary and the service response.
     const std::string timed = job.trajectory ? "trajectory " + std::to_string(job.trajectory->duration_s) + " s"
@@ -1030,7 +1042,7 @@ class ShotcreteNode {
   double color_max_m_ = 0.3;
   int max_points_ = 20000000;
   std::string survey_frame_id_;
-  std::unique_ptr<shotcrete::Robot> robot_;  // replaced (under work_mutex_) when a cloud's local frame moves its base
+  std::unique_ptr<shotcrete::Robot> robot_;  // replaced (under work_mutex_) when a cloud's local frame or a plan's place_base moves its base
   std::vector<std::string> joint_names_;     // robot_'s, for the idle timer (which takes no lock)
   Eigen::VectorXd q_current_;
   std::atomic<bool> executing_{false};

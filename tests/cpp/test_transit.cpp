@@ -402,3 +402,78 @@ TEST(Transit, AMoveNoRouteClearsIsEasedThroughItsBestRoute) {
   }
   EXPECT_NEAR(tr.duration_s, duration_before + rep.detour_time_s, 1e-9);
 }
+
+// The base 0.6 m from a face (the default base, face at x = 1.2): at slew 0 the boom's root, its
+// lift pivot 0.3 m ahead of the slew axis, lies on the boom's shape, so no posture keeps the boom
+// more than F - x_base - 0.3 from the face: the arm cannot turn through the face with
+// via_allowance_m of room unless x_base <= F - 0.3 - link_margin_m - via_allowance_m (closed form,
+// up to the slack). place_base moves the base back along the axis to a place with that room at
+// every slew direction; the roomiest posture of its worst direction keeps it by brute-force
+// distances to the points. Without the face the base stays; with no shift allowed it stays, not
+// found; boxed in between the face and a wall behind, it stays, not carried through either.
+TEST(Transit, TheBaseStandsBackFromAFaceUntilTheArmCanSlewEveryWay) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const ClearanceConfig cfg;
+  const double need = cfg.via_allowance_m - kSwingRoomSlack_m;
+  const double x_face = 1.2;
+  const Points closed = wall_and_face(x_face);
+  const WallOctree wall(closed, cfg.octree_resolution_m);
+  const Eigen::Vector3d along(1.0, 0.0, 0.0);
+  ASSERT_GT(robot.base_pose().translation().x(), x_face - 0.3 - cfg.link_margin_m - need);
+  const BasePlacement b = place_base(robot, wall, along, cfg, 1.5);
+  EXPECT_TRUE(b.found);
+  ASSERT_TRUE(b.moved);
+  EXPECT_LT(b.configured_room_m, need);
+  EXPECT_GT(std::cos(b.configured_short_slew_rad), 0.5) << "on the face's side";
+  EXPECT_LT(b.shift_m, 0.0);
+  EXPECT_NEAR(std::fmod(std::abs(b.shift_m) + 1e-9, kBaseShiftStep_m), 0.0, 1e-6);
+  EXPECT_EQ(b.configured_m, robot.base_pose().translation());
+  EXPECT_NEAR((b.position_m - b.configured_m - b.shift_m * along).norm(), 0.0, 1e-12);
+  EXPECT_LE(b.position_m.x(), x_face - 0.3 - cfg.link_margin_m - need + 1e-9);
+  EXPECT_GE(b.room_m, need);
+  EXPECT_GE(b.base_room_m, 0.0);
+  const Robot placed = robot.placed_at(b.position_m);
+  EXPECT_EQ(placed.base_pose().translation(), b.position_m);
+  EXPECT_LT((placed.fk(robot.stow()).translation() - robot.fk(robot.stow()).translation() - (b.position_m - b.configured_m)).norm(), 1e-12);
+  const SwingRoom room = swing_room(placed, wall, cfg);
+  ASSERT_EQ(room.worst_q.size(), robot.dof());
+  EXPECT_DOUBLE_EQ(room.worst_q[0], room.worst_slew_rad);
+  EXPECT_GE(room.directions, 25);  // every 15 deg over the slew's 2 x 3.05 rad and its two limits
+  const double exact = brute_allowance(placed, room.worst_q, closed, cfg, self_check_pairs(placed));
+  EXPECT_GE(exact, room.least_m - 1e-6);  // the octree reads short, never long
+  EXPECT_GE(exact, need);
+  // The place one step nearer the face is short of room (the nearest place was taken).
+  const Robot nearer = robot.placed_at(b.position_m - kBaseShiftStep_m * b.shift_m / std::abs(b.shift_m) * along);
+  EXPECT_LT(swing_room(nearer, wall, cfg).least_m, need);
+
+  // No face within reach: the configured place has room every way.
+  const BasePlacement open = place_base(robot, WallOctree(wall_and_face(6.0), cfg.octree_resolution_m), along, cfg, 1.5);
+  EXPECT_TRUE(open.found);
+  EXPECT_FALSE(open.moved) ;
+  EXPECT_EQ(open.places_tried, 1);
+  EXPECT_GE(open.room_m, need);
+  // The face, and no shift allowed: it stays, not found.
+  const BasePlacement stuck = place_base(robot, wall, along, cfg, 0.0);
+  EXPECT_FALSE(stuck.found);
+  EXPECT_FALSE(stuck.moved);
+  EXPECT_EQ(stuck.position_m, stuck.configured_m);
+  // A wall across the tunnel 0.6 m behind the base too (a rig's carrier, floor to crown): no place
+  // between the two has room, and the base is never carried through either to the open space
+  // beyond them (1.5 m either way would be clear of both; the walls are one point thick).
+  std::vector<Eigen::Vector3d> back;
+  for (double y = -kR; y <= kR; y += 0.04)
+    for (double z = -1.6; z <= kR; z += 0.04)
+      if (std::hypot(y, z) < kR) back.emplace_back(0.0, y, z);
+  Points boxed(closed.rows() + static_cast<Eigen::Index>(back.size()), 3);
+  boxed.topRows(closed.rows()) = closed;
+  for (std::size_t k = 0; k < back.size(); ++k) boxed.row(closed.rows() + static_cast<Eigen::Index>(k)) = back[k].transpose();
+  const BasePlacement boxed_in = place_base(robot, WallOctree(boxed, cfg.octree_resolution_m), along, cfg, 1.5);
+  EXPECT_FALSE(boxed_in.found);
+  EXPECT_FALSE(boxed_in.moved);
+  EXPECT_EQ(boxed_in.position_m, boxed_in.configured_m);
+  EXPECT_LE(boxed_in.places_tried, 1 + 2 * 6);  // the places up to each wall (0.1 m apart), not past them
+  EXPECT_THROW(place_base(robot, wall, Eigen::Vector3d::Zero(), cfg, 1.0), std::invalid_argument);
+  EXPECT_THROW(place_base(robot, wall, along, cfg, -1.0), std::invalid_argument);
+  EXPECT_THROW(place_base(robot, wall, along, cfg, std::numeric_limits<double>::infinity()), std::invalid_argument);
+  EXPECT_THROW(swing_room(robot, wall, cfg, 0.0), std::invalid_argument);
+}

@@ -95,6 +95,12 @@ def test_cli_demo_report_contract(tmp_path, run_cli):
     assert {k: got[k] for k in expected if k not in numbers} == {k: v for k, v in expected.items() if k not in numbers}
     assert set(report) - set(summary.to_dict()) == {"timings_s", "files", "provenance", "local_origin_m"}
     assert report["local_origin_m"] == [0.0, 0.0, 0.0]  # a bay near its own origin runs unshifted
+    # The bay alone gives the arm room to slew every way where configured: the base stays.
+    b = report["base_placement"]
+    assert not b["moved"] and b["found"] and b["places_tried"] == 1 and b["shift_m"] == 0.0
+    assert b["position_m"] == b["configured_m"] == list(config.robot.base_position_m)
+    assert b["room_m"] >= config.clearance.via_allowance_m - 0.01 and b["base_room_m"] >= 0
+    assert not any("base is placed" in w or "the base stays" in w for w in report["warnings"])
     assert summary.passes == report["passes"]
     assert summary.trajectory.duration_s == pytest.approx(report["total_time_s"], rel=1e-9)
     assert set(report["residual_mm"]) >= {"mean", "min", "max", "rms"}

@@ -294,15 +294,19 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
         shotcrete._core.obstructed_cells(surface, shotcrete.load_robot(cfg), cfg)
 
 
-def plan_face_scene(tmp_path, run_cli, extra_yaml=""):
+def plan_face_scene(tmp_path, run_cli, extra_yaml="", place_base=False, base_position_m=None):
     """`shotcrete plan` (one round) on the face scene written as PLY: the config, the CLI result and
-    report.json (out dir tmp_path / "o")."""
+    report.json (out dir tmp_path / "o"). The base stays at robot.base_position_m (by default in the
+    face's plane) unless ``place_base``."""
     cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
     xyz = tmp_path / "scene.ply"
     shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
     conf = tmp_path / "c.yaml"
     conf.write_text("synth:\n  theta_min_rad: 1.0\n  theta_max_rad: 2.0\n  length_m: 0.6\n"
-                    "planner:\n  max_rounds: 1\n" + extra_yaml)
+                    "planner:\n  max_rounds: 1\n" + f"robot:\n  place_base: {str(place_base).lower()}\n" +
+                    (f"  base_position_m: {list(base_position_m)}\n" if base_position_m is not None else "") + extra_yaml)
+    if base_position_m is not None:
+        cfg.robot.base_position_m = base_position_m
     r = run_cli("plan", xyz, "--out", tmp_path / "o", "--config", conf, "--json")
     return cfg, r, json.loads((tmp_path / "o" / "report.json").read_text())
 
@@ -378,3 +382,34 @@ def test_plan_of_a_bay_against_its_face_leans_the_nozzle_to_spray_it_all(tmp_pat
     clearance = next(p for p in rep["problems"] if p["code"] == "clearance")
     assert f"at {moving + rep['clearance']['self']['samples_below_margin']} link-samples" in clearance["message"]
     assert "turret" not in clearance["message"]
+
+
+def test_the_job_places_the_base_back_from_the_face_where_the_arm_can_turn(tmp_path, run_cli):
+    """The same face scene with robot.place_base (the default) and the base 0.4 m from the face (its
+    base_link, 0.4 m in radius, touching it): the job moves it back along the axis, in 0.1 m steps,
+    to where its fixed links keep base_margin_m and the arm has via_allowance_m of room at every
+    slew direction. Closed form: at slew 0 the boom's root (its lift pivot, 0.3 m ahead of the slew
+    axis, on the boom's shape) is no further than d_face - x_base - 0.3 from the face, so the base
+    must stand at least 0.3 + link_margin_m + via_allowance_m (less 1 cm of slack) from it. The
+    trajectory is the placed arm's (forward kinematics of trajectory.npz's joints at report.json's
+    base give its nozzle positions), no base_clearance problem, and a warning names the move."""
+    cfg, r, rep = plan_face_scene(tmp_path, run_cli, place_base=True, base_position_m=[0.2, 0.0, -1.2])
+    assert r.exit_code in (0, 3), r.output
+    b = rep["base_placement"]
+    assert b["moved"] and b["found"] and b["shift_m"] < 0
+    assert abs(b["shift_m"] / 0.1 - round(b["shift_m"] / 0.1)) < 1e-9
+    conf_base = np.asarray(cfg.robot.base_position_m)
+    assert np.allclose(b["configured_m"], conf_base)
+    assert np.allclose(b["position_m"], conf_base + [b["shift_m"], 0, 0])
+    face_d, c = cfg.synth.length_m, cfg.clearance
+    assert face_d - b["position_m"][0] >= 0.3 + c.link_margin_m + c.via_allowance_m - 0.01 - 1e-9
+    assert b["configured_room_m"] < c.via_allowance_m - 0.01 <= b["room_m"] and b["base_room_m"] >= 0
+    assert any("the base is placed" in w and "back along the axis" in w for w in rep["warnings"])
+    assert "base_clearance" not in [p["code"] for p in rep["problems"]]
+    links = {l["link"]: l for l in rep["clearance"]["links"]}
+    assert links["turret"]["samples_below_margin"] == 0 and links["base_link"]["samples_below_margin"] == 0
+    tr = np.load(tmp_path / "o" / "trajectory.npz")
+    assert np.allclose(tr["base_position_m"], b["position_m"])
+    robot = shotcrete.load_robot(cfg).placed_at(np.asarray(b["position_m"]))
+    for k in range(0, len(tr["q"]), max(1, len(tr["q"]) // 50)):
+        assert np.allclose(np.asarray(robot.fk(tr["q"][k]))[:3, 3], tr["nozzle_position_m"][k], atol=1e-6)

@@ -169,7 +169,10 @@ def test_plan_by_a_face_starts_clear_of_it_and_routes_the_first_move_around_it(t
                     # default, its first pass starts at a posture within the face's margin, which no
                     # route can help (the detour says so; README "A scan of the whole scene").
                     "planner: {max_rounds: 1, levelling_lookahead_late_lines: false, levelling_lookahead_rounds: 3}\n"
-                    "timing: {max_replans: 0}\n")
+                    "timing: {max_replans: 0}\n"
+                    # The base where configured, 0.9 m from the face (robot.place_base would move it
+                    # back: tests/python/test_scene.py).
+                    "robot: {place_base: false}\n")
     cfg = shotcrete.load_config(conf)
     scan = shotcrete.make_synthetic_bay(cfg.synth).sample_scan()
     shotcrete.write_cloud(tmp_path / "scene.ply", scan)

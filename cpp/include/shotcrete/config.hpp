@@ -236,6 +236,9 @@ struct OrderingConfig {
 struct RobotConfig {
   std::string urdf_path = "";  // empty: the bundled shotcrete manipulator
   Eigen::Vector3d base_position_m{0.6, 0.0, -1.2};  // base link in the tunnel frame
+  bool place_base = true;           // move the base along the axis to where the arm can slew every way
+                                    // with via_allowance_m of room (place_base; a face, a rig in the scan)
+  double max_base_shift_m = 1.5;    // farthest such a move [m]
   double ik_position_tolerance_m = 0.001;
   double ik_angle_tolerance_rad = 0.0087;  // 0.5 degree
   int ik_max_restarts = 20;

@@ -167,6 +167,8 @@ template <class F> void visit(OrderingConfig*, F&& f) {
 template <class F> void visit(RobotConfig*, F&& f) {
   f("urdf_path", &RobotConfig::urdf_path, 0, 0, "URDF file; empty = bundled manipulator");
   f("base_position_m", &RobotConfig::base_position_m, 0, 0, "robot base in the tunnel frame [m]");
+  f("place_base", &RobotConfig::place_base, 0, 0, "with clearance.enabled: move the base along the axis to the nearest place where the arm has room to slew every way (a face or a rig in the scan)");
+  f("max_base_shift_m", &RobotConfig::max_base_shift_m, 0.0, 20.0, "farthest place_base moves the base from base_position_m [m]");
   f("ik_position_tolerance_m", &RobotConfig::ik_position_tolerance_m, 1e-6, 0.1, "IK position tolerance [m]");
   f("ik_angle_tolerance_rad", &RobotConfig::ik_angle_tolerance_rad, 1e-5, 0.5, "IK axis tolerance [rad]");
   f("ik_max_restarts", &RobotConfig::ik_max_restarts, 0, 10000, "random restarts per failed solve");

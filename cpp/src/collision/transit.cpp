@@ -10,6 +10,7 @@
 #include <functional>
 #include <limits>
 #include <optional>
+#include <random>
 #include <sstream>
 #include <stdexcept>
 
@@ -78,20 +79,36 @@ std::string worst_of(const ClearanceReport& rep, const ClearanceConfig& config) 
 // A posture of maximum space allowance from `start`: BOBYQA within the joint limits on the
 // allowance saturated at cap_m, less a small pull toward `ref` (of two postures with enough room,
 // the one nearer `ref`).
+// 5 cm of allowance per unit of normalised joint distance: a tie-breaker past the cap, small
+// against the allowance below it.
+constexpr double kPull_m = 0.05;
+
+// With held_joint >= 0 that joint stays at start's value (swing_room: a slew direction held, and
+// no pull: the most room there is, wherever it lies).
 Eigen::VectorXd most_room_posture(const Robot& robot, const Eigen::VectorXd& start, const Eigen::VectorXd& ref,
                                   const WallOctree& wall, const ClearanceConfig& config,
                                   const std::vector<std::pair<int, int>>& pairs, double cap_m,
-                                  const std::vector<char>& fixed) {
-  const int n = robot.dof();
-  const Eigen::VectorXd lo = robot.lower_limits(), hi = robot.upper_limits();
+                                  const std::vector<char>& fixed, int held_joint = -1, double pull_m = kPull_m) {
+  const Eigen::VectorXd lo_all = robot.lower_limits(), hi_all = robot.upper_limits();
+  const Eigen::VectorXd x0_all = start.cwiseMax(lo_all).cwiseMin(hi_all);
+  // The free joints (all but the held one) and the posture they make.
+  std::vector<int> free_joints;
+  for (int j = 0; j < robot.dof(); ++j)
+    if (j != held_joint) free_joints.push_back(j);
+  const int n = static_cast<int>(free_joints.size());
+  const auto posture = [&](const double* x) {
+    Eigen::VectorXd q = x0_all;
+    for (int i = 0; i < n; ++i) q[free_joints[static_cast<std::size_t>(i)]] = x[i];
+    return q;
+  };
+  Eigen::VectorXd lo(n), hi(n);
+  for (int i = 0; i < n; ++i) lo[i] = lo_all[free_joints[static_cast<std::size_t>(i)]], hi[i] = hi_all[free_joints[static_cast<std::size_t>(i)]];
+  const Eigen::VectorXd range_all = (hi_all - lo_all).cwiseMax(1e-9);
   const Eigen::VectorXd range = (hi - lo).cwiseMax(1e-9);
-  // 5 cm of allowance per unit of normalised joint distance: a tie-breaker past the cap, small
-  // against the allowance below it.
-  constexpr double kPull_m = 0.05;
   std::function<double(const std::vector<double>&)> objective = [&](const std::vector<double>& x) {
-    const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(x.data(), n);
+    const Eigen::VectorXd q = posture(x.data());
     const double a = posture_allowance(robot, q, wall, config, pairs, cap_m, &fixed);
-    return -(a - kPull_m * (q - ref).cwiseQuotient(range).norm());
+    return -(a - pull_m * (q - ref).cwiseQuotient(range_all).norm());
   };
   nlopt::opt opt(nlopt::LN_BOBYQA, static_cast<unsigned>(n));
   opt.set_lower_bounds(std::vector<double>(lo.data(), lo.data() + n));
@@ -109,15 +126,15 @@ Eigen::VectorXd most_room_posture(const Robot& robot, const Eigen::VectorXd& sta
   opt.set_xtol_abs(2e-3);
   opt.set_ftol_abs(1e-3);
   opt.set_maxeval(40 * n);
-  const Eigen::VectorXd x0 = start.cwiseMax(lo).cwiseMin(hi);
-  std::vector<double> x(x0.data(), x0.data() + n);
+  std::vector<double> x(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i) x[static_cast<std::size_t>(i)] = x0_all[free_joints[static_cast<std::size_t>(i)]];
   double best = 0.0;
   try {
     opt.optimize(x, best);
   } catch (const nlopt::roundoff_limited&) {
     // x holds BOBYQA's best point.
   }
-  return Eigen::Map<const Eigen::VectorXd>(x.data(), n).cwiseMax(lo).cwiseMin(hi);
+  return posture(x.data()).cwiseMax(lo_all).cwiseMin(hi_all);
 }
 
 // q with the telescopes (prismatic joints) all the way in.
@@ -377,6 +394,156 @@ StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred,
     }
     if (out.moved) break;  // the nearest posture with room at the smallest saturation that has one
   }
+  return out;
+}
+
+// Starts tried at a direction short of room after the usual ones (swing_room).
+constexpr int kSwingExtraStarts = 8;
+
+SwingRoom swing_room(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config, double step_rad,
+                     double stop_below_m, double first_rad) {
+  if (!(step_rad >= 1e-3 && step_rad <= 2.0 * M_PI)) throw std::invalid_argument("swing_room: step_rad must be within 0.001..2 pi rad");
+  const auto pairs = self_check_pairs(robot);
+  const std::vector<char> fixed = fixed_shapes(robot);
+  const double cap = config.via_allowance_m;
+  SwingRoom out;
+  out.least_m = cap;
+  // The directions: multiples of step_rad (slew 0, straight ahead along base_link's x, among
+  // them) within the joint's range, and its two limits.
+  const double lo = robot.lower_limits()[0], hi = robot.upper_limits()[0];
+  std::vector<double> slews{lo};
+  for (int k = static_cast<int>(std::floor(lo / step_rad)) + 1; k * step_rad < hi; ++k)
+    if (k * step_rad > lo + 1e-9 && k * step_rad < hi - 1e-9) slews.push_back(k * step_rad);
+  if (hi > lo) slews.push_back(hi);
+  // Nearest first_rad first: where a place is likely short, it is found short soonest.
+  if (std::isfinite(first_rad))
+    std::stable_sort(slews.begin(), slews.end(),
+                     [&](double a, double b) { return std::abs(a - first_rad) < std::abs(b - first_rad); });
+  Eigen::VectorXd last;  // the roomiest posture at the slew before: the next one starts there
+  for (const double slew : slews) {
+    std::vector<Eigen::VectorXd> starts;
+    if (last.size() > 0) starts.push_back(last);
+    for (const Eigen::VectorXd& q : {robot.stow(), robot.neutral()}) {
+      starts.push_back(q);
+      starts.push_back(folded(robot, q));
+    }
+    // A direction short of room after those gets kSwingExtraStarts more, spread over the joint
+    // ranges (the search is local; the same seed each direction, so the answer is repeatable).
+    std::mt19937 rng(1);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    const Eigen::VectorXd lo_q = robot.lower_limits(), span = robot.upper_limits() - robot.lower_limits();
+    for (int k = 0; k < kSwingExtraStarts; ++k) {
+      Eigen::VectorXd q(robot.dof());
+      for (int j = 0; j < robot.dof(); ++j) q[j] = lo_q[j] + unit(rng) * span[j];
+      starts.push_back(q);
+    }
+    double best = -std::numeric_limits<double>::infinity();
+    for (Eigen::VectorXd s : starts) {
+      s[0] = slew;
+      ++out.optimisations;
+      const Eigen::VectorXd q = most_room_posture(robot, s, s, wall, config, pairs, cap, fixed, 0, 0.0);
+      const double a = posture_allowance(robot, q, wall, config, pairs, cap, &fixed);
+      if (a > best) best = a, last = q;
+      if (best >= cap - kSwingRoomSlack_m) break;  // room enough: the other starts cannot add to it
+    }
+    ++out.directions;
+    if (best < out.least_m || out.worst_q.size() == 0) out.least_m = std::min(out.least_m, best), out.worst_slew_rad = slew, out.worst_q = last;
+    if (out.least_m < stop_below_m) break;
+  }
+  return out;
+}
+
+double base_room(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
+  const std::vector<char> fixed = fixed_shapes(robot);
+  const auto& shapes = robot.collision_shapes();
+  const auto frames = robot.link_frames(robot.stow());
+  double least = std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < shapes.size(); ++k)
+    if (fixed[k])
+      least = std::min(least, wall.exact_distance(shapes[k], frames[shapes[k].frame]) - config.base_margin_m);
+  return least;
+}
+
+namespace {
+
+// Whether the shapes no joint moves, carried from `from` to `to` (base positions) in steps of at most
+// kBaseWayStep_m, overlap a point of `wall` at some step after `from`: a face between two places
+// closes the way past it (every fixed shape is thicker than a step, so none slips through a
+// wall one point thick), while a point the base only comes near does not.
+bool way_blocked(const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& from, const Eigen::Vector3d& to) {
+  const std::vector<char> fixed = fixed_shapes(robot);
+  const auto& shapes = robot.collision_shapes();
+  const int steps = std::max(1, static_cast<int>(std::ceil((to - from).norm() / kBaseWayStep_m - 1e-9)));
+  for (int i = 1; i <= steps; ++i) {
+    const Robot at = robot.placed_at(from + (to - from) * (static_cast<double>(i) / steps));
+    const auto frames = at.link_frames(at.stow());
+    for (std::size_t k = 0; k < shapes.size(); ++k)
+      if (fixed[k] && wall.exact_distance(shapes[k], frames[shapes[k].frame]) <= 0.0) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+BasePlacement place_base(const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& along,
+                         const ClearanceConfig& config, double max_shift_m) {
+  if (!(along.norm() > 0.0) || !along.allFinite()) throw std::invalid_argument("place_base: the axis direction is not a vector");
+  if (!(max_shift_m >= 0.0 && max_shift_m <= kMaxBaseShift_m))
+    throw std::invalid_argument("robot.max_base_shift_m must be within 0.." + std::to_string(kMaxBaseShift_m) + " m");
+  const auto t0 = std::chrono::steady_clock::now();
+  const Eigen::Vector3d ex = along.normalized();
+  BasePlacement out;
+  out.configured_m = out.position_m = robot.base_pose().translation();
+  const double need = config.via_allowance_m - kSwingRoomSlack_m;
+  // A place is given up at its first direction short of room (a direction short after the usual
+  // starts costs kSwingExtraStarts more searches): the configured place's directions from straight
+  // ahead (slew 0, where a face usually is) outward, a candidate's from the configured place's
+  // short direction outward.
+  double first_rad = 0.0;
+  const auto fits = [&](const Robot& r, SwingRoom& room, double& base, bool configured) {
+    base = base_room(r, wall, config);
+    if (base < 0.0 && !configured) return false;  // the configured place's room is reported all the same
+    room = swing_room(r, wall, config, kSwingStepRad, need, first_rad);
+    return base >= 0.0 && room.least_m >= need;
+  };
+  SwingRoom room;
+  double base = 0.0;
+  ++out.places_tried;
+  out.found = fits(robot, room, base, true);
+  out.configured_room_m = out.room_m = room.least_m;
+  out.configured_base_room_m = out.base_room_m = base;
+  out.configured_short_slew_rad = first_rad = room.worst_slew_rad;
+  // Without a fixed collision shape nothing tells where the base can stand (it could be carried
+  // through a face into the unscanned rock beyond): it stays.
+  const std::vector<char> fixed = fixed_shapes(robot);
+  const bool can_move = std::any_of(fixed.begin(), fixed.end(), [](char f) { return f != 0; });
+  if (!out.found && can_move) {
+    // Away from what the configured place lacks room for first: its short slew direction (slew 0
+    // points along base_link's x); at each distance, nearest first.
+    const Eigen::Vector3d toward(std::cos(room.worst_slew_rad), std::sin(room.worst_slew_rad), 0.0);
+    const double away = toward.dot(ex) > 0.0 ? -1.0 : 1.0;
+    const int steps = static_cast<int>(std::floor(max_shift_m / kBaseShiftStep_m + 1e-9));
+    bool closed[2] = {false, false};  // the way past a point of the scan, {away, toward}
+    for (int k = 1; k <= steps && !out.found; ++k)
+      for (const int side : {0, 1}) {
+        const double sign = side == 0 ? away : -away;
+        const double shift = sign * k * kBaseShiftStep_m;
+        const Eigen::Vector3d last = out.configured_m + sign * (k - 1) * kBaseShiftStep_m * ex;
+        if (closed[side] || (closed[side] = way_blocked(robot, wall, last, out.configured_m + shift * ex))) continue;
+        Robot moved = robot.placed_at(out.configured_m + shift * ex);
+        ++out.places_tried;
+        SwingRoom r;
+        double b = 0.0;
+        if (fits(moved, r, b, false)) {
+          out.found = out.moved = true;
+          out.shift_m = shift;
+          out.position_m = moved.base_pose().translation();
+          out.room_m = r.least_m, out.base_room_m = b;
+          break;
+        }
+      }
+  }
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
 }
 

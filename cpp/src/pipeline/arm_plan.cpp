@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <chrono>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -427,8 +428,37 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   return out;
 }
 
-ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot, const ProgressFn& progress) {
+BasePlacement place_base(const Surface& surface, const Config& config, const Robot& robot, const WallOctree* scan_wall) {
+  if (!config.robot.place_base || !config.clearance.enabled || surface.cloud.xyz.rows() == 0) {
+    BasePlacement out;
+    out.configured_m = out.position_m = robot.base_pose().translation();
+    out.found = true;
+    return out;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  std::unique_ptr<WallOctree> own;
+  if (!scan_wall) own = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
+  BasePlacement out = place_base(robot, scan_wall ? *scan_wall : *own, surface.axis.ex, config.clearance,
+                                 config.robot.max_base_shift_m);
+  out.checked = true;
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();  // with the octree
+  return out;
+}
+
+Robot placed_robot(const Robot& robot, const BasePlacement& placement) {
+  return placement.moved ? robot.placed_at(placement.position_m) : robot;
+}
+
+ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& given_robot, const ProgressFn& progress) {
   ArmPlan out;
+  // The scan as an obstacle (the base's place, the start posture, the tracking's clearance term).
+  std::unique_ptr<WallOctree> scan_wall;
+  if (config.clearance.enabled && surface.cloud.xyz.rows() > 0)
+    scan_wall = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
+  if (progress) progress("base placement", 0.0);
+  out.base_placement = place_base(surface, config, given_robot, scan_wall.get());
+  if (progress) progress("base placement", 1.0);
+  const Robot robot = placed_robot(given_robot, out.base_placement);
   if (config.clearance.enabled) out.obstructed = obstructed_cells(surface, robot, config);
   // The arm's caps depend on a pass's geometry only: the lines of a round repeat across re-plans,
   // so they are computed once per distinct pass, keyed by every waypoint's position and axis.
@@ -459,10 +489,8 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   // The tracking's clearance term steers the spare degrees of freedom by the wall as scanned: a
   // guide, not a bound (the sprayed layers bring the wall up to 0.41 m nearer on the default bay by
   // the job's end, mean 0.20 m; the check below measures against the wall as sprayed).
-  std::unique_ptr<WallOctree> scan_wall;
   NullSpaceObjective clearance_term;
-  if (config.clearance.enabled && surface.cloud.xyz.rows() > 0) {
-    scan_wall = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
+  if (scan_wall) {
     if (config.clearance.null_space_gain > 0.0) clearance_term = clearance_objective(robot, *scan_wall, config.clearance);
     // The job starts from the stow posture unless that one is in something the scan holds (the
     // boom pointing into the face): then from the nearest posture with room.

@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "shotcrete/io/json_writer.hpp"
+#include "shotcrete/pipeline/arm_plan.hpp"
 #include "shotcrete/robot/joint_tracking.hpp"  // finite_differences
 #include "shotcrete/robot/robot.hpp"
 #include "shotcrete/surface/grid.hpp"
@@ -343,8 +344,9 @@ std::string fmt(double v, int digits) {
 }
 }  // namespace
 
-JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const Robot& robot, const Config& config,
+JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const Robot& given_robot, const Config& config,
                          const JobSummaryOptions& options) {
+  const Robot robot = placed_robot(given_robot, arm_plan.base_placement);  // the arm the trajectory is of
   const Grid& grid = surface.grid;
   const Plan& plan = arm_plan.plan;
   if (plan.td_after_m.size() != static_cast<Eigen::Index>(grid.valid.size()))
@@ -437,6 +439,24 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
       if (std::isfinite(td[c]) && level_of_td_mm(td[c] * 1000.0) > 0) ++s.obstructed_above_level_0;
   }
   s.self_margin_m = config.clearance.self_margin_m;
+  if (arm_plan.base_placement.checked) {
+    s.base_placement = arm_plan.base_placement;
+    const BasePlacement& b = *s.base_placement;
+    // What the configured place lacks: room for the base's own links, or room to slew.
+    const std::string lacks =
+        b.configured_base_room_m < 0.0
+            ? "the base's fixed links come within clearance.base_margin_m of the scan at robot.base_position_m (" +
+                  fmt(-b.configured_base_room_m, 2) + " m short)"
+            : "the arm has too little room to slew every way at robot.base_position_m (" + fmt(b.configured_room_m, 2) +
+                  " m of " + fmt(config.clearance.via_allowance_m, 2) + " m beyond the margins toward slew " +
+                  fmt(b.configured_short_slew_rad, 2) + " rad)";
+    if (b.moved)
+      s.warnings.push_back(lacks + ": the base is placed " + fmt(std::abs(b.shift_m), 1) + " m " +
+                           (b.shift_m < 0.0 ? "back" : "forward") + " along the axis (report.json base_placement)");
+    else if (!b.found)
+      s.warnings.push_back(lacks + " and no place within robot.max_base_shift_m (" + fmt(config.robot.max_base_shift_m, 1) +
+                           " m) along the axis has room without passing through the scan: the base stays");
+  }
   if (arm_plan.start) {
     s.start = arm_plan.start;
     s.joint_names = robot.joint_names();
@@ -614,6 +634,20 @@ std::string JobSummary::to_json() const {
   if (clearance) {
     w.key("clearance");
     write(w, *clearance, self_margin_m, transits);
+  }
+  if (base_placement) {
+    const BasePlacement& b = *base_placement;
+    auto point = [&](const char* key, const Eigen::Vector3d& p) {
+      w.key(key).begin_array().value(p.x()).value(p.y()).value(p.z()).end_array();
+    };
+    w.key("base_placement").begin_object().field("moved", b.moved).field("found", b.found);
+    point("configured_m", b.configured_m);
+    point("position_m", b.position_m);
+    w.field("shift_m", b.shift_m).field("room_m", b.room_m).field("base_room_m", b.base_room_m);
+    w.field("configured_room_m", b.configured_room_m).field("configured_short_slew_rad", b.configured_short_slew_rad);
+    w.field("configured_base_room_m", b.configured_base_room_m);
+    w.field("places_tried", b.places_tried);
+    w.end_object();
   }
   if (start) {
     auto joints = [&](const Eigen::VectorXd& q) {

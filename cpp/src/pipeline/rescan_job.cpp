@@ -128,6 +128,8 @@ RescanOutcome rescan_job(const Grid& grid, const Eigen::VectorXd& predicted_depo
   // Every round of the correction alike (its layer is thin from the first).
   out.correction_config->planner.levelling_late_spacing_ratio = config.rescan.correction_spacing_ratio;
   out.correction_config->planner.levelling_late_edge_overrun_m = config.rescan.correction_edge_overrun_m;
+  // The rig that sprays the correction stands where it stood for the job (the robot given).
+  out.correction_config->robot.place_base = false;
   const Cloud wall = wall_points(grid, after_reg, out.thickness.residual_td_m, kRescanWallBand_m);
   out.correction_surface = build_surface(wall, *out.correction_config);
   out.correction = plan_for_arm(*out.correction_surface, *out.correction_config, *robot, progress);

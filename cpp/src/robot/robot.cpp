@@ -264,6 +264,13 @@ const Eigen::VectorXd& Robot::upper_limits() const { return impl_->upper; }
 const Eigen::VectorXd& Robot::velocity_limits() const { return impl_->velocity; }
 const Eigen::VectorXd& Robot::acceleration_limits() const { return impl_->acceleration; }
 const Eigen::Isometry3d& Robot::base_pose() const { return impl_->base; }
+
+Robot Robot::placed_at(const Eigen::Vector3d& base_position_m) const {
+  if (!base_position_m.allFinite()) throw std::invalid_argument("robot.base_position_m contains NaN or inf");
+  Robot r(*this);
+  r.impl_->base.translation() = base_position_m;
+  return r;
+}
 const std::string& Robot::urdf_path() const { return impl_->path; }
 Eigen::Vector3d Robot::shoulder_position() const { return impl_->base * impl_->shoulder_in_base; }
 double Robot::max_reach_m() const { return impl_->max_reach_m; }

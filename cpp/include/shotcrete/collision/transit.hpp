@@ -3,6 +3,7 @@
 // move of a trajectory is checked sample by sample against the wall and the arm itself; one that
 // comes closer than the margins is re-routed through a posture of maximum space allowance, with
 // rest-to-rest joint quintics start -> via -> goal.
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -88,5 +89,68 @@ struct StartPosture {
 /// q stays `preferred` (moved false, allowance_m < 0): the clearance check then reports it.
 StartPosture start_posture(const Robot& robot, const Eigen::VectorXd& preferred, const WallOctree& wall,
                            const ClearanceConfig& config);
+
+/// Swing room used by place_base: the slew directions are tried every kSwingStepRad (15 deg), a
+/// posture with room within kSwingRoomSlack_m of the cap counts as roomy (BOBYQA's tolerance).
+constexpr double kSwingStepRad = 0.2617993877991494;
+constexpr double kSwingRoomSlack_m = 0.01;
+/// Places place_base tries lie this far apart along the axis [m]; the way between two is checked
+/// every kBaseWayStep_m; a shift past kMaxBaseShift_m is refused (robot.max_base_shift_m's range).
+constexpr double kBaseShiftStep_m = 0.1;
+constexpr double kBaseWayStep_m = 0.05;
+constexpr double kMaxBaseShift_m = 20.0;
+
+/// How much room the arm has to slew all the way round (swing_room).
+struct SwingRoom {
+  double least_m = 0.0;         // over the slew directions, the most posture_allowance (without the fixed shapes) a posture has there, capped at via_allowance_m
+  double worst_slew_rad = 0.0;  // the direction with the least
+  Eigen::VectorXd worst_q;      // the roomiest posture found there
+  int directions = 0;           // slew directions measured (fewer when it stopped below stop_below_m)
+  int optimisations = 0;        // postures searched (BOBYQA runs)
+};
+
+/// At every slew direction (multiples of step_rad within the first joint's range, and its limits), the posture of most
+/// space allowance with the slew held there (the transit router's search, saturated at
+/// config.via_allowance_m, from the roomiest posture of the direction before, the stow and the
+/// neutral postures and both with the telescopes in); the least of those. An arm with
+/// via_allowance_m everywhere can turn from any spraying side to any other through a via posture:
+/// the joint moves between its posture families have somewhere to go. Stops at the first
+/// direction below stop_below_m; the directions nearest first_rad (when finite) are measured first.
+SwingRoom swing_room(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config,
+                     double step_rad = kSwingStepRad, double stop_below_m = -std::numeric_limits<double>::infinity(),
+                     double first_rad = std::numeric_limits<double>::quiet_NaN());
+
+/// The least distance of the shapes no joint moves (fixed_shapes: the base, the turret) to `wall`
+/// less config.base_margin_m (exact distances); < 0: the base stands in something the scan holds.
+double base_room(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config);
+
+/// Where the job places the arm's base (robot.place_base).
+struct BasePlacement {
+  bool checked = false;  // the placement was measured (robot.place_base, clearance.enabled, a scan)
+  Eigen::Vector3d configured_m = Eigen::Vector3d::Zero();  // robot.base_position_m
+  Eigen::Vector3d position_m = Eigen::Vector3d::Zero();    // where the job places it
+  double shift_m = 0.0;          // along the tunnel axis (ex) from configured_m [m]
+  bool moved = false;            // position_m is not configured_m
+  bool found = false;            // position_m has room to slew every way (or the placement was not checked)
+  double configured_room_m = 0.0;       // swing_room's least at the configured place, up to its first direction short of room (from slew 0 outward) [m]
+  double configured_short_slew_rad = 0.0;  // ... and that direction (the last measured when none is short)
+  double configured_base_room_m = 0.0;  // base_room there [m]
+  double room_m = 0.0, base_room_m = 0.0;  // the same at position_m
+  int places_tried = 0;
+  double seconds = 0.0;
+};
+
+/// The configured base (robot's) when the arm has room there to slew every way (swing_room's least
+/// at least config.via_allowance_m) and its fixed links keep base_margin_m (base_room); else the
+/// nearest place along `along` (the tunnel axis) within max_shift_m, in steps of kBaseShiftStep_m,
+/// that has both, away from the direction short of room first, never carrying the base's fixed
+/// links through a point of `wall` (a face, a rig's carrier: the way is checked every
+/// kBaseWayStep_m). A rig stands as far from the face as its boom needs to fold over and turn: a
+/// base mid-bay 0.6 m from a face joins its two slew families only through the face. None found,
+/// or a robot without fixed collision shapes (nothing tells where it can stand): the configured
+/// place (found false when it lacks room). Throws std::invalid_argument for an axis that is not a
+/// vector or max_shift_m outside 0..kMaxBaseShift_m.
+BasePlacement place_base(const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& along,
+                         const ClearanceConfig& config, double max_shift_m);
 
 }  // namespace shotcrete

@@ -90,9 +90,24 @@ struct ArmPlan {
   // With clearance.enabled and a scan: where the trajectory starts (start_posture from the stow
   // posture against the scan); else it starts from the stow posture.
   std::optional<StartPosture> start;
+  // Where the arm's base stood for all of it (place_base; unchecked without robot.place_base,
+  // clearance or a scan): every posture above is that of placed_robot(robot, base_placement).
+  BasePlacement base_placement;
 };
 
-/// plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the
+/// Where the job places the arm's base: with robot.place_base, clearance.enabled and a scan, the
+/// collision place_base against the scan's points along the surface's axis (up to
+/// robot.max_base_shift_m); else the configured place, unchecked. The job then plans with
+/// robot.placed_at(position_m) (placed_robot; plan_for_arm does both).
+/// `scan_wall`: the scan's octree when the caller has one (else built here).
+BasePlacement place_base(const Surface& surface, const Config& config, const Robot& robot,
+                         const WallOctree* scan_wall = nullptr);
+
+/// `robot` at placement.position_m.
+Robot placed_robot(const Robot& robot, const BasePlacement& placement);
+
+/// First the base's place (place_base: with robot.place_base, where the arm has room to slew every
+/// way; ArmPlan::base_placement), then, with the arm there, plan_bay with the arm's speed caps (arm_speed_caps: the joint limits along every pass from the
 /// neutral posture), then time_plan from the stow posture (with clearance.enabled, from
 /// start_posture: the nearest clear posture when the stow one is in something the scan holds); while spraying samples of the trajectory still break a joint
 /// limit (the arm reaches a pass in another posture than the caps assumed), their neighbourhood

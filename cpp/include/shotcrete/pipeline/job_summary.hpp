@@ -159,6 +159,7 @@ struct JobSummary {
   std::optional<ObstructedCells> obstructed;     // with clearance.enabled: cells no clear pose sprays
   int obstructed_above_level_0 = 0;              // of those, left above level 0 by the deposit (deposit_source)
   std::optional<StartPosture> start;             // with clearance.enabled: where the trajectory starts (ArmPlan::start)
+  std::optional<BasePlacement> base_placement;   // where the job placed the base (ArmPlan::base_placement, when checked)
   std::vector<std::string> joint_names;          // the robot's, in the order of start's postures
   double self_margin_m = 0.0;                    // clearance.self_margin_m
   // "ok", or "not_executable" when problems is not empty (plan_problems).
@@ -185,7 +186,8 @@ struct JobSummaryOptions {
   int check_every = 10;  // FK check of every n-th trajectory sample
 };
 
-/// Summary of a bay planned for the arm (plan_for_arm) on `surface`.
+/// Summary of a bay planned for the arm (plan_for_arm) on `surface`; `robot` as given to plan_for_arm
+/// (or already placed): it is placed where arm_plan.base_placement says.
 JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const Robot& robot, const Config& config,
                          const JobSummaryOptions& options = {});
 

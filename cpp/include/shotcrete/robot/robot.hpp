@@ -67,6 +67,8 @@ class Robot {
   const Eigen::VectorXd& acceleration_limits() const;  // [rad/s^2] or [m/s^2]
   /// base_link in the tunnel frame (pure translation).
   const Eigen::Isometry3d& base_pose() const;
+  /// The same robot with base_link at base_position_m (place_base's candidates).
+  Robot placed_at(const Eigen::Vector3d& base_position_m) const;
   /// The URDF path it was loaded from ("" for from_string).
   const std::string& urdf_path() const;
 
