@@ -241,3 +241,27 @@ def test_python_api_matches_the_cli(loop):
     for fn in (rs.read_job, rs.after_scan, rs.rescan, rs.write_outputs, _core.register_scans, _core.measure_cells,
                _core.calibrate_flow, _core.m3c2):
         assert fn.__doc__ and len(fn.__doc__) > 40
+
+
+def test_the_correction_is_sprayed_from_where_the_job_placed_the_base(loop):
+    """rescan's robot (``job_robot``): the job's base as its report.json ``base_placement`` gives it
+    when the job moved it (robot.place_base), else the configured one; the loop's job (clearance
+    off) was not placed."""
+    import dataclasses
+
+    from shotcrete import rescan as rs
+
+    cfg = shotcrete.load_config(loop / "cfg.yaml")
+    job = rs.read_job(loop / "job", cfg)
+    robot = shotcrete.load_robot(cfg)
+    assert "base_placement" not in job.report
+    base = lambda r: np.asarray(r.base_pose)[:3, 3]  # noqa: E731
+    assert np.allclose(base(rs.job_robot(job, robot)), cfg.robot.base_position_m)
+    placed = dataclasses.replace(job, report={**job.report, "base_placement": {"moved": True, "position_m": [0.1, 0.0, -1.2]}})
+    assert np.allclose(base(rs.job_robot(placed, robot)), [0.1, 0.0, -1.2])
+    kept = dataclasses.replace(job, report={**job.report, "base_placement": {"moved": False, "position_m": [0.6, 0.0, -1.2]}})
+    assert np.allclose(base(rs.job_robot(kept, robot)), cfg.robot.base_position_m)
+    # The arm moved: its forward kinematics with it.
+    q = np.asarray(robot.stow())
+    shift = np.asarray(robot.fk(q))[:3, 3] - np.asarray(rs.job_robot(placed, robot).fk(q))[:3, 3]
+    assert np.allclose(shift, np.asarray(cfg.robot.base_position_m) - [0.1, 0.0, -1.2])
