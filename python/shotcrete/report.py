@@ -406,6 +406,15 @@ def write_html(out: Path, report: dict, figures: list[tuple[str, str, str]], fac
     else:  # a plan that is not right says so before any figure
         items = "".join(f"<li>{html.escape(p['message'])} ({html.escape(p['code'])})</li>" for p in report.get("problems", []))
         banner = f'<div class="bad"><b>status: {html.escape(status)}</b>: this plan is not executable as reported<ul>{items}</ul></div>'
+    # Where the rig stands when the job moved its base (robot.place_base): the crew parks it there.
+    placed = report.get("base_placement") or {}
+    if placed.get("moved"):
+        pos = ", ".join(f"{v:.3f}" for v in placed["position_m"])
+        conf = ", ".join(f"{v:.3f}" for v in placed["configured_m"])
+        way = "back" if placed["shift_m"] < 0 else "forward"
+        banner += (f'<p class="note" id="base-placement"><b>Rig placement</b>: the arm\'s base stands at ({pos}) m, '
+                   f'{abs(placed["shift_m"]):.1f} m {way} along the axis from robot.base_position_m ({conf}) m, '
+                   f'where the arm has room to turn every way (report.json base_placement)</p>')
     groups: dict[str, list[str]] = {}
     for group, cap, src in figures:
         groups.setdefault(group, []).append(_figure(cap, src))

@@ -405,6 +405,8 @@ def test_the_job_places_the_base_back_from_the_face_where_the_arm_can_turn(tmp_p
     assert face_d - b["position_m"][0] >= 0.3 + c.link_margin_m + c.via_allowance_m - 0.01 - 1e-9
     assert b["configured_room_m"] < c.via_allowance_m - 0.01 <= b["room_m"] and b["base_room_m"] >= 0
     assert any("the base is placed" in w and "back along the axis" in w for w in rep["warnings"])
+    page = (tmp_path / "o" / "report.html").read_text()
+    assert 'id="base-placement"' in page and f"{abs(b['shift_m']):.1f} m back" in page
     assert "base_clearance" not in [p["code"] for p in rep["problems"]]
     links = {l["link"]: l for l in rep["clearance"]["links"]}
     assert links["turret"]["samples_below_margin"] == 0 and links["base_link"]["samples_below_margin"] == 0
