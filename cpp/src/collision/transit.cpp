@@ -453,37 +453,38 @@ SwingRoom swing_room(const Robot& robot, const WallOctree& wall, const Clearance
   return out;
 }
 
-double base_room(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
+namespace {
+
+// Least exact distance to `wall` of the shapes no joint moves (fixed_shapes), the base moved by
+// `shift` (a pure translation: their frames move with it); infinite without such shapes.
+double fixed_distance(const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& shift = Eigen::Vector3d::Zero()) {
   const std::vector<char> fixed = fixed_shapes(robot);
   const auto& shapes = robot.collision_shapes();
   const auto frames = robot.link_frames(robot.stow());
   double least = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < shapes.size(); ++k)
     if (fixed[k])
-      least = std::min(least, wall.exact_distance(shapes[k], frames[shapes[k].frame]) - config.base_margin_m);
+      least = std::min(least, wall.exact_distance(shapes[k], Eigen::Translation3d(shift) * frames[shapes[k].frame]));
   return least;
 }
-
-namespace {
 
 // Whether the shapes no joint moves, carried from `from` to `to` (base positions) in steps of at most
 // kBaseWayStep_m, overlap a point of `wall` at some step after `from`: a face between two places
 // closes the way past it (every fixed shape is thicker than a step, so none slips through a
 // wall one point thick), while a point the base only comes near does not.
 bool way_blocked(const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& from, const Eigen::Vector3d& to) {
-  const std::vector<char> fixed = fixed_shapes(robot);
-  const auto& shapes = robot.collision_shapes();
   const int steps = std::max(1, static_cast<int>(std::ceil((to - from).norm() / kBaseWayStep_m - 1e-9)));
-  for (int i = 1; i <= steps; ++i) {
-    const Robot at = robot.placed_at(from + (to - from) * (static_cast<double>(i) / steps));
-    const auto frames = at.link_frames(at.stow());
-    for (std::size_t k = 0; k < shapes.size(); ++k)
-      if (fixed[k] && wall.exact_distance(shapes[k], frames[shapes[k].frame]) <= 0.0) return true;
-  }
+  const Eigen::Vector3d base = robot.base_pose().translation();
+  for (int i = 1; i <= steps; ++i)
+    if (fixed_distance(robot, wall, from + (to - from) * (static_cast<double>(i) / steps) - base) <= 0.0) return true;
   return false;
 }
 
 }  // namespace
+
+double base_room(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config) {
+  return fixed_distance(robot, wall) - config.base_margin_m;
+}
 
 BasePlacement place_base(const Robot& robot, const WallOctree& wall, const Eigen::Vector3d& along,
                          const ClearanceConfig& config, double max_shift_m) {
