@@ -275,6 +275,79 @@ TEST(Passes, ALeanTipsTheAxisAndBacksTheNozzleOffAlongIt) {
   EXPECT_THROW(plan_passes(s.grid, all, 0.2, pc, &lean), std::invalid_argument);
 }
 
+TEST(Passes, ALeanFadingAlongThePassTurnsTheAxisEvenlyWhereverTheCellsPointsLie) {
+  // A scan's points do not sit at their cells' centres: each cell's mean point, where the pass
+  // takes its knot, lies up to half a cell along the pass off the centre. The lean field fades
+  // 0.5 rad/m along d (clearance's default fade, as by a face past d = 0.8 m): along every pass
+  // the spray axis tips by the field's value at the wall point it aims at (the field read linearly
+  // between the cells' centres: a closed form here), so the axis turns evenly. With the cell's own
+  // lean at its shifted mean point, knots 1.5 cm apart differed by 0.025 rad and knots 3.5 cm apart
+  // by as much: the axis turned at 0.7 and 1.7 rad/m by turns, the boom's telescope at 3x its
+  // acceleration limit on the face scene.
+  Surface s = analytic_bay(uniform_100mm);
+  PlannerConfig pc;
+  const Grid& g = s.grid;
+  std::vector<int> all;
+  for (int c = 0; c < g.size(); ++c)
+    if (g.valid[c]) all.push_back(c);
+  // Each cell's mean point moved along d by +-0.35 of a cell, alternately by columns (the
+  // worst case for the knots), and a little by rows.
+  for (int c : all) {
+    const int col = g.col_of(c), row = g.row_of(c);
+    const double shift = (col % 2 == 0 ? 0.35 : -0.35) * g.cell_size_m + (row % 3 - 1) * 0.002;
+    s.grid.mean_xyz(c, 0) += shift;
+  }
+  auto field = [](double d) { return 0.5 * std::clamp(d, 0.0, 0.8); };  // rad, toward +d
+  std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(g.size()), Eigen::Vector3d::Zero());
+  for (int c : all) lean[static_cast<std::size_t>(c)] = field(g.d_center(g.col_of(c))) * Eigen::Vector3d::UnitX();
+  const auto passes = plan_passes(s.grid, all, 0.2, pc, &lean);
+  ASSERT_FALSE(passes.empty());
+  double worst = 0.0, rate_lo = 1e9, rate_hi = -1e9;
+  // Inside the cells' centres (the field is read from d = 0.025 to 0.775; the run-ons hold it).
+  const double in_lo = g.d_center(0) + 0.01, in_hi = g.d_center(g.n_d - 1) - 0.01;
+  for (const auto& p : passes) {
+    double last_d = 0.0, last_angle = 0.0;
+    bool have_last = false;
+    for (std::size_t k = 0; k < p.waypoints.size(); ++k) {
+      const auto& w = p.waypoints[k];
+      const Eigen::Vector3d hit = w.position_m + pc.standoff_m * w.axis;
+      const Eigen::Vector3d radial = Eigen::Vector3d(0, hit.y(), hit.z()).normalized();
+      const double angle = std::acos(std::min(1.0, w.axis.dot(radial)));
+      if (hit.x() < in_lo || hit.x() > in_hi) {
+        have_last = false;
+        continue;
+      }
+      worst = std::max(worst, std::abs(angle - field(hit.x())));
+      if (have_last && std::abs(hit.x() - last_d) > 0.015) {
+        const double rate = (angle - last_angle) / (hit.x() - last_d);
+        rate_lo = std::min(rate_lo, rate), rate_hi = std::max(rate_hi, rate);
+      }
+      if (!have_last || std::abs(hit.x() - last_d) > 0.015) last_d = hit.x(), last_angle = angle, have_last = true;
+    }
+  }
+  EXPECT_LT(worst, 0.004);  // the cell's lean at its mean point: up to 0.35 x 0.025 = 0.009 rad
+  EXPECT_GT(rate_lo, 0.4);
+  EXPECT_LT(rate_hi, 0.6);
+  // At the front end the lean fades outward (the end is not tight): on the run-on the axis goes on
+  // turning and eases to a halt, so its turn rate per metre of the nozzle's travel (about 1 rad/m
+  // on the pass: 0.5 / (1 - 0.5 x standoff)) changes by little from waypoint to waypoint (1 cm);
+  // held from the last knot, it fell to 0 within two or three.
+  double worst_step = 0.0;
+  int front_samples = 0;
+  for (const auto& p : passes) {
+    std::vector<double> rate;
+    for (std::size_t k = 0; k + 1 < p.waypoints.size(); ++k) {
+      const auto &a = p.waypoints[k], &b = p.waypoints[k + 1];
+      if ((a.position_m + pc.standoff_m * a.axis).x() > 0.15) continue;
+      const double step = (b.position_m - a.position_m).norm();
+      rate.push_back(std::atan2(a.axis.cross(b.axis).norm(), a.axis.dot(b.axis)) / step);
+    }
+    for (std::size_t k = 0; k + 1 < rate.size(); ++k) worst_step = std::max(worst_step, std::abs(rate[k + 1] - rate[k]));
+    front_samples += static_cast<int>(rate.size());
+  }
+  EXPECT_GT(front_samples, 12 * static_cast<int>(passes.size()));
+  EXPECT_LT(worst_step, 0.2);
+}
 TEST(Planner, UniformOverbreakEndsFlush) {
   Surface s = analytic_bay(uniform_100mm);
   Config cfg;

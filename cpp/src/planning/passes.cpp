@@ -188,6 +188,7 @@ struct PassFrame {
   double R, cs;
   int n_u, n_w;
   double w0;  // lower edge of w index 0
+  double u0;  // lower edge of u index 0
 
   PassFrame(const Grid& g, const std::vector<Eigen::Vector3d>* lean_per_cell, bool along_axis)
       : grid(g),
@@ -197,12 +198,33 @@ struct PassFrame {
         cs(g.cell_size_m),
         n_u(along_axis ? g.n_d : g.n_theta),
         n_w(along_axis ? g.n_theta : g.n_d),
-        w0(along_axis ? g.theta0_rad * g.profile.radius_m : g.d0_m) {}
+        w0(along_axis ? g.theta0_rad * g.profile.radius_m : g.d0_m),
+        u0(along_axis ? g.d0_m : g.theta0_rad * g.profile.radius_m) {}
   int cell_of(int iu, int iw) const { return axial ? grid.index(iw, iu) : grid.index(iu, iw); }
   int u_of(int c) const { return axial ? grid.col_of(c) : grid.row_of(c); }
   int w_of(int c) const { return axial ? grid.row_of(c) : grid.col_of(c); }
   double w_center(int iw) const { return w0 + (iw + 0.5) * cs; }
   Eigen::Vector3d lean_of(int c) const { return lean ? (*lean)[static_cast<std::size_t>(c)] : Eigen::Vector3d::Zero(); }
+  // Where wall point p lies along the passes [m of wall].
+  double u_at(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d cyl = grid.axis.to_cylindrical(p);
+    return axial ? cyl[2] : cyl[1] * R;
+  }
+  // The lean over a wall point at u_m on cell (iu, iw): linear between the centres of that cell and
+  // its neighbour along the pass (its own where that one holds no data). A knot stands at its
+  // cell's mean point, which lies up to half a cell off the centre: with the cell's lean alone, a
+  // lean fading 0.025 rad a cell along a pass turned the axis up to 3x faster or slower from knot
+  // to knot, and the spline through those knots swung the boom's telescope at 3x its
+  // acceleration limit (the face scene).
+  Eigen::Vector3d lean_at(int iu, int iw, double u_m) const {
+    const Eigen::Vector3d own = lean_of(cell_of(iu, iw));
+    if (!lean) return own;
+    const double t = (u_m - (u0 + (iu + 0.5) * cs)) / cs;
+    const int next = t >= 0.0 ? iu + 1 : iu - 1;
+    if (!std::isfinite(t) || next < 0 || next >= n_u || !grid.valid[cell_of(next, iw)]) return own;
+    const double a = std::min(1.0, std::abs(t));
+    return (1.0 - a) * own + a * lean_of(cell_of(next, iw));
+  }
 };
 
 // A wall point on a pass line: where, its normal, and the nozzle's lean over it.
@@ -244,7 +266,8 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
         ((1 - u) * grid.mean_normal.row(f.cell_of(iu, below)) + u * grid.mean_normal.row(f.cell_of(iu, above)))
             .transpose()
             .normalized();
-    const Eigen::Vector3d lean = (1 - u) * f.lean_of(f.cell_of(iu, below)) + u * f.lean_of(f.cell_of(iu, above));
+    const double at = f.u_at(p);
+    const Eigen::Vector3d lean = (1 - u) * f.lean_at(iu, below, at) + u * f.lean_at(iu, above, at);
     return Crossing{p, nrm, lean};
   }
   if (!vb && !va) return std::nullopt;
@@ -253,7 +276,7 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
   // Move the lone cell's point onto the plane, keeping its radius.
   const Eigen::Vector3d p =
       f.axial ? grid.axis.to_cartesian(cyl[0], theta_k, cyl[2]) : grid.axis.to_cartesian(cyl[0], cyl[1], wk);
-  return Crossing{p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()), f.lean_of(c)};
+  return Crossing{p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()), f.lean_at(iu, vb ? below : above, f.u_at(p))};
 }
 
 // The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis; with a
@@ -328,7 +351,13 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
   // tunnel's axis, which keeps the held spray axis on the wall, in steps no longer than the last
   // knots' (the axes are splined on the nozzle's path: one long step after short ones would
   // overshoot the lean).
-  auto run_on = [&](const NozzlePose& end, const NozzlePose& inner, bool leaned, const Eigen::Vector3d& out_dir) {
+  // At an end whose lean fades outward (not tight: the obstacle lies the other way) the axis goes
+  // on turning as along the pass and eases to a halt over the run-on, w (s - s^2 / 2 run) at
+  // distance s (rate w at the end, 0 at the run-on's end): held from the last knot on, the turn
+  // stopped within one knot step (2.5 cm of nozzle travel on a lean fading 0.5 rad/m) and the
+  // boom's telescope jerked at 1.7x its acceleration limit there (the face scene).
+  auto run_on = [&](const NozzlePose& end, const NozzlePose& inner, bool leaned, const Eigen::Vector3d& out_dir,
+                    bool carry) {
     const Eigen::Vector3d along = end.position_m - inner.position_m;
     const double run = leaned ? leaned_edge_overrun_m(config, overrun_m) : overrun_m;
     std::vector<NozzlePose> out;
@@ -340,9 +369,16 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
     }
     const double last = std::max(std::abs(along.dot(ex)), 1e-3);
     const int n = std::min(50, static_cast<int>(std::ceil(run / last - 1e-9)));
+    Eigen::Vector3d turn = Eigen::Vector3d::Zero();  // rad per metre of the nozzle's travel
+    const Eigen::Vector3d a = inner.axis.normalized(), b = end.axis.normalized(), c = a.cross(b);
+    if (carry && c.norm() > 1e-12 && along.norm() > 1e-9 && c.allFinite())
+      turn = c.normalized() * std::atan2(c.norm(), a.dot(b)) / along.norm();
+    const double w = turn.norm();
     for (int i = 1; i <= n; ++i) {
+      const double s = run * i / n;
       out.push_back(end);
-      out.back().position_m += (run * i / n) * out_dir;
+      out.back().position_m += s * out_dir;
+      if (w > 0.0) out.back().axis = (Eigen::AngleAxisd(w * (s - s * s / (2.0 * run)), turn / w) * b).normalized();
     }
     return out;
   };
@@ -355,13 +391,13 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
   };
   std::pair<bool, bool> tight{false, false};
   if (k.u.front() == 0) {
-    auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex);
     tight.first = m >= 2 && tight_at(0, 1, -ex);
+    auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex, m >= 2 && !tight.first);
     knots.insert(knots.begin(), extra.rbegin(), extra.rend());
   }
   if (k.u.back() == n_u - 1) {
-    auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex);
     tight.second = m >= 2 && tight_at(m - 1, m - 2, ex);
+    auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex, m >= 2 && !tight.second);
     knots.insert(knots.end(), extra.begin(), extra.end());
   }
   return tight;
