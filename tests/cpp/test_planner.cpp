@@ -297,13 +297,13 @@ TEST(Passes, ALeanFadingAlongThePassTurnsTheAxisEvenlyWhereverTheCellsPointsLie)
     const double shift = (col % 2 == 0 ? 0.35 : -0.35) * g.cell_size_m + (row % 3 - 1) * 0.002;
     s.grid.mean_xyz(c, 0) += shift;
   }
-  auto field = [](double d) { return 0.5 * std::clamp(d, 0.0, 0.8); };  // rad, toward +d
+  auto field = [](double d) { return 0.5 * std::clamp(d + 0.1, 0.0, 0.9); };  // rad, toward +d
   std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(g.size()), Eigen::Vector3d::Zero());
   for (int c : all) lean[static_cast<std::size_t>(c)] = field(g.d_center(g.col_of(c))) * Eigen::Vector3d::UnitX();
   const auto passes = plan_passes(s.grid, all, 0.2, pc, &lean);
   ASSERT_FALSE(passes.empty());
   double worst = 0.0, rate_lo = 1e9, rate_hi = -1e9;
-  // Inside the cells' centres (the field is read from d = 0.025 to 0.775; the run-ons hold it).
+  // Inside the cells' centres (the field is read from d = 0.025 to 0.775; past them the run-ons).
   const double in_lo = g.d_center(0) + 0.01, in_hi = g.d_center(g.n_d - 1) - 0.01;
   for (const auto& p : passes) {
     double last_d = 0.0, last_angle = 0.0;
@@ -331,11 +331,13 @@ TEST(Passes, ALeanFadingAlongThePassTurnsTheAxisEvenlyWhereverTheCellsPointsLie)
   // At the front end the lean fades outward (the end is not tight): on the run-on the axis goes on
   // turning and eases to a halt, so its turn rate per metre of the nozzle's travel (about 1 rad/m
   // on the pass: 0.5 / (1 - 0.5 x standoff)) changes by little from waypoint to waypoint (1 cm);
-  // held from the last knot, it fell to 0 within two or three.
-  double worst_step = 0.0;
+  // held from the last knot, it fell to 0 within two or three. It never turns past square (the
+  // lean there was never checked for clearance): every axis leans toward +d or not at all.
+  double worst_step = 0.0, least_lean_x = 1.0;
   int front_samples = 0;
   for (const auto& p : passes) {
     std::vector<double> rate;
+    for (const auto& w : p.waypoints) least_lean_x = std::min(least_lean_x, w.axis.x());
     for (std::size_t k = 0; k + 1 < p.waypoints.size(); ++k) {
       const auto &a = p.waypoints[k], &b = p.waypoints[k + 1];
       if ((a.position_m + pc.standoff_m * a.axis).x() > 0.15) continue;
@@ -347,6 +349,15 @@ TEST(Passes, ALeanFadingAlongThePassTurnsTheAxisEvenlyWhereverTheCellsPointsLie)
   }
   EXPECT_GT(front_samples, 12 * static_cast<int>(passes.size()));
   EXPECT_LT(worst_step, 0.2);
+  EXPECT_GT(least_lean_x, -1e-4);
+  // A lean fading out within the run-on (0.0125 rad at the front cell's centre, 0.5 rad/m) eases
+  // to square there and is held square: no axis past it either.
+  std::vector<Eigen::Vector3d> faint(lean.size(), Eigen::Vector3d::Zero());
+  for (int c : all) faint[static_cast<std::size_t>(c)] = 0.5 * std::clamp(g.d_center(g.col_of(c)), 0.0, 0.8) * Eigen::Vector3d::UnitX();
+  double faint_least = 1.0;
+  for (const auto& p : plan_passes(s.grid, all, 0.2, pc, &faint))
+    for (const auto& w : p.waypoints) faint_least = std::min(faint_least, w.axis.x());
+  EXPECT_GT(faint_least, -1e-4);
 }
 TEST(Planner, UniformOverbreakEndsFlush) {
   Surface s = analytic_bay(uniform_100mm);

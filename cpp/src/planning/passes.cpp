@@ -223,13 +223,21 @@ struct PassFrame {
     const int next = t >= 0.0 ? iu + 1 : iu - 1;
     if (!std::isfinite(t) || next < 0 || next >= n_u || !grid.valid[cell_of(next, iw)]) return own;
     const double a = std::min(1.0, std::abs(t));
-    return (1.0 - a) * own + a * lean_of(cell_of(next, iw));
+    const Eigen::Vector3d other = lean_of(cell_of(next, iw));
+    const double n_own = own.norm(), n_other = other.norm();
+    if (n_own < 1e-9 || n_other < 1e-9) return (1.0 - a) * own + a * other;  // a lean fading out
+    // Two obstacles' leans meeting (beside a duct, toward the face): the angle and the direction
+    // blended apart, so the knot never leans less than the smaller of the two (a blend of the
+    // vectors leant less than either); leans pointing apart keep the cell's own.
+    if (own.dot(other) <= 0.0) return own;
+    return ((1.0 - a) * n_own + a * n_other) * ((1.0 - a) * own / n_own + a * other / n_other).normalized();
   }
 };
 
 // A wall point on a pass line: where, its normal, and the nozzle's lean over it.
 struct Crossing {
   Eigen::Vector3d point, normal, lean;
+  bool leaned = false;  // a cell it is read from leans (its own lean, not a neighbour's blended in)
 };
 
 // A pass line's knots before the spline: nozzle poses and the u index each came from.
@@ -268,7 +276,8 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
             .normalized();
     const double at = f.u_at(p);
     const Eigen::Vector3d lean = (1 - u) * f.lean_at(iu, below, at) + u * f.lean_at(iu, above, at);
-    return Crossing{p, nrm, lean};
+    const bool leaned = f.lean_of(f.cell_of(iu, below)).norm() > 1e-9 || f.lean_of(f.cell_of(iu, above)).norm() > 1e-9;
+    return Crossing{p, nrm, lean, leaned};
   }
   if (!vb && !va) return std::nullopt;
   const int c = f.cell_of(iu, vb ? below : above);
@@ -276,7 +285,8 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
   // Move the lone cell's point onto the plane, keeping its radius.
   const Eigen::Vector3d p =
       f.axial ? grid.axis.to_cartesian(cyl[0], theta_k, cyl[2]) : grid.axis.to_cartesian(cyl[0], cyl[1], wk);
-  return Crossing{p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()), f.lean_at(iu, vb ? below : above, f.u_at(p))};
+  return Crossing{p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()), f.lean_at(iu, vb ? below : above, f.u_at(p)),
+                  f.lean_of(c).norm() > 1e-9};
 }
 
 // The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis; with a
@@ -351,13 +361,16 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
   // tunnel's axis, which keeps the held spray axis on the wall, in steps no longer than the last
   // knots' (the axes are splined on the nozzle's path: one long step after short ones would
   // overshoot the lean).
-  // At an end whose lean fades outward (not tight: the obstacle lies the other way) the axis goes
-  // on turning as along the pass and eases to a halt over the run-on, w (s - s^2 / 2 run) at
-  // distance s (rate w at the end, 0 at the run-on's end): held from the last knot on, the turn
-  // stopped within one knot step (2.5 cm of nozzle travel on a lean fading 0.5 rad/m) and the
-  // boom's telescope jerked at 1.7x its acceleration limit there (the face scene).
+  // At an end whose lean fades outward (its lean less than the knot's before it, the same way;
+  // not tight: the obstacle lies the other way) the lean goes on fading and eases to a halt over
+  // the run-on, by w (s - s^2 / 2F) at distance s (w the fade per metre of nozzle travel between
+  // the last two knots, 0 at F = min(run, 2 lean / w) and held from there: square at most): held
+  // from the last knot on, the turn stopped within one knot step (2.5 cm of nozzle travel on a
+  // lean fading 0.5 rad/m) and the boom's telescope jerked at 1.7x its acceleration limit there
+  // (the face scene). Read from the lean field, not the axes: the wall's normals turn from knot
+  // to knot as well, and that is not carried on.
   auto run_on = [&](const NozzlePose& end, const NozzlePose& inner, bool leaned, const Eigen::Vector3d& out_dir,
-                    bool carry) {
+                    const Eigen::Vector3d& lean_end, const Eigen::Vector3d& lean_inner, bool carry) {
     const Eigen::Vector3d along = end.position_m - inner.position_m;
     const double run = leaned ? leaned_edge_overrun_m(config, overrun_m) : overrun_m;
     std::vector<NozzlePose> out;
@@ -369,16 +382,23 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
     }
     const double last = std::max(std::abs(along.dot(ex)), 1e-3);
     const int n = std::min(50, static_cast<int>(std::ceil(run / last - 1e-9)));
-    Eigen::Vector3d turn = Eigen::Vector3d::Zero();  // rad per metre of the nozzle's travel
-    const Eigen::Vector3d a = inner.axis.normalized(), b = end.axis.normalized(), c = a.cross(b);
-    if (carry && c.norm() > 1e-12 && along.norm() > 1e-9 && c.allFinite())
-      turn = c.normalized() * std::atan2(c.norm(), a.dot(b)) / along.norm();
-    const double w = turn.norm();
+    const Eigen::Vector3d b = end.axis.normalized();
+    const double l_end = lean_end.norm(), l_inner = lean_inner.norm();
+    double w = 0.0;  // rad per metre of the nozzle's travel
+    Eigen::Vector3d about = Eigen::Vector3d::Zero();  // lean direction x axis: tips the axis back
+    if (carry && l_end > 1e-9 && l_inner > l_end && lean_end.dot(lean_inner) > 0.0 && along.norm() > 1e-9) {
+      const Eigen::Vector3d c = (lean_end / l_end).cross(b);
+      if (c.norm() > 1e-9 && c.allFinite()) {
+        about = c.normalized();
+        w = (l_inner - l_end) / along.norm();
+      }
+    }
+    const double F = w > 0.0 ? std::min(run, 2.0 * l_end / w) : run;
     for (int i = 1; i <= n; ++i) {
-      const double s = run * i / n;
+      const double s = run * i / n, e = std::min(s, F);
       out.push_back(end);
       out.back().position_m += s * out_dir;
-      if (w > 0.0) out.back().axis = (Eigen::AngleAxisd(w * (s - s * s / (2.0 * run)), turn / w) * b).normalized();
+      if (w > 0.0) out.back().axis = (Eigen::AngleAxisd(w * (e - e * e / (2.0 * F)), about) * b).normalized();
     }
     return out;
   };
@@ -392,12 +412,14 @@ std::pair<bool, bool> add_edge_overrun(LineKnots& k, int n_u, const PlannerConfi
   std::pair<bool, bool> tight{false, false};
   if (k.u.front() == 0) {
     tight.first = m >= 2 && tight_at(0, 1, -ex);
-    auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex, m >= 2 && !tight.first);
+    auto extra = run_on(knots.front(), knots[1], k.leaned.front() != 0, -ex, k.lean.front(), k.lean[std::min<std::size_t>(1, m - 1)],
+                        m >= 2 && !tight.first);
     knots.insert(knots.begin(), extra.rbegin(), extra.rend());
   }
   if (k.u.back() == n_u - 1) {
     tight.second = m >= 2 && tight_at(m - 1, m - 2, ex);
-    auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex, m >= 2 && !tight.second);
+    auto extra = run_on(knots.back(), knots[knots.size() - 2], k.leaned.back() != 0, ex, k.lean.back(),
+                        k.lean[m >= 2 ? m - 2 : 0], m >= 2 && !tight.second);
     knots.insert(knots.end(), extra.begin(), extra.end());
   }
   return tight;
@@ -431,7 +453,7 @@ LineKnots line_knots(const PassFrame& f, int u_lo, int u_hi, double wk, const Pl
     if (!crossing) continue;
     k.poses.push_back(standoff_pose(f.grid.axis, f.grid.profile, crossing->point, crossing->normal, crossing->lean, config));
     k.u.push_back(iu);
-    k.leaned.push_back(crossing->lean.norm() > 1e-9);
+    k.leaned.push_back(crossing->leaned);
     k.lean.push_back(crossing->lean);
   }
   if (k.poses.size() == 1) {
