@@ -359,6 +359,50 @@ TEST(Passes, ALeanFadingAlongThePassTurnsTheAxisEvenlyWhereverTheCellsPointsLie)
     for (const auto& w : p.waypoints) faint_least = std::min(faint_least, w.axis.x());
   EXPECT_GT(faint_least, -1e-4);
 }
+
+TEST(Passes, ALeanFadingAroundTheTunnelIsReadWhereEachKnotLiesOnCircumferentialPasses) {
+  // The same on circumferential passes (u = theta R along a pass; the bay's rows start at theta
+  // 0.9, not 0): the cells' mean points turned +-0.35 of a row about the axis, alternately by
+  // rows, and a lean toward +theta fading 0.5 rad/m of wall from theta = 0.9 up. Every waypoint's
+  // spray axis tips off the radial at its aimed-at wall point by the field's closed form there.
+  Surface s = analytic_bay(uniform_100mm);
+  PlannerConfig pc;
+  pc.pass_direction = PassDirection::circumferential;
+  const Grid& g = s.grid;
+  const double R = g.profile.radius_m;
+  std::vector<int> all;
+  for (int c = 0; c < g.size(); ++c)
+    if (g.valid[c]) all.push_back(c);
+  for (int c : all) {
+    const double turn = (g.row_of(c) % 2 == 0 ? 0.35 : -0.35) * g.dtheta_rad;
+    const Eigen::Vector3d p = s.grid.mean_xyz.row(c).transpose();
+    s.grid.mean_xyz.row(c) = (Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitX()) * p).transpose();
+  }
+  auto field = [&](double theta) { return 0.5 * R * std::clamp(theta - 0.9 + 0.05, 0.0, 0.8); };  // rad
+  std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(g.size()), Eigen::Vector3d::Zero());
+  for (int c : all) {
+    const double th = g.theta_center(g.row_of(c));
+    lean[static_cast<std::size_t>(c)] = field(th) * Eigen::Vector3d(0.0, -std::sin(th), std::cos(th));
+  }
+  const auto passes = plan_passes(s.grid, all, 0.2, pc, &lean);
+  ASSERT_FALSE(passes.empty());
+  const double th_lo = g.theta_center(0) + 0.002, th_hi = g.theta_center(g.n_theta - 1) - 0.002;
+  double worst = 0.0;
+  int checked = 0;
+  for (const auto& p : passes)
+    for (const auto& w : p.waypoints) {
+      const Eigen::Vector3d hit = w.position_m + pc.standoff_m * w.axis;
+      const double th = std::atan2(hit.z(), hit.y());
+      if (th < th_lo || th > th_hi) continue;
+      const Eigen::Vector3d radial = Eigen::Vector3d(0, hit.y(), hit.z()).normalized();
+      const Eigen::Vector3d tangent(0.0, -std::sin(th), std::cos(th));
+      const double angle = std::atan2(w.axis.dot(tangent), w.axis.dot(radial));  // toward +theta
+      worst = std::max(worst, std::abs(angle - field(th)));
+      ++checked;
+    }
+  EXPECT_GT(checked, 100);
+  EXPECT_LT(worst, 0.004);  // the cell's own lean at its mean point: up to 0.35 x 0.025 = 0.009 rad
+}
 TEST(Planner, UniformOverbreakEndsFlush) {
   Surface s = analytic_bay(uniform_100mm);
   Config cfg;
