@@ -18,7 +18,29 @@ void bind_collision(py::module_& m) {
       .def_property_readonly("origin", [](const CollisionShape& s) { return Eigen::Matrix4d(s.origin.matrix()); })
       .def_readonly("radius_m", &CollisionShape::radius_m)
       .def_readonly("length_m", &CollisionShape::length_m)
-      .def_readonly("size_m", &CollisionShape::size_m);
+      .def_readonly("size_m", &CollisionShape::size_m)
+      .def_readonly("carrier", &CollisionShape::carrier,
+                    "on a link fixed to base_link off the chain (the rig's carrier), in base_link's frame");
+  m.def(
+      "machine_points",
+      [](const Points& xyz_m, const Robot& robot, double tolerance_m) {
+        const std::vector<char> m = machine_points(xyz_m, robot, tolerance_m);
+        py::array_t<bool> out(static_cast<py::ssize_t>(m.size()));
+        auto o = out.mutable_unchecked<1>();
+        for (std::size_t i = 0; i < m.size(); ++i) o(static_cast<py::ssize_t>(i)) = m[i] != 0;
+        return out;
+      },
+      py::arg("xyz_m"), py::arg("robot"), py::arg("tolerance_m"),
+      "Per point (n x 3, tunnel frame; bool array), True when it is the machine's own where the robot stands: in the "
+      "column of a carrier box (across it, widened by tolerance_m; up to its top + tolerance_m).");
+  m.def("box_signed_distance",
+        [](const CollisionShape& box, const Eigen::Matrix4d& link_pose, const Eigen::Vector3d& p) {
+          Eigen::Vector3d g;
+          const double d = box_signed_distance(box, Eigen::Isometry3d(link_pose), p, &g);
+          return py::make_tuple(d, g);
+        },
+        py::arg("box"), py::arg("link_pose"), py::arg("p"),
+        "(signed distance m, its gradient) of a point to a box shape at its link's 4x4 world pose (negative inside).");
   py::class_<WallOctree>(m, "WallOctree", "The wall as an octree of points (FCL + octomap) for distance queries.")
       .def(py::init<const Points&, double>(), py::arg("xyz_m"), py::arg("resolution_m"))
       .def_property_readonly("resolution_m", &WallOctree::resolution_m)
@@ -77,6 +99,8 @@ void bind_collision(py::module_& m) {
       .def_readonly("octree_resolution_m", &ClearanceReport::octree_resolution_m)
       .def_readonly("octree_leaves", &ClearanceReport::octree_leaves)
       .def_readonly("wall_points", &ClearanceReport::wall_points)
+      .def_readonly("carrier_points", &ClearanceReport::carrier_points,
+                    "scan points left out as the machine's own (the rig's carrier where it stood)")
       .def_readonly("samples", &ClearanceReport::samples)
       .def_readonly("wall_queries", &ClearanceReport::wall_queries, "octree readings (FCL; check_clearance_octree)")
       .def_readonly("field_queries", &ClearanceReport::field_queries,

@@ -510,11 +510,18 @@ void bind_timing(py::module_& m) {
                     "per grid cell the nozzle's lean off square (tangent 3-vector, length = angle [rad]); empty: none leans")
       .def_readonly("leaned_cells", &ObstructedCells::leaned_cells, "cells sprayed from a leaned pose (clear)")
       .def_readonly("max_lean_rad", &ObstructedCells::max_lean_rad);
-  m.def("obstructed_cells", &obstructed_cells, py::arg("surface"), py::arg("robot"), py::arg("config"),
-        py::call_guard<py::gil_scoped_release>(),
+  m.def(
+      "obstructed_cells",
+      [](const Surface& surface, const Robot& robot, const Config& config, const std::vector<bool>& machine) {
+        const std::vector<char> m(machine.begin(), machine.end());
+        py::gil_scoped_release release;
+        return obstructed_cells(surface, robot, config, m);
+      },
+      py::arg("surface"), py::arg("robot"), py::arg("config"), py::arg("machine") = std::vector<bool>{},
         "Cells whose spraying pose (nozzle tip at planner.standoff_m square to the design line) brings a nozzle link "
         "rigid with the tip within clearance.nozzle_margin_m of a point of the scan outside the grid, and no lean "
-        "up to clearance.max_nozzle_lean_rad clears it; the lean field of the cells a lean clears.");
+        "up to clearance.max_nozzle_lean_rad clears it; the lean field of the cells a lean clears. `machine`: the "
+        "scan's points that are the machine's own (scan_machine_points), not obstacles.");
   m.def("spraying_samples", &spraying_samples, py::arg("trajectory"),
         "The trajectory's spraying samples only (times, joints, poses; no derivatives): check_clearance of it "
         "gives the clearance while spraying.");
@@ -527,18 +534,36 @@ void bind_timing(py::module_& m) {
       },
       py::arg("trajectory"),
       "The rest-to-rest joint moves as (start, end, region_index): samples (start, end], region -1 between regions.");
-  m.def("arm_wall", &arm_wall, py::arg("surface"), py::arg("executed"),
-        "The wall the arm meets: the scan's points and the executed deposit's surface (n x 3).");
+  m.def(
+      "arm_wall",
+      [](const Surface& surface, const ExecutedDeposit& executed, const std::vector<bool>& machine) {
+        return arm_wall(surface, executed, std::vector<char>(machine.begin(), machine.end()));
+      },
+      py::arg("surface"), py::arg("executed"), py::arg("machine") = std::vector<bool>{},
+      "The wall the arm meets: the scan's points (less the machine's own, `machine`: scan_machine_points) "
+      "and the executed deposit's surface (n x 3).");
+  m.def(
+      "scan_machine_points",
+      [](const Surface& surface, const Config& config, const Robot& robot) {
+        return to_bool_array(scan_machine_points(surface, config, robot));
+      },
+      py::arg("surface"), py::arg("config"), py::arg("robot"),
+      "Per scan point (bool array), True for the machine's own where `robot` stands (the rig's carrier in the scan: "
+      "the URDF's carrier box's column up to its top, along the axis, clearance.carrier_tolerance_m): not obstacles.");
+  m.def("carrier_along_axis", &carrier_along_axis, py::arg("robot"), py::arg("surface"),
+        "`robot` with its carrier turned to lie along the surface's axis.");
   m.def(
       "arm_clearance",
       [](const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed, const Robot& robot,
-         const ClearanceConfig& config, const ProgressFn& progress) {
+         const ClearanceConfig& config, const ProgressFn& progress, const std::vector<bool>& machine) {
+        const std::vector<char> m(machine.begin(), machine.end());
         py::gil_scoped_release release;
-        return arm_clearance(surface, trajectory, executed, robot, config, progress);
+        return arm_clearance(surface, trajectory, executed, robot, config, progress, m);
       },
       py::arg("surface"), py::arg("trajectory"), py::arg("executed"), py::arg("robot"), py::arg("config"),
-      py::arg("progress") = nullptr,
-      "check_clearance of the trajectory against the wall as scanned and as sprayed (ArmPlan.clearance).");
+      py::arg("progress") = nullptr, py::arg("machine") = std::vector<bool>{},
+      "check_clearance of the trajectory against the wall as scanned (less the machine's own points, `machine`) and "
+      "as sprayed (ArmPlan.clearance).");
   m.def(
       "place_base",
       [](const Surface& surface, const Config& config, const Robot& robot) {

@@ -230,9 +230,15 @@ TEST(Clearance, FieldBoundNeverAboveExactDistance) {
 TEST(Clearance, RobotShapesFramesAndSelfPairs) {
   const Robot robot = Robot::load(RobotConfig{});
   const auto& shapes = robot.collision_shapes();
-  ASSERT_EQ(shapes.size(), 9u);  // base_link, turret, boom, boom_extension, boom_head, arm, arm_extension, nozzle_head, nozzle
+  // base_link, turret, boom, boom_extension, boom_head, arm, arm_extension, nozzle_head, nozzle on
+  // the chain, then the carrier (a link fixed to base_link off the chain, on base_link's frame).
+  ASSERT_EQ(shapes.size(), 10u);
   EXPECT_EQ(shapes.front().link, "base_link");
-  EXPECT_EQ(shapes.back().link, "nozzle");
+  EXPECT_EQ(shapes[8].link, "nozzle");
+  EXPECT_EQ(shapes.back().link, "carrier");
+  EXPECT_EQ(shapes.back().frame, 0);
+  EXPECT_TRUE(shapes.back().carrier);
+  for (std::size_t k = 0; k + 1 < shapes.size(); ++k) EXPECT_FALSE(shapes[k].carrier) << shapes[k].link;
   const Eigen::VectorXd q = robot.neutral();
   const auto frames = robot.link_frames(q);
   ASSERT_EQ(frames.size(), robot.link_names().size());
@@ -240,7 +246,7 @@ TEST(Clearance, RobotShapesFramesAndSelfPairs) {
   EXPECT_TRUE(frames.back().isApprox(robot.fk(q), 1e-12));  // the last frame is the tool
   // The nozzle cylinder ends at the tip: the tip point is on its cap (distance 0), a point 1 m
   // beyond the tip along the spray axis is 1 m away.
-  const CollisionShape& nozzle = shapes.back();
+  const CollisionShape& nozzle = shapes[8];
   const Eigen::Isometry3d& nozzle_frame = frames[nozzle.frame];
   EXPECT_NEAR(point_shape_distance(frames.back().translation(), nozzle, nozzle_frame), 0.0, 1e-9);
   const Eigen::Vector3d ahead = frames.back().translation() + frames.back().linear().col(2);

@@ -3,9 +3,14 @@
 // timing. Measured by check_clearance (exact distances to the wall's points) on the spraying samples.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <limits>
+#include <random>
+#include <string>
 
 #include "shotcrete/collision/clearance.hpp"
 #include "shotcrete/robot/joint_tracking.hpp"
@@ -316,5 +321,130 @@ TEST(ClearanceTerm, APathOverTheCrownStartsInTheFamilyOfTheWallItGoesDown) {
     const TaskError te = task_error(robot, after[k], poses[k]);
     EXPECT_LE(te.position_m, rc.ik_position_tolerance_m) << k;
     EXPECT_LE(te.angle_rad, rc.ik_angle_tolerance_rad) << k;
+  }
+}
+
+// The robot's carrier (the URDF's carrier link) pushes the arm by its own signed distance
+// (box_signed_distance: outside, the exact point-to-box distance; inside, minus the depth to the
+// nearest face; its gradient the central differences), within link_margin_m: at postures whose
+// links stay farther than that from it the gradient is that of the robot without a carrier, to
+// the bit; at postures a face scene's plan reached (the boom folded back over the top and down
+// into the carrier, at two boom lifts) it is the central differences of the potential (the wall's
+// field and the box, written here), and steps down it take every link off the carrier.
+TEST(ClearanceTerm, TheCarrierPushesTheArmOffItAndLeavesPosturesClearOfIt) {
+  const Robot robot = Robot::load(RobotConfig{});
+  // The same arm without the carrier: the bundled URDF less its carrier link and joint.
+  std::ifstream in(bundled_urdf_path());
+  std::string xml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::size_t l0 = xml.find("<link name=\"carrier\">"), l1 = xml.find("</joint>", xml.find("name=\"carrier_mount\""));
+  ASSERT_NE(l0, std::string::npos);
+  ASSERT_NE(l1, std::string::npos);
+  xml.erase(l0, l1 + 8 - l0);
+  const Robot bare = Robot::from_string(xml, robot.base_pose().translation());
+  ASSERT_EQ(bare.collision_shapes().size() + 1, robot.collision_shapes().size());
+  const auto& shapes = robot.collision_shapes();
+  const CollisionShape& box = shapes.back();
+  ASSERT_TRUE(box.carrier);
+
+  // The signed distance against the exact point-to-shape distance outside and the depth inside.
+  const Eigen::Isometry3d base = robot.base_pose();
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  int inside = 0;
+  for (int k = 0; k < 2000; ++k) {
+    const Eigen::Vector3d local(u(rng) * 0.5 * box.size_m.x() * 1.4, u(rng) * 0.5 * box.size_m.y() * 1.4, u(rng) * 0.5 * box.size_m.z() * 1.4);
+    const Eigen::Vector3d p = base * box.origin * local;
+    Eigen::Vector3d g;
+    const double d = box_signed_distance(box, base, p, &g);
+    const Eigen::Vector3d depth = 0.5 * box.size_m - local.cwiseAbs();
+    if (depth.minCoeff() > 0.0) {
+      ++inside;
+      ASSERT_NEAR(d, -depth.minCoeff(), 1e-12);
+    } else {
+      ASSERT_NEAR(d, point_shape_distance(p, box, base), 1e-9);
+    }
+    const double h = 1e-7;
+    Eigen::Vector3d fd;
+    for (int a = 0; a < 3; ++a) {
+      Eigen::Vector3d e = Eigen::Vector3d::Zero();
+      e[a] = h;
+      fd[a] = (box_signed_distance(box, base, p + e) - box_signed_distance(box, base, p - e)) / (2 * h);
+    }
+    ASSERT_LT((g - fd).norm(), 1e-5) << local.transpose();
+  }
+  EXPECT_GT(inside, 100);
+
+  const WallOctree wall(narrow_wall(-1.5, 3.5), 0.05);
+  ClearanceConfig cc;
+  const NullSpaceObjective without = clearance_objective(bare, wall, cc);
+  const NullSpaceObjective with = clearance_objective(robot, wall, cc);
+  const std::vector<ClearanceKeyPoint> keys = clearance_key_points(robot);
+  // Clear of the carrier: a region's postures.
+  const std::vector<Pass> region = test::axial_region(2, 1.2, 0.2, 0.2, 2.6, {0.4}, kR - 1.0, kR);
+  const TimedTrajectory tr = time_plan(robot, {region}, robot.stow(), TimingConfig{}, RobotConfig{});
+  ASSERT_GE(tr.size(), 12u);
+  for (std::size_t i = 0; i < tr.size(); i += tr.size() / 12) {
+    Eigen::VectorXd a, b;
+    without.gradient(tr.q[i], a);
+    with.gradient(tr.q[i], b);
+    EXPECT_EQ(a, b) << "sample " << i;
+  }
+  // The potential, written here: the wall's field, and the box's depth inside or the exact
+  // point-to-box distance outside (`box_only`: the box's part alone).
+  auto potential = [&](const Eigen::VectorXd& qq, bool box_only = false) {
+    const auto f = robot.link_frames(qq);
+    double sum = 0.0;
+    for (const ClearanceKeyPoint& k : keys) {
+      if (k.frame == 0) continue;
+      const Eigen::Vector3d x = f[static_cast<std::size_t>(k.frame)] * k.point_m;
+      const double dw = wall.field_distance(x) - k.radius_m, d0 = cc.null_space_influence_m;
+      if (dw < d0 && !box_only) sum += 0.5 * (d0 - dw) * (d0 - dw) / d0;
+      const Eigen::Vector3d local = (f[0] * box.origin).inverse() * x;
+      const Eigen::Vector3d depth = 0.5 * box.size_m - local.cwiseAbs();
+      const double db = (depth.minCoeff() > 0.0 ? -depth.minCoeff() : point_shape_distance(x, box, f[0])) - k.radius_m;
+      const double dc = cc.link_margin_m;
+      if (db < dc) sum += 0.5 * (dc - db) * (dc - db) / dc;
+    }
+    return sum;
+  };
+  auto least_to_carrier = [&](const Eigen::VectorXd& qq) {
+    const auto f = robot.link_frames(qq);
+    double least = std::numeric_limits<double>::infinity();
+    for (std::size_t s = 0; s + 1 < shapes.size(); ++s)
+      if (shapes[s].frame > 1) least = std::min(least, shape_distance(shapes[s], f[shapes[s].frame], box, f[0]));
+    return least;
+  };
+  for (const double lift : {3.315, 3.45}) {
+    Eigen::VectorXd q(8);
+    q << 0.967, lift, 1.786, -1.305, -1.834, 1.004, 0.012, 1.209;  // folded back over the top, into the carrier
+    ASSERT_TRUE(robot.within_limits(q, 0.0));
+    ASSERT_LE(least_to_carrier(q), 0.0);
+    Eigen::VectorXd grad, plain;
+    with.gradient(q, grad);
+    without.gradient(q, plain);
+    // The box's part by central differences of its potential; the wall's as the term reads it (its
+    // field's smoothed gradient at each key point times the point's motion, as the gradient test).
+    Eigen::VectorXd ref = plain;
+    const double h = 1e-6;
+    for (Eigen::Index j = 0; j < q.size(); ++j) {
+      Eigen::VectorXd qp = q, qm = q;
+      qp[j] += h;
+      qm[j] -= h;
+      ref[j] += (potential(qp, true) - potential(qm, true)) / (2.0 * h);
+    }
+    EXPECT_LT((grad - ref).norm(), 1e-4 * (1.0 + ref.norm())) << grad.transpose() << "\n" << ref.transpose();
+    EXPECT_GT((grad - plain).norm(), 0.1 * grad.norm());
+    Eigen::VectorXd qq = q;
+    const double u0 = potential(q);
+    int steps = 0;
+    for (; steps < 200 && least_to_carrier(qq) <= 0.0; ++steps) {
+      Eigen::VectorXd g;
+      with.gradient(qq, g);
+      qq -= 0.02 * g / g.norm();
+      if (steps == 0) EXPECT_LT(potential(qq), u0);
+    }
+    EXPECT_GT(least_to_carrier(qq), 0.0);
+    std::printf("[carrier term] boom lift %.3f rad: the arm into the carrier (potential %.3f), every link off it after "
+                "%d steps of 0.02 down the gradient (%.3f m)\n", lift, u0, steps, least_to_carrier(qq));
   }
 }

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 
 #include "shotcrete/collision/clearance.hpp"
@@ -476,4 +477,125 @@ TEST(Transit, TheBaseStandsBackFromAFaceUntilTheArmCanSlewEveryWay) {
   EXPECT_THROW(place_base(robot, wall, along, cfg, -1.0), std::invalid_argument);
   EXPECT_THROW(place_base(robot, wall, along, cfg, std::numeric_limits<double>::infinity()), std::invalid_argument);
   EXPECT_THROW(swing_room(robot, wall, cfg, 0.0), std::invalid_argument);
+}
+
+// The rig's carrier (the URDF's carrier link, fixed to base_link off the chain) in the scan where
+// the rig stood: its points are the machine's own (machine_points: its column up to its top, down
+// to the ground), checked point by point against the box read from the shape; left in as
+// obstacles, the carrier shape stands in them and the base cannot be placed; left out, the base
+// is placed as in the scan without the rig (the same place), the carrier moved with it and kept
+// base_margin_m from every other point (brute force).
+TEST(Transit, TheRigsCarrierInTheScanIsTheMachinesOwnAndMovesWithTheBase) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const ClearanceConfig cfg;
+  const auto& shapes = robot.collision_shapes();
+  const std::vector<char> fixed = fixed_shapes(robot);
+  int carrier = -1;
+  for (std::size_t k = 0; k < shapes.size(); ++k)
+    if (shapes[k].carrier) {
+      ASSERT_EQ(carrier, -1) << "one carrier shape";
+      carrier = static_cast<int>(k);
+    }
+  ASSERT_GE(carrier, 0);
+  const CollisionShape& box = shapes[static_cast<std::size_t>(carrier)];
+  EXPECT_EQ(box.link, "carrier");
+  EXPECT_EQ(box.kind, CollisionShape::Kind::box);
+  EXPECT_EQ(box.frame, 0);
+  EXPECT_TRUE(fixed[static_cast<std::size_t>(carrier)]);
+  ASSERT_TRUE(box.origin.linear().isIdentity(1e-12));
+  const Eigen::Vector3d base = robot.base_pose().translation();
+  const Eigen::Vector3d lo = base + box.origin.translation() - 0.5 * box.size_m;  // tunnel frame
+  const Eigen::Vector3d hi = base + box.origin.translation() + 0.5 * box.size_m;
+  ASSERT_GT(lo.z(), base.z());  // it stops above the base's floor
+  const double ground = base.z() - 0.3;  // the invert under the rig, as the generator's scene has it
+  // The scan: the narrow bay, its face, the invert, and the rig's carrier down to the invert.
+  const Points bay = wall_and_face(1.2);
+  std::vector<Eigen::Vector3d> floor, rig;
+  for (double x = -6.0; x <= 1.2; x += 0.05)
+    for (double y = -3.0; y <= 3.0; y += 0.05) floor.emplace_back(x, y, ground);
+  for (double x = lo.x(); x <= hi.x() + 1e-9; x += 0.05)
+    for (double y = lo.y(); y <= hi.y() + 1e-9; y += 0.05) rig.emplace_back(x, y, hi.z());
+  for (double z = ground; z < hi.z(); z += 0.05) {
+    for (double x = lo.x(); x <= hi.x() + 1e-9; x += 0.05) rig.emplace_back(x, lo.y(), z), rig.emplace_back(x, hi.y(), z);
+    for (double y = lo.y(); y <= hi.y() + 1e-9; y += 0.05) rig.emplace_back(lo.x(), y, z), rig.emplace_back(hi.x(), y, z);
+  }
+  // Probes at the tolerance's edges: beside the footprint, above the top.
+  const double tol = cfg.carrier_tolerance_m;
+  const std::vector<std::pair<Eigen::Vector3d, char>> probes = {
+      {{lo.x() - tol + 0.01, 0.0, hi.z()}, 1}, {{lo.x() - tol - 0.01, 0.0, hi.z()}, 0},
+      {{-2.0, hi.y() + tol - 0.01, ground + 0.5}, 1}, {{-2.0, hi.y() + tol + 0.01, ground + 0.5}, 0},
+      {{-2.0, 0.0, hi.z() + tol - 0.01}, 1}, {{-2.0, 0.0, hi.z() + tol + 0.01}, 0},
+      {{-2.0, 0.0, ground - 1.0}, 1}};
+  const Eigen::Index n_bay = bay.rows(), n_floor = static_cast<Eigen::Index>(floor.size());
+  Points scan(n_bay + n_floor + static_cast<Eigen::Index>(rig.size() + probes.size()), 3);
+  scan.topRows(n_bay) = bay;
+  Eigen::Index r = n_bay;
+  for (const auto& p : floor) scan.row(r++) = p.transpose();
+  for (const auto& p : rig) scan.row(r++) = p.transpose();
+  for (const auto& p : probes) scan.row(r++) = p.first.transpose();
+  const std::vector<char> machine = machine_points(scan, robot, tol);
+  ASSERT_EQ(machine.size(), static_cast<std::size_t>(scan.rows()));
+  for (Eigen::Index i = 0; i < n_bay; ++i) ASSERT_EQ(machine[static_cast<std::size_t>(i)], 0) << "the bay's wall and face";
+  int floor_taken = 0;
+  for (Eigen::Index i = 0; i < n_floor; ++i) {
+    const Eigen::Vector3d p = scan.row(n_bay + i).transpose();
+    const bool under = p.x() >= lo.x() - tol && p.x() <= hi.x() + tol && p.y() >= lo.y() - tol && p.y() <= hi.y() + tol;
+    ASSERT_EQ(machine[static_cast<std::size_t>(n_bay + i)], under ? 1 : 0) << p.transpose();
+    floor_taken += under;
+  }
+  EXPECT_GT(floor_taken, 0);
+  for (std::size_t k = 0; k < rig.size(); ++k) ASSERT_EQ(machine[static_cast<std::size_t>(n_bay + n_floor) + k], 1) << "the rig";
+  for (std::size_t k = 0; k < probes.size(); ++k)
+    EXPECT_EQ(machine[machine.size() - probes.size() + k], probes[k].second) << probes[k].first.transpose();
+  // Turned with the tunnel's heading (carrier_turned: the job turns it along the axis), the column
+  // turns with it: the rig turned the same way about the base is the machine's, the rig as it
+  // stood is not, where the two part.
+  const double yaw = 0.5;
+  const Robot turned = robot.carrier_turned(yaw);
+  const Eigen::AngleAxisd turn(yaw, Eigen::Vector3d::UnitZ());
+  Points rig_turned(static_cast<Eigen::Index>(rig.size()), 3), rig_as_was(static_cast<Eigen::Index>(rig.size()), 3);
+  for (std::size_t k = 0; k < rig.size(); ++k) {
+    rig_turned.row(static_cast<Eigen::Index>(k)) = (base + turn * (rig[k] - base)).transpose();
+    rig_as_was.row(static_cast<Eigen::Index>(k)) = rig[k].transpose();
+  }
+  const std::vector<char> on_turned = machine_points(rig_turned, turned, tol);
+  EXPECT_EQ(std::count(on_turned.begin(), on_turned.end(), 1), static_cast<long>(rig.size()));
+  const std::vector<char> as_was = machine_points(rig_as_was, turned, tol);
+  EXPECT_LT(std::count(as_was.begin(), as_was.end(), 1), static_cast<long>(rig.size()) / 2);
+  EXPECT_THROW(robot.carrier_turned(std::numeric_limits<double>::infinity()), std::invalid_argument);
+  EXPECT_THROW(machine_points(scan, robot, -0.1), std::invalid_argument);
+  EXPECT_THROW(machine_points(scan, robot, std::numeric_limits<double>::quiet_NaN()), std::invalid_argument);
+
+  const Eigen::Vector3d along(1.0, 0.0, 0.0);
+  // The rig's points as obstacles: the carrier shape stands in them; no place.
+  Points with_rig = scan.topRows(n_bay + n_floor + static_cast<Eigen::Index>(rig.size()));
+  const BasePlacement stuck = place_base(robot, WallOctree(with_rig, cfg.octree_resolution_m), along, cfg, 1.5);
+  EXPECT_LT(stuck.configured_base_room_m, 0.0);
+  EXPECT_FALSE(stuck.found);
+  EXPECT_FALSE(stuck.moved);
+  // The machine's own left out: placed where the scan without the rig places it.
+  std::vector<Eigen::Index> kept;
+  for (Eigen::Index i = 0; i < with_rig.rows(); ++i)
+    if (!machine[static_cast<std::size_t>(i)]) kept.push_back(i);
+  Points obstacles(static_cast<Eigen::Index>(kept.size()), 3);
+  for (std::size_t k = 0; k < kept.size(); ++k) obstacles.row(static_cast<Eigen::Index>(k)) = with_rig.row(kept[k]);
+  Points no_rig(n_bay + n_floor, 3);
+  no_rig = scan.topRows(n_bay + n_floor);
+  const BasePlacement placed = place_base(robot, WallOctree(obstacles, cfg.octree_resolution_m), along, cfg, 1.5);
+  const BasePlacement reference = place_base(robot, WallOctree(no_rig, cfg.octree_resolution_m), along, cfg, 1.5);
+  ASSERT_TRUE(reference.found && reference.moved);
+  EXPECT_TRUE(placed.found);
+  EXPECT_TRUE(placed.moved);
+  EXPECT_LT(placed.shift_m, 0.0);
+  EXPECT_EQ(placed.position_m, reference.position_m);
+  EXPECT_GE(placed.base_room_m, 0.0);
+  // The carrier went with the base: at its new place it keeps base_margin_m from every point left.
+  const Eigen::Isometry3d at(Eigen::Translation3d(placed.position_m));
+  double least = std::numeric_limits<double>::infinity();
+  for (Eigen::Index i = 0; i < obstacles.rows(); ++i)
+    least = std::min(least, point_shape_distance(obstacles.row(i).transpose(), box, at));
+  EXPECT_GE(least, cfg.base_margin_m);
+  std::printf("[carrier] %zu rig points, %d invert points under it; placed %.1f m along (room %.3f m), carrier %.3f m "
+              "from the scan; with the rig's points as obstacles: base room %.3f m\n",
+              rig.size(), floor_taken, placed.shift_m, placed.room_m, least, stuck.configured_base_room_m);
 }

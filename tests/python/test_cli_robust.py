@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import shotcrete
+from shape_distance import shape_distance
 from shotcrete import pipeline
 
 SHOTCRETE = str(Path(sys.executable).parent / "shotcrete")
@@ -483,18 +484,9 @@ def test_a_line_of_points_is_refused_with_exit_3(tmp_path):
 
 
 def _exact_link_distance(report_link: dict, robot, q, wall: np.ndarray) -> float:
-    """Exact distance (numpy, every wall point) of a link's collision cylinders at joint values q."""
+    """Exact distance (numpy, every wall point) of a link's collision shapes at joint values q."""
     frames = robot.link_frames(q)
-    best = np.inf
-    for s in robot.collision_shapes:
-        if s.link != report_link["link"]:
-            continue
-        T = frames[s.frame] @ np.asarray(s.origin)
-        local = (wall - T[:3, 3]) @ T[:3, :3]
-        radial = np.maximum(0.0, np.hypot(local[:, 0], local[:, 1]) - s.radius_m)
-        axial = np.maximum(0.0, np.abs(local[:, 2]) - 0.5 * s.length_m)
-        best = min(best, float(np.min(np.hypot(radial, axial))))
-    return best
+    return min(shape_distance(s, frames[s.frame], wall) for s in robot.collision_shapes if s.link == report_link["link"])
 
 
 def test_clearance_in_the_report_against_an_exact_distance(tmp_path):

@@ -294,11 +294,12 @@ def test_a_leaning_nozzle_clears_the_face_and_never_runs_back():
         shotcrete._core.obstructed_cells(surface, shotcrete.load_robot(cfg), cfg)
 
 
-def plan_face_scene(tmp_path, run_cli, extra_yaml="", place_base=False, base_position_m=None):
+def plan_face_scene(tmp_path, run_cli, extra_yaml="", place_base=False, base_position_m=None, synth_extra=None):
     """`shotcrete plan` (one round) on the face scene written as PLY: the config, the CLI result and
     report.json (out dir tmp_path / "o"). The base stays at robot.base_position_m (by default in the
-    face's plane) unless ``place_base``."""
-    cfg = scene_config(context_previous_bay_m=0.0, context_invert_depth_m=0.0, noise_m=0.0)
+    face's plane) unless ``place_base``. ``synth_extra``: more of the scene (synth.context_*)."""
+    synth = {"context_previous_bay_m": 0.0, "context_invert_depth_m": 0.0, "noise_m": 0.0, **(synth_extra or {})}
+    cfg = scene_config(**synth)
     xyz = tmp_path / "scene.ply"
     shotcrete.write_cloud(xyz, shotcrete.make_synthetic_bay(cfg.synth).sample_scan())
     conf = tmp_path / "c.yaml"
@@ -415,3 +416,82 @@ def test_the_job_places_the_base_back_from_the_face_where_the_arm_can_turn(tmp_p
     robot = shotcrete.load_robot(cfg).placed_at(np.asarray(b["position_m"]))
     for k in range(0, len(tr["q"]), max(1, len(tr["q"]) // 50)):
         assert np.allclose(np.asarray(robot.fk(tr["q"][k]))[:3, 3], tr["nozzle_position_m"][k], atol=1e-6)
+
+
+def carrier_box_in_base(urdf_path):
+    """The URDF's carrier link (fixed to base_link): its box's (lo, hi) corners in base_link's frame,
+    read with ElementTree (not the core's loader)."""
+    import xml.etree.ElementTree as ET
+    root = ET.parse(urdf_path).getroot()
+    joint = next(j for j in root.findall("joint") if j.find("child").get("link") == "carrier")
+    assert joint.get("type") == "fixed" and joint.find("parent").get("link") == "base_link"
+    at = np.array([float(v) for v in joint.find("origin").get("xyz").split()])
+    col = root.find("link[@name='carrier']").find("collision")
+    centre = at + np.array([float(v) for v in col.find("origin").get("xyz").split()])
+    size = np.array([float(v) for v in col.find("geometry").find("box").get("size").split()])
+    return centre - size / 2, centre + size / 2
+
+
+def test_the_rigs_carrier_in_the_scan_is_the_machines_own_and_moves_with_the_base(tmp_path, run_cli):
+    """The face scene with the invert and the rig's carrier standing where the URDF's carrier link
+    is (1 m behind the base), the base 0.4 m from the face: the scan's points in the carrier's
+    column up to its top (within clearance.carrier_tolerance_m) are the machine's own, counted in
+    report.json clearance.carrier_points as a column test on the job's own cloud with the box read
+    from the URDF file (and returned as bool arrays by the bindings); they are not obstacles, so the job places the base back from the face
+    as in the scene without the rig (the closed form of the face test), the carrier moving with it
+    (the carrier link keeps its margin at every sample)."""
+    base = [0.2, 0.0, -1.2]
+    lo, hi = carrier_box_in_base(shotcrete.robot.urdf_path())
+    ground = base[2] - 0.3  # the generator's invert (context_invert_depth_m 1.5 below the axis)
+    cfg, r, rep = plan_face_scene(tmp_path, run_cli, place_base=True, base_position_m=base, synth_extra={
+        "context_invert_depth_m": -ground, "context_rig_length_m": float(hi[0] - lo[0]),
+        "context_rig_width_m": float(hi[1] - lo[1]), "context_rig_height_m": float(base[2] + hi[2] - ground),
+        "context_rig_front_d_m": base[0] + float(hi[0])})
+    assert r.exit_code in (0, 3), r.output
+    b = rep["base_placement"]
+    # The reference: the job's cloud (the surface stage's, as the job builds it) in the column.
+    surface = shotcrete.build_surface(shotcrete.read_cloud(tmp_path / "scene.ply"), cfg)
+    p = np.asarray(surface.cloud.xyz) - np.asarray(base)
+    tol = cfg.clearance.carrier_tolerance_m
+    column = ((p[:, 0] >= lo[0] - tol) & (p[:, 0] <= hi[0] + tol) & (p[:, 1] >= lo[1] - tol) & (p[:, 1] <= hi[1] + tol)
+              & (p[:, 2] <= hi[2] + tol) & ~np.asarray(surface.in_grid))
+    assert column.sum() > 1000  # the rig's top and sides, the invert under it
+    assert rep["clearance"]["carrier_points"] == int(column.sum())
+    robot = shotcrete.load_robot(cfg)
+    assert np.array_equal(shotcrete._core.scan_machine_points(surface, cfg, robot), column)
+    assert np.array_equal(shotcrete._core.machine_points(np.asarray(surface.cloud.xyz), robot, tol), column)
+    assert b["moved"] and b["found"] and b["shift_m"] < 0
+    face_d, c = cfg.synth.length_m, cfg.clearance
+    assert face_d - b["position_m"][0] >= 0.3 + c.link_margin_m + c.via_allowance_m - 0.01 - 1e-9
+    assert b["base_room_m"] >= 0
+    assert "base_clearance" not in [q["code"] for q in rep["problems"]]
+    links = {l["link"]: l for l in rep["clearance"]["links"]}
+    assert links["carrier"]["fixed"] and links["carrier"]["samples_below_margin"] == 0
+    assert links["carrier"]["min_m"] >= c.base_margin_m
+
+
+def test_the_carrier_lies_along_a_turned_axis():
+    """The scene with the rig, turned 30 deg about the vertical (the axis, the base and the scan
+    together): the job turns the carrier along the axis (base_link has no heading of its own), so the
+    same points are the machine's own as in the scene as generated; with the carrier as the URDF
+    puts it (along base_link's -x) the column would cut across the tunnel and miss most of the rig."""
+    cfg = scene_config(context_invert_depth_m=1.5, context_rig_length_m=4.0, context_rig_front_d_m=-0.4, noise_m=0.0)
+    cloud = shotcrete.make_synthetic_bay(cfg.synth).sample_scan()
+    robot = shotcrete.load_robot(cfg)
+    flat = shotcrete._core.scan_machine_points(shotcrete.build_surface(cloud, cfg), cfg, robot)
+    assert flat.sum() > 1000
+    a = np.radians(30.0)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    turned_cfg = scene_config(context_invert_depth_m=1.5, context_rig_length_m=4.0, context_rig_front_d_m=-0.4, noise_m=0.0)
+    turned_cfg.profile.axis_direction = (R @ [1.0, 0.0, 0.0]).tolist()
+    turned_cfg.robot.base_position_m = (R @ np.asarray(cfg.robot.base_position_m)).tolist()
+    turned_robot = shotcrete.load_robot(turned_cfg)
+    surface = shotcrete.build_surface(shotcrete._core.Cloud(np.asarray(cloud.xyz) @ R.T), turned_cfg)
+    turned = shotcrete._core.scan_machine_points(surface, turned_cfg, turned_robot)
+    # The reference: the turned job's own cloud turned back, against the carrier as generated.
+    back = np.asarray(surface.cloud.xyz) @ R
+    ref = shotcrete._core.machine_points(back, robot, cfg.clearance.carrier_tolerance_m) & ~np.asarray(surface.in_grid)
+    assert np.array_equal(turned, ref)
+    assert abs(int(turned.sum()) - int(flat.sum())) < 0.02 * flat.sum()  # the same rig (the voxel filter is not turned)
+    as_urdf = shotcrete._core.machine_points(np.asarray(surface.cloud.xyz), turned_robot, turned_cfg.clearance.carrier_tolerance_m)
+    assert as_urdf.sum() < 0.7 * flat.sum()

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import shotcrete
+from shape_distance import shape_distance
 from shotcrete import _core
 
 R = 4.5  # the narrow bay
@@ -40,17 +41,9 @@ def _wall(x_c: float, th_c: float, height: float, radius: float = 0.8) -> np.nda
 
 
 def _exact_allowance(robot, q, wall: np.ndarray, cfg) -> float:
-    """Least distance less margin over every link shape (numpy, every wall point; cylinders)."""
+    """Least distance less margin over every link shape (numpy, every wall point)."""
     frames = robot.link_frames(q)
-    least = np.inf
-    for s in robot.collision_shapes:
-        assert s.kind == _core.CollisionShape.Kind.cylinder
-        T = np.asarray(frames[s.frame]) @ np.asarray(s.origin)
-        local = (wall - T[:3, 3]) @ T[:3, :3]
-        radial = np.maximum(0.0, np.hypot(local[:, 0], local[:, 1]) - s.radius_m)
-        axial = np.maximum(0.0, np.abs(local[:, 2]) - 0.5 * s.length_m)
-        least = min(least, float(np.min(np.hypot(radial, axial))) - _core.shape_margin_m(s, cfg))
-    return least
+    return min(shape_distance(s, frames[s.frame], wall) - _core.shape_margin_m(s, cfg) for s in robot.collision_shapes)
 
 
 def test_a_transit_through_a_rock_is_rerouted_clear_by_exact_distances():
@@ -217,7 +210,7 @@ def test_fixed_shapes_are_those_no_joint_moves():
     for _ in range(20):
         moved |= np.abs(ends(rng.uniform(lo, hi)) - ref).max(axis=1) > 1e-9
     assert list(~moved) == list(fixed)
-    assert [s.link for s, f in zip(robot.collision_shapes, fixed) if f] == ["base_link", "turret"]
+    assert [s.link for s, f in zip(robot.collision_shapes, fixed) if f] == ["base_link", "turret", "carrier"]
     # A rock against the base: every posture breaks a margin, none does without the fixed shapes.
     base = np.asarray(cfg.robot.base_position_m)
     wall = np.vstack([_wall(0.6, 1.2, 0.0), base + [0.45, 0.0, 0.1]])

@@ -237,7 +237,7 @@ struct RobotConfig {
   std::string urdf_path = "";  // empty: the bundled shotcrete manipulator
   Eigen::Vector3d base_position_m{0.6, 0.0, -1.2};  // base link in the tunnel frame
   bool place_base = true;           // move the base along the axis to where the arm can slew every way
-                                    // with via_allowance_m of room (place_base; a face, a rig in the scan)
+                                    // with via_allowance_m of room (place_base; a face in the scan)
   double max_base_shift_m = 1.5;    // farthest such a move [m]
   double ik_position_tolerance_m = 0.001;
   double ik_angle_tolerance_rad = 0.0087;  // 0.5 degree
@@ -292,6 +292,8 @@ struct ClearanceConfig {
   double base_margin_m = 0.05;        // least distance to the wall of the links no joint moves (the base,
                                       // fixed_shapes): no room for motion, only for the rig's placing
   double self_margin_m = 0.05;        // least distance between two links that are not neighbours
+  double carrier_tolerance_m = 0.1;   // scan points this far outside the carrier's footprint or
+                                      // above its top still count as the machine's own (machine_points)
   bool reroute_transits = true;       // joint moves closer than the margins go through a via posture
                                       // of maximum space allowance (clear_transits)
   double via_allowance_m = 0.3;       // allowance beyond the margins sought at a via posture; past

@@ -167,7 +167,7 @@ template <class F> void visit(OrderingConfig*, F&& f) {
 template <class F> void visit(RobotConfig*, F&& f) {
   f("urdf_path", &RobotConfig::urdf_path, 0, 0, "URDF file; empty = bundled manipulator");
   f("base_position_m", &RobotConfig::base_position_m, 0, 0, "robot base in the tunnel frame [m]");
-  f("place_base", &RobotConfig::place_base, 0, 0, "with clearance.enabled: move the base along the axis to the nearest place where the arm has room to slew every way (a face or a rig in the scan)");
+  f("place_base", &RobotConfig::place_base, 0, 0, "with clearance.enabled: move the base along the axis to the nearest place where the arm has room to slew every way (a face in the scan; the rig's carrier moves with it)");
   f("max_base_shift_m", &RobotConfig::max_base_shift_m, 0.0, 20.0, "farthest place_base moves the base from base_position_m [m]");
   f("ik_position_tolerance_m", &RobotConfig::ik_position_tolerance_m, 1e-6, 0.1, "IK position tolerance [m]");
   f("ik_angle_tolerance_rad", &RobotConfig::ik_angle_tolerance_rad, 1e-5, 0.5, "IK axis tolerance [rad]");
@@ -212,6 +212,7 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("nozzle_margin_m", &ClearanceConfig::nozzle_margin_m, 0.0, 5.0, "least nozzle-to-wall distance (links nozzle*) [m]");
   f("base_margin_m", &ClearanceConfig::base_margin_m, 0.001, 5.0, "least wall distance of the links no joint moves (the base) [m]");
   f("self_margin_m", &ClearanceConfig::self_margin_m, 0.0, 5.0, "least distance between non-neighbouring links [m]");
+  f("carrier_tolerance_m", &ClearanceConfig::carrier_tolerance_m, 0.0, 1.0, "scan points this far outside the rig carrier's footprint or above its top count as the machine's own [m]");
   f("reroute_transits", &ClearanceConfig::reroute_transits, 0, 0, "re-route joint moves closer than the margins through a via posture of maximum space allowance");
   f("via_allowance_m", &ClearanceConfig::via_allowance_m, 0.0, 5.0, "allowance beyond the margins sought at a via posture [m]");
   f("null_space_gain", &ClearanceConfig::null_space_gain, 0.0, 100.0, "clearance term of the regions' joint tracking (null-space drift from the wall, per metre of path); 0 = off");

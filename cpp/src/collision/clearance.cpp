@@ -584,6 +584,50 @@ std::vector<char> fixed_shapes(const Robot& robot) {
   return fixed;
 }
 
+std::vector<char> machine_points(const Points& xyz_m, const Robot& robot, double tolerance_m) {
+  if (!(tolerance_m >= 0.0) || !std::isfinite(tolerance_m))
+    throw std::invalid_argument("machine_points: the tolerance must be a distance >= 0 m");
+  std::vector<char> out(static_cast<std::size_t>(xyz_m.rows()), 0);
+  // Each carrier box in the tunnel frame (inverse pose; its z is base_link's, up) and its half edges.
+  std::vector<std::pair<Eigen::Isometry3d, Eigen::Vector3d>> boxes;
+  for (const auto& sh : robot.collision_shapes())
+    if (sh.carrier && sh.frame == 0 && sh.kind == CollisionShape::Kind::box)
+      boxes.emplace_back((robot.base_pose() * sh.origin).inverse(), 0.5 * sh.size_m + Eigen::Vector3d::Constant(tolerance_m));
+  if (boxes.empty()) return out;
+  for (Eigen::Index i = 0; i < xyz_m.rows(); ++i) {
+    const Eigen::Vector3d p = xyz_m.row(i).transpose();
+    for (const auto& [to_box, half] : boxes) {
+      const Eigen::Vector3d b = to_box * p;  // the column: within the footprint, no higher than the top
+      if (std::abs(b.x()) <= half.x() && std::abs(b.y()) <= half.y() && b.z() <= half.z()) {
+        out[static_cast<std::size_t>(i)] = 1;
+        break;
+      }
+    }
+  }
+  return out;
+}
+
+double box_signed_distance(const CollisionShape& box, const Eigen::Isometry3d& link_pose, const Eigen::Vector3d& p,
+                           Eigen::Vector3d* gradient) {
+  const Eigen::Isometry3d pose = link_pose * box.origin;
+  const Eigen::Vector3d local = pose.inverse() * p;
+  const Eigen::Vector3d q = local.cwiseAbs() - 0.5 * box.size_m;
+  const Eigen::Vector3d outside = q.cwiseMax(0.0);
+  const double out_norm = outside.norm();
+  Eigen::Index k = 0;
+  const double inside = std::min(q.maxCoeff(&k), 0.0);
+  if (gradient) {
+    Eigen::Vector3d g = Eigen::Vector3d::Zero();
+    if (out_norm > 0.0) {
+      for (int a = 0; a < 3; ++a) g[a] = (local[a] < 0.0 ? -1.0 : 1.0) * outside[a] / out_norm;
+    } else {
+      g[k] = local[k] < 0.0 ? -1.0 : 1.0;  // toward the nearest face
+    }
+    *gradient = pose.linear() * g;
+  }
+  return out_norm + inside;
+}
+
 std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot) {
   const auto& shapes = robot.collision_shapes();
   const auto frames = robot.link_frames(robot.neutral());
@@ -937,7 +981,14 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
   out.room = [rb, w, skip, pairs, cc](const Eigen::VectorXd& q) { return posture_allowance(*rb, q, *w, cc, pairs, 1.0, &skip); };
   const std::vector<ClearanceKeyPoint> keys = clearance_key_points(robot);
   const double d0 = config.null_space_influence_m;
-  out.gradient = [rb, w, keys, d0](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
+  // The robot's carrier boxes (on base_link): the wall's field holds no link of the robot, so the
+  // carrier pushes by its own signed distance (exact, inside too), within link_margin_m only:
+  // postures clear of it are not moved.
+  std::vector<CollisionShape> carriers;
+  for (const auto& sh : robot.collision_shapes())
+    if (sh.carrier && sh.frame == 0 && sh.kind == CollisionShape::Kind::box) carriers.push_back(sh);
+  const double d0_carrier = config.link_margin_m;
+  out.gradient = [rb, w, keys, d0, carriers, d0_carrier](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
     grad.setZero(q.size());
     std::vector<JointAxis> joints;
     const auto frames = rb->link_frames(q, joints);
@@ -948,12 +999,19 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
     };
     std::vector<Active> active;
     for (const ClearanceKeyPoint& key : keys) {
+      if (key.frame == 0) continue;  // on base_link: no joint moves it
       const Eigen::Vector3d x = frames[static_cast<std::size_t>(key.frame)] * key.point_m;
       const double d = w->field_distance(x) - key.radius_m;
-      if (!(d < d0)) continue;
-      Eigen::Vector3d g;  // the field's gradient only where the key is within the influence
-      w->field_distance(x, &g);
-      active.push_back({key.frame, x, -(d0 - d) / d0 * g});
+      if (d < d0) {
+        Eigen::Vector3d g;  // the field's gradient only where the key is within the influence
+        w->field_distance(x, &g);
+        active.push_back({key.frame, x, -(d0 - d) / d0 * g});
+      }
+      for (const CollisionShape& box : carriers) {
+        Eigen::Vector3d g;
+        const double dc = box_signed_distance(box, frames[0], x, &g) - key.radius_m;
+        if (dc < d0_carrier) active.push_back({key.frame, x, -(d0_carrier - dc) / d0_carrier * g});
+      }
     }
     if (active.empty()) return;
     // dU/dq_j = sum of dU/dx . dx/dq_j over the key points the joint moves (the point Jacobians

@@ -226,19 +226,58 @@ void apply_timing_swarm(ArmPlan& out, const std::vector<std::vector<Pass>>& regi
 
 }  // namespace
 
-Points arm_wall(const Surface& surface, const ExecutedDeposit& executed) {
-  // The wall as scanned and as sprayed: concrete only grows toward the arm, so the union holds
-  // every surface the arm meets during the job.
-  const Points& scan = surface.cloud.xyz;
-  const Points& sprayed = executed.wall.surface.cloud.xyz;
+namespace {
+
+// The scan's points less the machine's own (machine_points; all of them when `machine` is empty).
+Points scan_obstacles(const Points& scan, const std::vector<char>& machine) {
+  if (machine.empty()) return scan;
+  if (machine.size() != static_cast<std::size_t>(scan.rows()))
+    throw std::invalid_argument("the machine's points: " + std::to_string(machine.size()) + " flags for " +
+                                std::to_string(scan.rows()) + " scan points");
+  const auto kept = static_cast<Eigen::Index>(std::count(machine.begin(), machine.end(), 0));
+  Points out(kept, 3);
+  Eigen::Index k = 0;
+  for (Eigen::Index i = 0; i < scan.rows(); ++i)
+    if (!machine[static_cast<std::size_t>(i)]) out.row(k++) = scan.row(i);
+  return out;
+}
+
+}  // namespace
+
+Robot carrier_along_axis(const Robot& robot, const Surface& surface) {
+  const Eigen::Vector3d& ex = surface.axis.ex;
+  const double horizontal = std::hypot(ex.x(), ex.y());
+  // A (near) vertical axis has no heading: the carrier stays as the URDF puts it.
+  if (!(horizontal > 1e-6)) return robot;
+  const double yaw = std::atan2(ex.y(), ex.x());
+  return yaw == 0.0 ? robot : robot.carrier_turned(yaw);
+}
+
+std::vector<char> scan_machine_points(const Surface& surface, const Config& config, const Robot& robot) {
+  if (!config.clearance.enabled) return {};
+  std::vector<char> out = machine_points(surface.cloud.xyz, carrier_along_axis(robot, surface), config.clearance.carrier_tolerance_m);
+  // The bay's gridded wall is never the machine's (a base standing in a narrow drift).
+  for (std::size_t i = 0; i < out.size() && i < surface.in_grid.size(); ++i)
+    if (surface.in_grid[i]) out[i] = 0;
+  return out;
+}
+
+Points arm_wall(const Surface& surface, const ExecutedDeposit& executed, const std::vector<char>& machine) {
+  // The wall as scanned (less the machine's own points) and as sprayed: concrete only grows toward
+  // the arm, so the union holds every surface the arm meets during the job.
+  // The sprayed wall is the scan's cloud with the wall's points moved (the same rows): the
+  // machine's own are left out of both.
+  const Points scan = scan_obstacles(surface.cloud.xyz, machine);
+  const Points sprayed = scan_obstacles(executed.wall.surface.cloud.xyz, machine);
   Points wall(scan.rows() + sprayed.rows(), 3);
   wall << scan, sprayed;
   return wall;
 }
 
 ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed,
-                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress) {
-  const Points wall = arm_wall(surface, executed);
+                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress,
+                              const std::vector<char>& machine) {
+  const Points wall = arm_wall(surface, executed, machine);
   const WallOctree octree(wall, config.octree_resolution_m);
   ClearanceReport rep = check_clearance(robot, trajectory, octree, config, progress);
   rep.wall_points = static_cast<std::size_t>(wall.rows());
@@ -246,12 +285,17 @@ ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& tra
 }
 
 TransitReport arm_transits(const Surface& surface, TimedTrajectory& trajectory, const ExecutedDeposit& executed,
-                           const Robot& robot, const ClearanceConfig& config, const TimingConfig& timing) {
-  const WallOctree octree(arm_wall(surface, executed), config.octree_resolution_m);
+                           const Robot& robot, const ClearanceConfig& config, const TimingConfig& timing,
+                           const std::vector<char>& machine) {
+  const WallOctree octree(arm_wall(surface, executed, machine), config.octree_resolution_m);
   return clear_transits(robot, trajectory, octree, config, timing);
 }
 
-ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config) {
+ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config,
+                                 const std::vector<char>& machine) {
+  if (!machine.empty() && machine.size() != static_cast<std::size_t>(surface.cloud.size()))
+    throw std::invalid_argument("obstructed_cells: " + std::to_string(machine.size()) + " machine flags for " +
+                                std::to_string(surface.cloud.size()) + " scan points");
   ObstructedCells out;
   out.margin_m = config.clearance.nozzle_margin_m;
   out.least_distance_m = std::numeric_limits<double>::infinity();
@@ -259,7 +303,8 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
   // Obstacles: every point the grid left out (not wall, in front of the wall, outside the bay).
   std::vector<Eigen::Index> rows;
   for (Eigen::Index i = 0; i < surface.cloud.size(); ++i)
-    if (static_cast<std::size_t>(i) >= surface.in_grid.size() || !surface.in_grid[static_cast<std::size_t>(i)])
+    if ((static_cast<std::size_t>(i) >= surface.in_grid.size() || !surface.in_grid[static_cast<std::size_t>(i)]) &&
+        (machine.empty() || !machine[static_cast<std::size_t>(i)]))
       rows.push_back(i);
   out.obstacle_points = static_cast<int>(rows.size());
   if (rows.empty() || grid.size() == 0) return out;
@@ -437,9 +482,18 @@ BasePlacement place_base(const Surface& surface, const Config& config, const Rob
   }
   const auto t0 = std::chrono::steady_clock::now();
   std::unique_ptr<WallOctree> own;
-  if (!scan_wall) own = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
-  BasePlacement out = place_base(robot, scan_wall ? *scan_wall : *own, surface.axis.ex, config.clearance,
-                                 config.robot.max_base_shift_m);
+  if (!scan_wall) {
+    const Points obstacles = scan_obstacles(surface.cloud.xyz, scan_machine_points(surface, config, robot));
+    if (obstacles.rows() == 0) {  // the scan is all machine: nothing tells where the base can stand
+      BasePlacement out;
+      out.configured_m = out.position_m = robot.base_pose().translation();
+      out.found = true;
+      return out;
+    }
+    own = std::make_unique<WallOctree>(obstacles, config.clearance.octree_resolution_m);
+  }
+  BasePlacement out = place_base(carrier_along_axis(robot, surface), scan_wall ? *scan_wall : *own, surface.axis.ex,
+                                 config.clearance, config.robot.max_base_shift_m);
   out.checked = true;
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();  // with the octree
   return out;
@@ -452,14 +506,20 @@ Robot placed_robot(const Robot& robot, const BasePlacement& placement) {
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& given_robot, const ProgressFn& progress) {
   ArmPlan out;
   // The scan as an obstacle (the base's place, the start posture, the tracking's clearance term).
+  // The scan holds the rig's carrier where it stood (the given robot's base): those points are the
+  // machine's own (its carrier shape stands for them and moves with the base), not obstacles.
+  // The carrier lies along the tunnel's axis, behind the arm (carrier_along_axis).
+  const Robot machine_robot = carrier_along_axis(given_robot, surface);
+  const std::vector<char> machine = scan_machine_points(surface, config, given_robot);
+  const int machine_count = static_cast<int>(std::count(machine.begin(), machine.end(), 1));
   std::unique_ptr<WallOctree> scan_wall;
-  if (config.clearance.enabled && surface.cloud.xyz.rows() > 0)
-    scan_wall = std::make_unique<WallOctree>(surface.cloud.xyz, config.clearance.octree_resolution_m);
+  if (config.clearance.enabled && surface.cloud.xyz.rows() > machine_count)
+    scan_wall = std::make_unique<WallOctree>(scan_obstacles(surface.cloud.xyz, machine), config.clearance.octree_resolution_m);
   if (progress) progress("base placement", 0.0);
-  out.base_placement = place_base(surface, config, given_robot, scan_wall.get());
+  out.base_placement = place_base(surface, config, machine_robot, scan_wall.get());
   if (progress) progress("base placement", 1.0);
-  const Robot robot = placed_robot(given_robot, out.base_placement);
-  if (config.clearance.enabled) out.obstructed = obstructed_cells(surface, robot, config);
+  const Robot robot = placed_robot(machine_robot, out.base_placement);
+  if (config.clearance.enabled) out.obstructed = obstructed_cells(surface, robot, config, machine);
   // The arm's caps depend on a pass's geometry only: the lines of a round repeat across re-plans,
   // so they are computed once per distinct pass, keyed by every waypoint's position and axis.
   // The planner asks for the passes of a region at once, from several threads (WaypointCaps):
@@ -530,7 +590,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (progress) progress("executed deposit", 1.0);
   if (config.clearance.enabled) {
     if (progress) progress("transits", 0.0);
-    Points wall = arm_wall(surface, *out.executed);
+    Points wall = arm_wall(surface, *out.executed, machine);
     auto octree = std::make_unique<WallOctree>(wall, config.clearance.octree_resolution_m);
     out.transits = clear_transits(robot, *out.trajectory, *octree, config.clearance, config.timing);
     if (progress) progress("transits", 1.0);
@@ -538,11 +598,12 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     // laid again on the trajectory kept, and the wall it leaves is the one checked.
     if (out.transits->rerouted > 0) {
       out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
-      wall = arm_wall(surface, *out.executed);
+      wall = arm_wall(surface, *out.executed, machine);
       octree = std::make_unique<WallOctree>(wall, config.clearance.octree_resolution_m);
     }
     out.clearance = check_clearance(robot, *out.trajectory, *octree, config.clearance, progress);
     out.clearance->wall_points = static_cast<std::size_t>(wall.rows());
+    out.clearance->carrier_points = machine_count;
   }
   return out;
 }

@@ -198,6 +198,7 @@ void write(JsonWriter& w, const ClearanceReport& c, double self_margin_m, const 
   w.begin_object().field("samples_below_margin", c.samples_below_margin());
   w.field("moving_samples_below_margin", c.moving_samples_below_margin()).field("samples", c.samples);
   w.field("octree_resolution_m", c.octree_resolution_m).field("wall_points", static_cast<long>(c.wall_points));
+  w.field("carrier_points", c.carrier_points);
   w.field("octree_leaves", static_cast<long>(c.octree_leaves)).field("wall_queries", static_cast<long>(c.wall_queries));
   w.field("field_queries", static_cast<long>(c.field_queries)).field("exact_queries", static_cast<long>(c.exact_queries));
   w.field("self_queries", static_cast<long>(c.self_queries)).key("links").begin_array();

@@ -221,18 +221,18 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
   // their child links).
   im.link_names.push_back("base_link");
   for (const auto& seg : im.chain.segments) im.link_names.push_back(seg.getName());
-  for (std::size_t f = 0; f < im.link_names.size(); ++f) {
-    const auto link = model.getLink(im.link_names[f]);
-    if (!link) continue;
+  // A <collision> of `link` as a shape on frame `frame`, `in_frame` placing the link in that frame.
+  const auto add_shapes = [&](const urdf::LinkConstSharedPtr& link, int frame, const Eigen::Isometry3d& in_frame, bool carrier) {
     for (const auto& col : link->collision_array) {
       if (!col || !col->geometry) continue;
       CollisionShape s;
-      s.link = im.link_names[f];
-      s.frame = static_cast<int>(f);
+      s.link = link->name;
+      s.frame = frame;
+      s.carrier = carrier;
       const auto& o = col->origin;
       double qx, qy, qz, qw;
       o.rotation.getQuaternion(qx, qy, qz, qw);
-      s.origin = Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz);
+      s.origin = in_frame * Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz);
       switch (col->geometry->type) {
         case urdf::Geometry::CYLINDER: {
           const auto* c = static_cast<const urdf::Cylinder*>(col->geometry.get());
@@ -252,6 +252,31 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
       }
       im.shapes.push_back(s);
     }
+  };
+  for (std::size_t f = 0; f < im.link_names.size(); ++f) {
+    const auto link = model.getLink(im.link_names[f]);
+    if (link) add_shapes(link, static_cast<int>(f), Eigen::Isometry3d::Identity(), false);
+  }
+  // The machine's body off the chain (the rig's carrier): links named carrier* fixed to base_link,
+  // on base_link's frame (no joint moves them; they move with the base, robot.place_base). Boxes
+  // only: a box's column in a scan is the machine's own (machine_points). Other links off the chain
+  // (a scanner's mount, a mesh chassis) stay unread, as before.
+  if (const auto base = model.getLink("base_link")) {
+    for (const auto& joint : base->child_joints) {
+      if (!joint || joint->type != urdf::Joint::FIXED || joint->child_link_name.rfind("carrier", 0) != 0) continue;
+      if (std::find(im.link_names.begin(), im.link_names.end(), joint->child_link_name) != im.link_names.end()) continue;
+      const auto child = model.getLink(joint->child_link_name);
+      if (!child) continue;
+      const auto& o = joint->parent_to_joint_origin_transform;
+      double qx, qy, qz, qw;
+      o.rotation.getQuaternion(qx, qy, qz, qw);
+      const Eigen::Isometry3d in_base(Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz));
+      const std::size_t first = im.shapes.size();
+      add_shapes(child, 0, in_base, true);
+      for (std::size_t k = first; k < im.shapes.size(); ++k)
+        if (im.shapes[k].kind != CollisionShape::Kind::box)
+          throw std::invalid_argument("URDF: the carrier link '" + im.shapes[k].link + "' must be made of <box> collision shapes");
+    }
   }
   return robot;
 }
@@ -269,6 +294,14 @@ Robot Robot::placed_at(const Eigen::Vector3d& base_position_m) const {
   if (!base_position_m.allFinite()) throw std::invalid_argument("robot.base_position_m contains NaN or inf");
   Robot r(*this);
   r.impl_->base.translation() = base_position_m;
+  return r;
+}
+Robot Robot::carrier_turned(double yaw_rad) const {
+  if (!std::isfinite(yaw_rad)) throw std::invalid_argument("carrier_turned: the angle is not finite");
+  Robot r(*this);
+  const Eigen::Isometry3d turn(Eigen::AngleAxisd(yaw_rad, Eigen::Vector3d::UnitZ()));
+  for (auto& s : r.impl_->shapes)
+    if (s.carrier) s.origin = turn * s.origin;
   return r;
 }
 const std::string& Robot::urdf_path() const { return impl_->path; }

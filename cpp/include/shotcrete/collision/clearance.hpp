@@ -105,6 +105,21 @@ std::vector<std::pair<int, int>> self_check_pairs(const Robot& robot);
 /// that is below its margin the base stands too close (robot.base_position_m).
 std::vector<char> fixed_shapes(const Robot& robot);
 
+/// Per point of `xyz_m` (tunnel frame): 1 when it is the machine's own, where the robot stands (its
+/// base_pose): in the column of one of its carrier boxes (CollisionShape::carrier, the rig's
+/// carrier), within the box across (x, y in the box's frame, its z up) widened by `tolerance_m`,
+/// and no higher than its top + tolerance_m, down to the ground (wheels, tracks and the invert
+/// under it: the box stops above the ground). A scan holds the carrier where the rig
+/// stood when it was taken: those points are not obstacles (the carrier shape stands for them and
+/// moves with the base). Throws std::invalid_argument for a negative or non-finite tolerance.
+std::vector<char> machine_points(const Points& xyz_m, const Robot& robot, double tolerance_m);
+
+/// Signed distance [m] of p to a box shape at its link's world pose: the distance outside, minus
+/// the depth inside (to the nearest face); `gradient`: its direction of steepest rise (the
+/// outward normal of the nearest face inside). The clearance term's carrier field.
+double box_signed_distance(const CollisionShape& box, const Eigen::Isometry3d& link_pose, const Eigen::Vector3d& p,
+                           Eigen::Vector3d* gradient = nullptr);
+
 struct LinkClearance {
   std::string link;
   bool fixed = false;                // every shape of the link is fixed (fixed_shapes)
@@ -125,6 +140,7 @@ struct ClearanceReport {
   SelfClearance self;
   double octree_resolution_m = 0.0;
   std::size_t octree_leaves = 0, wall_points = 0;
+  int carrier_points = 0;  // scan points left out as the machine's own (the rig's carrier where it stood; plan_for_arm)
   int samples = 0;
   // Queries run: wall_queries octree readings (FCL; check_clearance_octree, the other samples
   // bounded by the shape's motion), field_queries distance-field bounds of a shape at a sample
@@ -174,6 +190,9 @@ std::vector<ClearanceKeyPoint> clearance_key_points(const Robot& robot);
 /// (posture_allowance without the base and the nozzle links, read up to 1 m past the margins).
 /// gain 0: an inactive objective, no room either (without the drift the tracking's settling
 /// toward mid-range takes a roomier start back).
+/// The robot's carrier boxes (CollisionShape::carrier) push too, by their signed distance
+/// (box_signed_distance less the key's radius) with link_margin_m for d0: the wall's field holds
+/// no link of the robot, and the boom folded back over the top was steered onto the carrier.
 NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wall, const ClearanceConfig& config);
 
 /// The transit router's screen (transit.cpp): the same check on the octree's reading alone (no

@@ -60,7 +60,22 @@ struct ObstructedCells {
   int leaned_cells = 0;            // cells sprayed from a leaned pose (clear; not among `cells`)
   double max_lean_rad = 0.0;       // the steepest lean of those
 };
-ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config);
+/// `machine`: per scan point, 1 for the machine's own (scan_machine_points), left out of the
+/// obstacles; empty: none.
+ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, const Config& config,
+                                 const std::vector<char>& machine = {});
+
+/// `robot` with its carrier turned to lie along the surface's axis (its heading in the horizontal
+/// plane; Robot::carrier_turned): base_link has no heading of its own (a pure translation in the
+/// tunnel frame), and the URDF puts the carrier along base_link's -x.
+Robot carrier_along_axis(const Robot& robot, const Surface& surface);
+
+/// The scan's points that are the machine's own where `robot` stands (machine_points with
+/// clearance.carrier_tolerance_m, the carrier along the axis: the rig's carrier in the scan), never
+/// a gridded wall point; empty without clearance.enabled. plan_for_arm takes them with the robot as
+/// given (where the rig stood for the scan) and leaves them out of every obstacle (the base's
+/// place, the lean, the tracking's term, the transits and the check; ClearanceReport::carrier_points).
+std::vector<char> scan_machine_points(const Surface& surface, const Config& config, const Robot& robot);
 
 struct ArmPlan {
   Plan plan;
@@ -124,16 +139,19 @@ Robot placed_robot(const Robot& robot, const BasePlacement& placement);
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
 
-/// The wall the arm meets during the job: the scan's points and the executed deposit's surface.
-Points arm_wall(const Surface& surface, const ExecutedDeposit& executed);
+/// The wall the arm meets during the job: the scan's points (less the machine's own: `machine`,
+/// scan_machine_points; empty: none) and the executed deposit's surface.
+Points arm_wall(const Surface& surface, const ExecutedDeposit& executed, const std::vector<char>& machine = {});
 
 /// clear_transits on `trajectory` against arm_wall (what plan_for_arm stores in ArmPlan::transits).
 TransitReport arm_transits(const Surface& surface, TimedTrajectory& trajectory, const ExecutedDeposit& executed,
-                           const Robot& robot, const ClearanceConfig& config, const TimingConfig& timing);
+                           const Robot& robot, const ClearanceConfig& config, const TimingConfig& timing,
+                           const std::vector<char>& machine = {});
 
 /// The space allowance of `trajectory` against the wall as scanned (surface) and as sprayed
 /// (executed): what plan_for_arm stores in ArmPlan::clearance with clearance.enabled.
 ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& trajectory, const ExecutedDeposit& executed,
-                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress = {});
+                              const Robot& robot, const ClearanceConfig& config, const ProgressFn& progress = {},
+                              const std::vector<char>& machine = {});
 
 }  // namespace shotcrete

@@ -18,7 +18,8 @@ namespace shotcrete {
 std::string bundled_urdf_path();
 
 /// One <collision> element of a link on the chain (URDF geometry: cylinders along their z axis,
-/// boxes, spheres), in the frame of its link.
+/// boxes, spheres), in the frame of its link; or a box of a link named carrier* fixed to base_link
+/// off the chain (the rig's carrier: `carrier`), in base_link's frame.
 struct CollisionShape {
   enum class Kind { cylinder, box, sphere };
   std::string link;
@@ -27,6 +28,7 @@ struct CollisionShape {
   Eigen::Isometry3d origin = Eigen::Isometry3d::Identity();  // <collision><origin> in the link frame
   double radius_m = 0.0, length_m = 0.0;                      // cylinder; sphere: radius_m
   Eigen::Vector3d size_m = Eigen::Vector3d::Zero();           // box edges
+  bool carrier = false;  // on a link fixed to base_link off the chain: the machine's body, whose place in a scan is the machine's own (machine_points)
 };
 
 /// A moving joint at a posture, in the tunnel frame: a point p of link frame f (f >= first_frame)
@@ -69,6 +71,10 @@ class Robot {
   const Eigen::Isometry3d& base_pose() const;
   /// The same robot with base_link at base_position_m (place_base's candidates).
   Robot placed_at(const Eigen::Vector3d& base_position_m) const;
+  /// The same robot with its carrier shapes (CollisionShape::carrier) turned by yaw_rad about
+  /// base_link's z axis: the URDF puts the carrier behind the arm along base_link's -x, and the job
+  /// turns it to lie along the tunnel's axis (carrier_along_axis). Throws for a non-finite angle.
+  Robot carrier_turned(double yaw_rad) const;
   /// The URDF path it was loaded from ("" for from_string).
   const std::string& urdf_path() const;
 
