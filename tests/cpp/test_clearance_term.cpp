@@ -326,7 +326,8 @@ TEST(ClearanceTerm, APathOverTheCrownStartsInTheFamilyOfTheWallItGoesDown) {
 
 // The robot's carrier (the URDF's carrier link) pushes the arm by its own signed distance
 // (box_signed_distance: outside, the exact point-to-box distance; inside, minus the depth to the
-// nearest face; its gradient the central differences), within link_margin_m: at postures whose
+// nearest face; its gradient the central differences; as the URDF puts it and turned about the
+// vertical), within link_margin_m: at postures whose
 // links stay farther than that from it the gradient is that of the robot without a carrier, to
 // the bit; at postures a face scene's plan reached (the boom folded back over the top and down
 // into the carrier, at two boom lifts) it is the central differences of the potential (the wall's
@@ -346,12 +347,19 @@ TEST(ClearanceTerm, TheCarrierPushesTheArmOffItAndLeavesPosturesClearOfIt) {
   const CollisionShape& box = shapes.back();
   ASSERT_TRUE(box.carrier);
 
-  // The signed distance against the exact point-to-shape distance outside and the depth inside.
+  // The signed distance against the exact point-to-shape distance outside and the depth inside,
+  // the box as the URDF puts it and turned (its gradient in the tunnel frame).
   const Eigen::Isometry3d base = robot.base_pose();
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   int inside = 0;
-  for (int k = 0; k < 2000; ++k) {
+  const CollisionShape turned_box = robot.carrier_turned(0.5).collision_shapes().back();
+  ASSERT_TRUE(turned_box.carrier);
+  EXPECT_TRUE(robot.carrier_turned(0.5).carrier_turned(0.5).collision_shapes().back().origin.isApprox(turned_box.origin, 1e-12))
+      << "a heading, not a turn";
+  EXPECT_FALSE(turned_box.origin.isApprox(box.origin, 1e-3));
+  for (int k = 0; k < 4000; ++k) {
+    const CollisionShape& box = k % 2 ? turned_box : shapes.back();
     const Eigen::Vector3d local(u(rng) * 0.5 * box.size_m.x() * 1.4, u(rng) * 0.5 * box.size_m.y() * 1.4, u(rng) * 0.5 * box.size_m.z() * 1.4);
     const Eigen::Vector3d p = base * box.origin * local;
     Eigen::Vector3d g;
@@ -372,7 +380,7 @@ TEST(ClearanceTerm, TheCarrierPushesTheArmOffItAndLeavesPosturesClearOfIt) {
     }
     ASSERT_LT((g - fd).norm(), 1e-5) << local.transpose();
   }
-  EXPECT_GT(inside, 100);
+  EXPECT_GT(inside, 200);
 
   const WallOctree wall(narrow_wall(-1.5, 3.5), 0.05);
   ClearanceConfig cc;

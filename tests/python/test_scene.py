@@ -473,16 +473,19 @@ def test_the_rigs_carrier_in_the_scan_is_the_machines_own_and_moves_with_the_bas
 def test_the_carrier_lies_along_a_turned_axis():
     """The scene with the rig, turned 30 deg about the vertical (the axis, the base and the scan
     together): the job turns the carrier along the axis (base_link has no heading of its own), so the
-    same points are the machine's own as in the scene as generated; with the carrier as the URDF
-    puts it (along base_link's -x) the column would cut across the tunnel and miss most of the rig."""
-    cfg = scene_config(context_invert_depth_m=1.5, context_rig_length_m=4.0, context_rig_front_d_m=-0.4, noise_m=0.0)
+    same points are the machine's own as in the scene as generated, and the base is placed alike
+    (the same shift); with the carrier as the URDF puts it (along base_link's -x) the column would
+    cut across the tunnel and miss most of the rig."""
+    cfg = scene_config(context_invert_depth_m=1.5, context_rig_length_m=4.0, context_rig_front_d_m=-0.8, noise_m=0.0)
+    cfg.robot.base_position_m = [0.2, 0.0, -1.2]  # 0.4 m from the face: placed back
     cloud = shotcrete.make_synthetic_bay(cfg.synth).sample_scan()
     robot = shotcrete.load_robot(cfg)
-    flat = shotcrete._core.scan_machine_points(shotcrete.build_surface(cloud, cfg), cfg, robot)
+    flat_surface = shotcrete.build_surface(cloud, cfg)
+    flat = shotcrete._core.scan_machine_points(flat_surface, cfg, robot)
     assert flat.sum() > 1000
     a = np.radians(30.0)
     R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-    turned_cfg = scene_config(context_invert_depth_m=1.5, context_rig_length_m=4.0, context_rig_front_d_m=-0.4, noise_m=0.0)
+    turned_cfg = scene_config(context_invert_depth_m=1.5, context_rig_length_m=4.0, context_rig_front_d_m=-0.8, noise_m=0.0)
     turned_cfg.profile.axis_direction = (R @ [1.0, 0.0, 0.0]).tolist()
     turned_cfg.robot.base_position_m = (R @ np.asarray(cfg.robot.base_position_m)).tolist()
     turned_robot = shotcrete.load_robot(turned_cfg)
@@ -495,3 +498,9 @@ def test_the_carrier_lies_along_a_turned_axis():
     assert abs(int(turned.sum()) - int(flat.sum())) < 0.02 * flat.sum()  # the same rig (the voxel filter is not turned)
     as_urdf = shotcrete._core.machine_points(np.asarray(surface.cloud.xyz), turned_robot, turned_cfg.clearance.carrier_tolerance_m)
     assert as_urdf.sum() < 0.7 * flat.sum()
+    # The base is placed alike: the same shift along the axis (the carrier turned once, along it).
+    flat_place = shotcrete._core.place_base(flat_surface, cfg, robot)
+    turned_place = shotcrete._core.place_base(surface, turned_cfg, turned_robot)
+    assert flat_place.found and flat_place.moved and turned_place.found
+    assert turned_place.shift_m == pytest.approx(flat_place.shift_m)
+    assert turned_place.base_room_m == pytest.approx(flat_place.base_room_m, abs=0.02)

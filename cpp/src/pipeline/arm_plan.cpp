@@ -249,8 +249,7 @@ Robot carrier_along_axis(const Robot& robot, const Surface& surface) {
   const double horizontal = std::hypot(ex.x(), ex.y());
   // A (near) vertical axis has no heading: the carrier stays as the URDF puts it.
   if (!(horizontal > 1e-6)) return robot;
-  const double yaw = std::atan2(ex.y(), ex.x());
-  return yaw == 0.0 ? robot : robot.carrier_turned(yaw);
+  return robot.carrier_turned(std::atan2(ex.y(), ex.x()));  // a heading, not a turn: idempotent
 }
 
 std::vector<char> scan_machine_points(const Surface& surface, const Config& config, const Robot& robot) {
@@ -281,6 +280,7 @@ ClearanceReport arm_clearance(const Surface& surface, const TimedTrajectory& tra
   const WallOctree octree(wall, config.octree_resolution_m);
   ClearanceReport rep = check_clearance(robot, trajectory, octree, config, progress);
   rep.wall_points = static_cast<std::size_t>(wall.rows());
+  rep.carrier_points = static_cast<int>(std::count(machine.begin(), machine.end(), 1));
   return rep;
 }
 
@@ -516,7 +516,7 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (config.clearance.enabled && surface.cloud.xyz.rows() > machine_count)
     scan_wall = std::make_unique<WallOctree>(scan_obstacles(surface.cloud.xyz, machine), config.clearance.octree_resolution_m);
   if (progress) progress("base placement", 0.0);
-  out.base_placement = place_base(surface, config, machine_robot, scan_wall.get());
+  out.base_placement = place_base(surface, config, given_robot, scan_wall.get());  // turns it too
   if (progress) progress("base placement", 1.0);
   const Robot robot = placed_robot(machine_robot, out.base_placement);
   if (config.clearance.enabled) out.obstructed = obstructed_cells(surface, robot, config, machine);

@@ -22,6 +22,7 @@ struct Robot::Impl {
   std::vector<bool> prismatic;
   Eigen::VectorXd lower, upper, velocity, acceleration, neutral, stow;
   Eigen::Isometry3d base = Eigen::Isometry3d::Identity();
+  double carrier_yaw_rad = 0.0;  // the carrier shapes' turn from where the URDF puts them (carrier_turned)
   std::string path;
   Eigen::Vector3d shoulder_in_base{0, 0, 0};
   double max_reach_m = 0.0;

@@ -273,9 +273,14 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
       const Eigen::Isometry3d in_base(Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz));
       const std::size_t first = im.shapes.size();
       add_shapes(child, 0, in_base, true);
-      for (std::size_t k = first; k < im.shapes.size(); ++k)
+      for (std::size_t k = first; k < im.shapes.size(); ++k) {
         if (im.shapes[k].kind != CollisionShape::Kind::box)
           throw std::invalid_argument("URDF: the carrier link '" + im.shapes[k].link + "' must be made of <box> collision shapes");
+        // Its column in a scan runs along base_link's z (machine_points): upright boxes only.
+        if (!(im.shapes[k].origin.linear().col(2).z() > 1.0 - 1e-9))
+          throw std::invalid_argument("URDF: the carrier link '" + im.shapes[k].link +
+                                      "' has a box turned off the vertical (only a turn about base_link's z is allowed)");
+      }
     }
   }
   return robot;
@@ -299,9 +304,11 @@ Robot Robot::placed_at(const Eigen::Vector3d& base_position_m) const {
 Robot Robot::carrier_turned(double yaw_rad) const {
   if (!std::isfinite(yaw_rad)) throw std::invalid_argument("carrier_turned: the angle is not finite");
   Robot r(*this);
-  const Eigen::Isometry3d turn(Eigen::AngleAxisd(yaw_rad, Eigen::Vector3d::UnitZ()));
+  // From where the URDF puts it: turning a turned robot again sets the heading, never adds to it.
+  const Eigen::Isometry3d turn(Eigen::AngleAxisd(yaw_rad - impl_->carrier_yaw_rad, Eigen::Vector3d::UnitZ()));
   for (auto& s : r.impl_->shapes)
     if (s.carrier) s.origin = turn * s.origin;
+  r.impl_->carrier_yaw_rad = yaw_rad;
   return r;
 }
 const std::string& Robot::urdf_path() const { return impl_->path; }

@@ -66,8 +66,10 @@ ObstructedCells obstructed_cells(const Surface& surface, const Robot& robot, con
                                  const std::vector<char>& machine = {});
 
 /// `robot` with its carrier turned to lie along the surface's axis (its heading in the horizontal
-/// plane; Robot::carrier_turned): base_link has no heading of its own (a pure translation in the
-/// tunnel frame), and the URDF puts the carrier along base_link's -x.
+/// plane; Robot::carrier_turned, which sets the heading: calling this twice is harmless):
+/// base_link has no heading of its own (a pure translation in the tunnel frame), and the URDF puts
+/// the carrier along base_link's -x. So the carrier lies along -ex, behind the arm when the axis
+/// points toward the face (profile.axis_direction, an alignment's rising chainage).
 Robot carrier_along_axis(const Robot& robot, const Surface& surface);
 
 /// The scan's points that are the machine's own where `robot` stands (machine_points with
@@ -114,7 +116,8 @@ struct ArmPlan {
 /// collision place_base against the scan's points along the surface's axis (up to
 /// robot.max_base_shift_m); else the configured place, unchecked. The job then plans with
 /// robot.placed_at(position_m) (placed_robot; plan_for_arm does both).
-/// `scan_wall`: the scan's octree when the caller has one (else built here).
+/// `scan_wall`: the scan's octree when the caller has one (else built here, less the machine's own
+/// points); the robot's carrier is turned along the axis here (carrier_along_axis).
 BasePlacement place_base(const Surface& surface, const Config& config, const Robot& robot,
                          const WallOctree* scan_wall = nullptr);
 

@@ -71,9 +71,10 @@ class Robot {
   const Eigen::Isometry3d& base_pose() const;
   /// The same robot with base_link at base_position_m (place_base's candidates).
   Robot placed_at(const Eigen::Vector3d& base_position_m) const;
-  /// The same robot with its carrier shapes (CollisionShape::carrier) turned by yaw_rad about
-  /// base_link's z axis: the URDF puts the carrier behind the arm along base_link's -x, and the job
-  /// turns it to lie along the tunnel's axis (carrier_along_axis). Throws for a non-finite angle.
+  /// The same robot with its carrier shapes (CollisionShape::carrier) turned to yaw_rad about
+  /// base_link's z axis from where the URDF puts them (behind the arm along base_link's -x; the
+  /// heading is set, not added: a turned robot turned again has the new heading). The job turns it
+  /// to lie along the tunnel's axis (carrier_along_axis). Throws for a non-finite angle.
   Robot carrier_turned(double yaw_rad) const;
   /// The URDF path it was loaded from ("" for from_string).
   const std::string& urdf_path() const;
