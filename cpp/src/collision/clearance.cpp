@@ -591,7 +591,7 @@ std::vector<char> machine_points(const Points& xyz_m, const Robot& robot, double
   // Each carrier box in the tunnel frame (inverse pose; its z is base_link's, up) and its half edges.
   std::vector<std::pair<Eigen::Isometry3d, Eigen::Vector3d>> boxes;
   for (const auto& sh : robot.collision_shapes())
-    if (sh.carrier && sh.frame == 0 && sh.kind == CollisionShape::Kind::box)
+    if (sh.carrier)  // upright boxes on base_link's frame (Robot's loader)
       boxes.emplace_back((robot.base_pose() * sh.origin).inverse(), 0.5 * sh.size_m + Eigen::Vector3d::Constant(tolerance_m));
   if (boxes.empty()) return out;
   for (Eigen::Index i = 0; i < xyz_m.rows(); ++i) {
@@ -986,7 +986,7 @@ NullSpaceObjective clearance_objective(const Robot& robot, const WallOctree& wal
   // postures clear of it are not moved.
   std::vector<CollisionShape> carriers;
   for (const auto& sh : robot.collision_shapes())
-    if (sh.carrier && sh.frame == 0 && sh.kind == CollisionShape::Kind::box) carriers.push_back(sh);
+    if (sh.carrier) carriers.push_back(sh);  // boxes on base_link's frame (Robot's loader)
   const double d0_carrier = config.link_margin_m;
   out.gradient = [rb, w, keys, d0, carriers, d0_carrier](const Eigen::VectorXd& q, Eigen::VectorXd& grad) {
     grad.setZero(q.size());

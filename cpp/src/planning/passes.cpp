@@ -205,6 +205,7 @@ struct PassFrame {
   int w_of(int c) const { return axial ? grid.row_of(c) : grid.col_of(c); }
   double w_center(int iw) const { return w0 + (iw + 0.5) * cs; }
   Eigen::Vector3d lean_of(int c) const { return lean ? (*lean)[static_cast<std::size_t>(c)] : Eigen::Vector3d::Zero(); }
+  bool leans(int c) const { return lean_of(c).norm() > 1e-9; }  // the cell's own lean, not a neighbour's
   // Where wall point p lies along the passes [m of wall].
   double u_at(const Eigen::Vector3d& p) const {
     const Eigen::Vector3d cyl = grid.axis.to_cylindrical(p);
@@ -276,7 +277,7 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
             .normalized();
     const double at = f.u_at(p);
     const Eigen::Vector3d lean = (1 - u) * f.lean_at(iu, below, at) + u * f.lean_at(iu, above, at);
-    const bool leaned = f.lean_of(f.cell_of(iu, below)).norm() > 1e-9 || f.lean_of(f.cell_of(iu, above)).norm() > 1e-9;
+    const bool leaned = f.leans(f.cell_of(iu, below)) || f.leans(f.cell_of(iu, above));
     return Crossing{p, nrm, lean, leaned};
   }
   if (!vb && !va) return std::nullopt;
@@ -286,7 +287,7 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
   const Eigen::Vector3d p =
       f.axial ? grid.axis.to_cartesian(cyl[0], theta_k, cyl[2]) : grid.axis.to_cartesian(cyl[0], cyl[1], wk);
   return Crossing{p, Eigen::Vector3d(grid.mean_normal.row(c).transpose()), f.lean_at(iu, vb ? below : above, f.u_at(p)),
-                  f.lean_of(c).norm() > 1e-9};
+                  f.leans(c)};
 }
 
 // The nozzle pose over wall point p: the standoff along the normal nrm, or toward the axis; with a

@@ -52,6 +52,13 @@ using namespace robot_detail;
 
 namespace {
 
+// A URDF <origin> (or a joint's) as an isometry.
+Eigen::Isometry3d to_isometry(const urdf::Pose& o) {
+  double qx, qy, qz, qw;
+  o.rotation.getQuaternion(qx, qy, qz, qw);
+  return Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz);
+}
+
 std::string read_text(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw std::invalid_argument("cannot open URDF file '" + path + "'");
@@ -229,10 +236,7 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
       s.link = link->name;
       s.frame = frame;
       s.carrier = carrier;
-      const auto& o = col->origin;
-      double qx, qy, qz, qw;
-      o.rotation.getQuaternion(qx, qy, qz, qw);
-      s.origin = in_frame * Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz);
+      s.origin = in_frame * to_isometry(col->origin);
       switch (col->geometry->type) {
         case urdf::Geometry::CYLINDER: {
           const auto* c = static_cast<const urdf::Cylinder*>(col->geometry.get());
@@ -267,12 +271,8 @@ Robot Robot::from_string(const std::string& xml, const Eigen::Vector3d& base_pos
       if (std::find(im.link_names.begin(), im.link_names.end(), joint->child_link_name) != im.link_names.end()) continue;
       const auto child = model.getLink(joint->child_link_name);
       if (!child) continue;
-      const auto& o = joint->parent_to_joint_origin_transform;
-      double qx, qy, qz, qw;
-      o.rotation.getQuaternion(qx, qy, qz, qw);
-      const Eigen::Isometry3d in_base(Eigen::Translation3d(o.position.x, o.position.y, o.position.z) * Eigen::Quaterniond(qw, qx, qy, qz));
       const std::size_t first = im.shapes.size();
-      add_shapes(child, 0, in_base, true);
+      add_shapes(child, 0, to_isometry(joint->parent_to_joint_origin_transform), true);
       for (std::size_t k = first; k < im.shapes.size(); ++k) {
         if (im.shapes[k].kind != CollisionShape::Kind::box)
           throw std::invalid_argument("URDF: the carrier link '" + im.shapes[k].link + "' must be made of <box> collision shapes");
