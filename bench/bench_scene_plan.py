@@ -6,7 +6,9 @@ report.json via `summarise_job`) on the generator's scenes around the same defau
 - `face`: the bay and the face at its end (no lining, invert, duct or rig);
 - `scene without duct`: 2 m of lining, the invert, the face and the rig's carrier;
 - `whole scene`: the same with a 1.2 m ventilation duct hung 0.3 m under the crown over both bays
-  (bench_axis's scene: its surface figures are there).
+  (bench_axis's scene: its surface figures are there);
+- `whole scene, duct outlet behind the bay`: the duct ending 0.5 m behind the bay's start, as it
+  hangs on site (from the lining; the unlined ground is about to be sprayed).
 
 Per case: status and problems (codes), the executed residual (min / max / RMS), levels after, cells
 below level 0 and above level 0, required volume, the executed volumes (sprayed, on the wall, landed
@@ -43,6 +45,9 @@ CASES = {
     "scene without duct": {"context_enabled": True, "context_rig_length_m": 4.0},
     "whole scene": {"context_enabled": True, "context_rig_length_m": 4.0, "context_duct_diameter_m": 1.2,
                     "context_duct_gap_m": 0.3},
+    "whole scene, duct outlet behind the bay": {"context_enabled": True, "context_rig_length_m": 4.0,
+                                                "context_duct_diameter_m": 1.2, "context_duct_gap_m": 0.3,
+                                                "context_duct_outlet_d_m": -0.5},
 }
 
 

@@ -355,6 +355,10 @@ def summary_html(report: dict, facts: PageFacts) -> str:
                         for key, name in CYCLE_PARTS if key in parts)
         breakdown = (f'<table class="compact" id="cycle-breakdown"><tr><th>cycle time</th><th>time</th><th>share</th></tr>'
                      f"{lines}<tr><th>total</th><td>{_v('cycle_time', fmt_duration(cycle))}</td><td>100 %</td></tr></table>")
+        slowed = (report.get("trajectory") or {}).get("slowed_to_joint_limits") or {}
+        if slowed.get("added_s", 0) > 0:
+            breakdown += (f'<p class="note" id="slowed">Included: {_v("slowed_s", fmt_duration(slowed["added_s"]))} where the '
+                          f"timed motion broke a joint limit (up to {slowed['ratio_before']:.2f}x), slowed down to it.</p>")
 
     round_rows = []
     for r in report.get("rounds_detail", []):

@@ -337,6 +337,10 @@ void bind_timing(py::module_& m) {
                     "largest excursion of a prismatic joint outside its position limits [m]")
       .def_readonly("untracked_regions", &TimedTrajectory::untracked_regions)
       .def_readonly("untracked_region_ids", &TimedTrajectory::untracked_region_ids, "their region indices")
+      .def_readonly("slowed_s", &TimedTrajectory::slowed_s, "time slow_to_joint_limits added [s]")
+      .def_readonly("slowed_intervals", &TimedTrajectory::slowed_intervals, "sample intervals it stretched")
+      .def_readonly("ratio_before_slowing", &TimedTrajectory::ratio_before_slowing,
+                    "worst joint velocity / acceleration ratio before it")
       .def("joint_table", &TimedTrajectory::joint_table, "(N, 1 + 3 dof): t, q, qd, qdd")
       .def("joint_table_header", &TimedTrajectory::joint_table_header)
       .def("to_csv", &TimedTrajectory::to_csv)
@@ -366,6 +370,18 @@ void bind_timing(py::module_& m) {
       py::arg("params") = py::none(),
       "Regions (lists of passes) in spraying order -> timed joint trajectory at the config's rate. params: None\n"
       "(the config's), one TimingParams for every region, or a list with one per region (tune_timing's).");
+
+  m.def(
+      "slow_to_joint_limits",
+      [](const Robot& robot, TimedTrajectory trajectory, double window_s) {
+        py::gil_scoped_release release;
+        const bool within = slow_to_joint_limits(robot, trajectory, window_s);
+        return std::make_pair(trajectory, within);
+      },
+      py::arg("robot"), py::arg("trajectory"), py::arg("window_s") = 1.0,
+      "(a copy of the trajectory slowed where its finite-difference joint velocities or accelerations break a limit:\n"
+      "the same samples and joint path, the time between them stretched by a smooth factor; whether it ends within\n"
+      "the limits). A trajectory within its limits comes back as it was.");
 
   m.def(
       "time_path",

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <regex>
 #include <sstream>
@@ -127,6 +128,110 @@ TEST(RobotTiming, CycleTimeBreakdownAddsUpAndMatchesTheSamples) {
   EXPECT_NEAR(spraying, b.spraying_s, slack);
   EXPECT_GT(b.stop_and_go_s, joint_moves_inside);  // the stop-and-go runs besides the joint move
   EXPECT_NEAR(rest + joint_moves_inside, b.turn_arounds_s + b.leads_s + b.stop_and_go_s, slack);
+}
+
+// Central differences on a non-uniform grid (second order), written here: the reference of the
+// limit check after slow_to_joint_limits. Worst |qd| / limit and |qdd| / limit over the interior.
+std::pair<double, double> worst_rates(const Robot& robot, const std::vector<double>& t, const std::vector<Eigen::VectorXd>& q) {
+  double v = 0.0, a = 0.0;
+  for (std::size_t i = 1; i + 1 < t.size(); ++i) {
+    const double h1 = t[i] - t[i - 1], h2 = t[i + 1] - t[i];
+    const Eigen::VectorXd d1 = (q[i] - q[i - 1]) / h1, d2 = (q[i + 1] - q[i]) / h2;
+    const Eigen::VectorXd qd = (h2 * d1 + h1 * d2) / (h1 + h2);  // the parabola's slope at t[i]
+    const Eigen::VectorXd qdd = 2.0 * (d2 - d1) / (h1 + h2);
+    v = std::max(v, qd.cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff());
+    a = std::max(a, qdd.cwiseAbs().cwiseQuotient(robot.acceleration_limits()).maxCoeff());
+  }
+  return {v, a};
+}
+
+// The slew at twice its velocity limit for 4 s, at rest elsewhere (no acceleration: a straight
+// joint line): every interval needs 2 x 1.005 (the headroom), so one round doubles the time
+// exactly, closed form 8.04 s, and the velocity is then the limit / 1.005.
+TEST(RobotTiming, SlowToJointLimitsClosedFormOfAConstantSpeed) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const double v = 2.0 * robot.velocity_limits()[0];
+  TimedTrajectory tr;
+  for (int k = 0; k <= 200; ++k) {
+    const double t = 0.02 * k;
+    Eigen::VectorXd q = robot.neutral();
+    q[0] = -0.5 * v * 4.0 + v * t;
+    tr.t_s.push_back(t), tr.q.push_back(q);
+  }
+  tr.duration_s = 4.0;
+  const TimedTrajectory before = tr;
+  EXPECT_TRUE(slow_to_joint_limits(robot, tr));
+  EXPECT_NEAR(tr.ratio_before_slowing, 2.0, 1e-9);
+  EXPECT_NEAR(tr.duration_s, 4.0 * 2.0 * 1.005, 1e-9);
+  EXPECT_NEAR(tr.t_s.back(), tr.duration_s, 1e-9);
+  EXPECT_NEAR(tr.slowed_s, tr.duration_s - 4.0, 1e-9);
+  EXPECT_EQ(tr.slowed_intervals, 200);
+  EXPECT_NEAR(tr.cycle_time.other_s, tr.slowed_s, 1e-9);  // no flags: nothing tells the bucket
+  EXPECT_NEAR(worst_rates(robot, tr.t_s, tr.q).first, 1.0 / 1.005, 1e-9);
+  for (std::size_t k = 0; k < tr.size(); ++k) EXPECT_EQ(tr.q[k], before.q[k]);
+  EXPECT_THROW(slow_to_joint_limits(robot, tr, 0.0), std::invalid_argument);
+}
+
+// A real trajectory (two regions: transits, turn-arounds, leads, a stop-and-go move) run 1 / 0.7
+// times too fast (measured: velocities 1.37x, accelerations 1.53x the limits). Slowed: within
+// every limit by central differences written in the test, the same joint samples and flags in
+// the same order, no interval shorter; the added time in duration_s, slowed_s and the buckets
+// (which still add up to it), the transits' share exactly that of their samples' intervals,
+// spraying's in spray_time_s too. The trajectory at its own speed is within its limits and left
+// as it is, to the bit.
+TEST(RobotTiming, SlowToJointLimitsStretchesTimeWhereALimitBreaks) {
+  const auto first = axial_region(3, 1.0, 0.2, 0.0, 1.2, {0.2, 0.25, 0.15});
+  auto second = axial_region(2, 1.0, 0.3, 0.3, 1.6, {0.2});
+  std::reverse(second[1].waypoints.begin(), second[1].waypoints.end());  // same heading: stop and go
+  const Robot robot = Robot::load(RobotConfig{});
+  const TimedTrajectory own = time_plan(robot, {first, second}, robot.neutral(), TimingConfig{}, RobotConfig{});
+  ASSERT_LE(std::max(own.max_velocity_ratio, own.max_acceleration_ratio), 1.0);
+  TimedTrajectory same = own;
+  EXPECT_TRUE(slow_to_joint_limits(robot, same));
+  EXPECT_EQ(same.t_s, own.t_s);
+  EXPECT_EQ(same.slowed_s, 0.0);
+  EXPECT_EQ(same.slowed_intervals, 0);
+  EXPECT_EQ(same.duration_s, own.duration_s);
+
+  constexpr double c = 0.7;
+  TimedTrajectory fast = own;
+  for (double& t : fast.t_s) t *= c;
+  fast.duration_s *= c, fast.spray_time_s *= c, fast.transit_time_s *= c;
+  for (double* b : {&fast.cycle_time.spraying_s, &fast.cycle_time.turn_arounds_s, &fast.cycle_time.leads_s,
+                    &fast.cycle_time.transits_s, &fast.cycle_time.stop_and_go_s, &fast.cycle_time.other_s})
+    *b *= c;
+  const auto [v_fast, a_fast] = worst_rates(robot, fast.t_s, fast.q);
+  ASSERT_GT(a_fast, 1.5);
+  TimedTrajectory slowed = fast;
+  ASSERT_TRUE(slow_to_joint_limits(robot, slowed));
+  EXPECT_NEAR(slowed.ratio_before_slowing, std::max(v_fast, a_fast), 0.05);
+  const auto [v, a] = worst_rates(robot, slowed.t_s, slowed.q);
+  EXPECT_LE(v, 1.0 + 1e-9);
+  EXPECT_LE(a, 1.0 + 1e-9);
+  ASSERT_EQ(slowed.size(), fast.size());
+  double transits_added = 0.0, spraying_added = 0.0;
+  for (std::size_t k = 0; k < slowed.size(); ++k) {
+    ASSERT_EQ(slowed.q[k], fast.q[k]);
+    ASSERT_EQ(slowed.kind[k], fast.kind[k]);
+    ASSERT_EQ(slowed.spraying[k], fast.spraying[k]);
+    if (k == 0) continue;
+    const double dt = slowed.t_s[k] - slowed.t_s[k - 1], dt_fast = fast.t_s[k] - fast.t_s[k - 1];
+    ASSERT_GE(dt, dt_fast - 1e-12);
+    const bool joint_move = fast.kind[k] == static_cast<char>(SegmentKind::Transit);
+    if (joint_move && fast.region_index[k] < 0) transits_added += dt - dt_fast;
+    if (fast.spraying[k]) spraying_added += dt - dt_fast;
+  }
+  const double added = slowed.duration_s - fast.duration_s;
+  EXPECT_GT(added, 0.0);
+  EXPECT_NEAR(slowed.slowed_s, added, 1e-9);
+  EXPECT_NEAR(slowed.t_s.back() - slowed.t_s.front(), slowed.duration_s, 1e-9);
+  EXPECT_NEAR(slowed.cycle_time.total_s(), slowed.duration_s, 1e-9);
+  EXPECT_NEAR(slowed.cycle_time.transits_s - fast.cycle_time.transits_s, transits_added, 1e-9);
+  EXPECT_NEAR(slowed.cycle_time.spraying_s - fast.cycle_time.spraying_s, spraying_added, 1e-9);
+  EXPECT_NEAR(slowed.spray_time_s - fast.spray_time_s, spraying_added, 1e-9);
+  EXPECT_GT(slowed.slowed_intervals, 0);
+  std::printf("0.7x too fast (%.2fx velocity, %.2fx acceleration): %.1f s -> %.1f s (own speed %.1f s), %d intervals\n",
+              v_fast, a_fast, fast.duration_s, slowed.duration_s, own.duration_s, slowed.slowed_intervals);
 }
 
 TEST(RobotTiming, StopAndGoMovesHappenInJointSpace) {

@@ -190,6 +190,9 @@ def test_summary_figures_are_report_json_figures(which, request):
         check(f"round{n}_above", lambda t, a=after: int(t) == sum(v for k, v in a.items() if k >= 1))
     if rep.get("holes"):  # the row shows only when the grid has holes
         check("holes", lambda t: int(t) == rep["holes"])
+    slowed = ((rep.get("trajectory") or {}).get("slowed_to_joint_limits") or {}).get("added_s", 0)
+    if slowed > 0:  # the note shows only when the arm was slowed to its joint limits
+        check("slowed_s", lambda t: abs(_seconds(t) - slowed) <= 0.5)
     assert set(shown) == checked, f"figures the test does not check: {set(shown) - checked}"
     # The summary comes first and the raw table is kept, collapsed.
     html = (out / "report.html").read_text()

@@ -145,6 +145,49 @@ def test_scanner_shadow_matches_a_marched_line_of_sight():
     np.testing.assert_array_equal(kept, everything[mask])
 
 
+def test_the_duct_ends_at_its_outlet():
+    """synth.context_duct_outlet_d_m: the duct hangs from the lined bay's start to its outlet. Its
+    points (within three noise sigmas of its round) all lie short of the outlet, and some reach it;
+    the scanner's shadow is the marched line of sight through the shorter tube; the bay's crown
+    under where the duct would have run is scanned. An outlet before the lining's start is refused,
+    naming the key."""
+    outlet = -0.2
+    cfg = scene_config(**{**SHADOW, "context_duct_outlet_d_m": outlet})
+    s = cfg.synth
+    bay = shotcrete.make_synthetic_bay(s)
+    R, a = s.design_radius_m, s.context_duct_diameter_m / 2
+    zc = R - s.context_duct_gap_m - a
+    seen = shotcrete.make_synthetic_bay(scene_config(**{**SHADOW, "context_duct_outlet_d_m": outlet,
+                                                        "context_scanner_shadow": False}).synth)
+    everything = np.asarray(seen.sample_scan().xyz)
+    q = local(bay, everything)
+    on_duct = (np.abs(np.hypot(q[:, 1] - s.context_duct_y_m, q[:, 2] - zc) - a) < 3 * s.noise_m) & \
+        (q[:, 0] < s.length_m - 3 * s.noise_m)  # not the face across the duct's round
+    assert on_duct.sum() > 100
+    assert q[on_duct, 0].max() <= outlet + 3 * s.noise_m and q[on_duct, 0].max() > outlet - 0.05
+    assert q[on_duct, 0].min() < -s.context_previous_bay_m + 0.05
+    rng = np.random.default_rng(6)
+    pick = everything[rng.choice(len(everything), 3000, replace=False)]
+    h = s.context_invert_depth_m
+    rig_lo = np.array([s.context_rig_front_d_m - s.context_rig_length_m, -s.context_rig_width_m / 2, -h])
+    rig_hi = np.array([s.context_rig_front_d_m, s.context_rig_width_m / 2, -h + s.context_rig_height_m])
+    ref = march_visible(local(bay, pick), np.asarray(s.context_scanner_position_m), (s.context_duct_y_m, zc), a,
+                        (-s.context_previous_bay_m, outlet), rig_lo, rig_hi)
+    core = np.array([bay.scanner_sees(p) for p in pick])
+    assert np.mean(core == ref) > 0.995
+    # The crown at the bay's far end (d > 0.45, within 0.3 m of the top) is seen past the shorter duct; over
+    # both bays the duct hides most of it.
+    crown = local(bay, np.asarray(bay.sample_scan().xyz))
+    top = (crown[:, 0] > 0.45) & (np.hypot(crown[:, 1], crown[:, 2]) > R - 0.05) & (np.abs(crown[:, 1]) < 0.3)
+    full = shotcrete.make_synthetic_bay(scene_config(**SHADOW).synth)
+    crown_full = local(full, np.asarray(full.sample_scan().xyz))
+    top_full = (crown_full[:, 0] > 0.45) & (np.hypot(crown_full[:, 1], crown_full[:, 2]) > R - 0.05) & \
+        (np.abs(crown_full[:, 1]) < 0.3)
+    assert top.sum() > 50 and top_full.sum() < 0.2 * top.sum()
+    with pytest.raises(ValueError, match="context_duct_outlet_d_m"):
+        shotcrete.make_synthetic_bay(scene_config(context_duct_diameter_m=1.2, context_duct_outlet_d_m=-0.6).synth).sample_scan()
+
+
 def test_shadowed_scene_leaves_holes_behind_the_duct(tmp_path, run_cli):
     """The wall behind the duct is not scanned: those cells are holes, neither graded nor sprayed,
     and report.json counts them; below half the grid the plan is refused as sparse_grid."""
@@ -416,6 +459,19 @@ def test_the_job_places_the_base_back_from_the_face_where_the_arm_can_turn(tmp_p
     robot = shotcrete.load_robot(cfg).placed_at(np.asarray(b["position_m"]))
     for k in range(0, len(tr["q"]), max(1, len(tr["q"]) // 50)):
         assert np.allclose(np.asarray(robot.fk(tr["q"][k]))[:3, 3], tr["nozzle_position_m"][k], atol=1e-6)
+    # The arm can run what the report says: every joint within its velocity and acceleration
+    # limits by central differences of trajectory.npz's times and joints (what the timing left over
+    # a limit is slowed to it: report.json says how much, and how far over it was).
+    t, q = tr["t_s"], tr["q"]
+    h1, h2 = np.diff(t)[:-1, None], np.diff(t)[1:, None]
+    d1, d2 = (q[1:-1] - q[:-2]) / h1, (q[2:] - q[1:-1]) / h2
+    qd, qdd = (h2 * d1 + h1 * d2) / (h1 + h2), 2 * (d2 - d1) / (h1 + h2)
+    assert (np.abs(qd) / np.asarray(robot.velocity_limits)).max() <= 1.0 + 1e-6
+    assert (np.abs(qdd) / np.asarray(robot.acceleration_limits)).max() <= 1.0 + 1e-6
+    slowed = rep["trajectory"]["slowed_to_joint_limits"]
+    assert slowed["ratio_before"] >= max(rep["trajectory"]["max_velocity_ratio"], rep["trajectory"]["max_acceleration_ratio"]) - 1e-9
+    assert (slowed["added_s"] > 0) == (slowed["ratio_before"] > 1.0) and (slowed["intervals"] > 0) == (slowed["added_s"] > 0)
+    assert "joint_limits" not in [p["code"] for p in rep["problems"]]
 
 
 def carrier_box_in_base(urdf_path):

@@ -124,11 +124,14 @@ struct SynthConfig {
   double context_previous_bay_m = 2.0;  // lined previous bay behind the new one (d < 0), on the design line
   double context_invert_depth_m = 1.5;  // floor plane this far below the springlines (axis height); 0 = none
   bool context_face = true;             // the face: a plane across the axis at the bay's far end (d = length_m)
-  // A ventilation duct along the axis under the crown, over both bays (0 = none): its top
-  // context_duct_gap_m under the design line at y = context_duct_y_m (across, left positive).
+  // A ventilation duct along the axis under the crown (0 = none): its top context_duct_gap_m under
+  // the design line at y = context_duct_y_m (across, left positive), from the lined bay's start to
+  // its outlet at d = context_duct_outlet_d_m (past the bay's far end, the default: over both bays;
+  // on site the outlet hangs behind the unlined ground, which is about to be sprayed).
   double context_duct_diameter_m = 0.0;
   double context_duct_gap_m = 0.3;
   double context_duct_y_m = 0.0;
+  double context_duct_outlet_d_m = 1000.0;
   // The rig's carrier: a box on the invert ending context_rig_front_d_m along the axis (the arm's
   // base stands ahead of it), centred across; 0 length = none. Needs the invert.
   double context_rig_length_m = 0.0;

@@ -77,9 +77,11 @@ template <class F> void visit(SynthConfig*, F&& f) {
   f("context_previous_bay_m", &SynthConfig::context_previous_bay_m, 0.0, 20.0, "length of the lined previous bay (d < 0) [m]");
   f("context_invert_depth_m", &SynthConfig::context_invert_depth_m, 0.0, 10.0, "floor plane below the springlines [m]; 0 = none");
   f("context_face", &SynthConfig::context_face, 0, 0, "a face plane across the axis at d = length_m");
-  f("context_duct_diameter_m", &SynthConfig::context_duct_diameter_m, 0.0, 5.0, "ventilation duct under the crown, over both bays [m]; 0 = none");
+  f("context_duct_diameter_m", &SynthConfig::context_duct_diameter_m, 0.0, 5.0, "ventilation duct under the crown, from the lining to its outlet [m]; 0 = none");
   f("context_duct_gap_m", &SynthConfig::context_duct_gap_m, 0.0, 5.0, "gap between the design line and the duct's top [m]");
   f("context_duct_y_m", &SynthConfig::context_duct_y_m, -20.0, 20.0, "duct's centre across the axis (left positive) [m]");
+  f("context_duct_outlet_d_m", &SynthConfig::context_duct_outlet_d_m, -1000.0, 1000.0,
+    "duct's outlet along the axis (the bay runs from d = 0) [m]; past the bay's far end: over both bays");
   f("context_rig_length_m", &SynthConfig::context_rig_length_m, 0.0, 30.0, "rig carrier: a box on the invert behind the arm's base [m]; 0 = none");
   f("context_rig_width_m", &SynthConfig::context_rig_width_m, 0.1, 20.0, "rig carrier's width, centred across the axis [m]");
   f("context_rig_height_m", &SynthConfig::context_rig_height_m, 0.1, 10.0, "rig carrier's height above the invert [m]");

@@ -320,8 +320,40 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       moves = joint_moves(trajectory);  // the later samples moved
       return piece;
     };
-    if (router.allowance(qa, 0.0) < 0.0 || router.allowance(qb, 0.0) < 0.0) {
-      d.reason = "its start or goal posture is itself closer than the margins";
+    const double end_allowance_m = std::min(router.allowance(qa, 10.0), router.allowance(qb, 10.0));
+    if (end_allowance_m < 0.0) {
+      // An end posture short of the margins (a pass's start near the face) cannot be reached
+      // clear of them, but the move between need not sweep closer still (a straight swing from
+      // the start through the face: 2,000 link-samples at 0 m). Routed with every margin lowered
+      // by the shortfall and a leaf diagonal (the octree's reading at the end itself); replaces
+      // the move when the margins proper then count fewer link-samples below them. Still failed.
+      const double lowered_by_m = -end_allowance_m + leaf_diagonal_m;
+      ClearanceConfig lowered = config;
+      for (double* margin : {&lowered.link_margin_m, &lowered.nozzle_margin_m, &lowered.self_margin_m})
+        *margin = std::max(0.0, *margin - lowered_by_m);
+      Router near{robot, wall, lowered, timing, move.region_index, pairs, fixed};
+      std::optional<std::vector<Eigen::VectorXd>> route = near.route(qa, qb, near.top_depth);
+      const bool clear_when_lowered = route.has_value();
+      if (!route && !near.best_effort.empty()) route = near.best_effort;
+      std::ostringstream why;
+      why.precision(3);
+      why << "its start or goal posture is itself " << -end_allowance_m << " m closer than the margins";
+      if (route && route->size() > 1) {
+        std::vector<Eigen::VectorXd> postures{qa};
+        postures.insert(postures.end(), route->begin(), route->end());
+        const ClearanceReport along = check_clearance_octree(robot, joint_move_through(robot, postures, timing, move.region_index), wall, config);
+        if (along.moving_samples_below_margin() < d.straight_samples_below) {
+          d.min_allowance_m = report_allowance(along, config);
+          why << (clear_when_lowered ? "; routed with the margins lowered by " : "; no route keeps the margins lowered by ")
+              << lowered_by_m << " m" << (clear_when_lowered ? "" : ": the one least below them replaced the move") << " ("
+              << along.moving_samples_below_margin() << " link-samples below the margins proper; the straight move "
+              << d.straight_samples_below << ")";
+          replace_by(*route);
+          d.eased = true;
+        }
+      }
+      router.optimisations += near.optimisations;
+      d.reason = why.str();
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
     } else if (const auto route = router.route(qa, qb, router.top_depth)) {

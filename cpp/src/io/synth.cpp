@@ -149,8 +149,9 @@ bool SyntheticBay::scanner_sees(const Eigen::Vector3d& p) const {
   constexpr double kTol = 0.03;
   const double t_max = 1.0 - kTol / len;
   if (t_max <= 0) return true;
-  const double d_lo = -c.context_previous_bay_m, d_hi = c.length_m;
-  if (c.context_duct_diameter_m > 0) {  // the duct: a cylinder along d over both bays
+  const double d_lo = -c.context_previous_bay_m;
+  if (c.context_duct_diameter_m > 0) {  // the duct: a cylinder along d up to its outlet
+    const double d_hi = std::min(c.length_m, c.context_duct_outlet_d_m);
     const double a = c.context_duct_diameter_m / 2, R = c.design_radius_m, yc = c.context_duct_y_m;
     const double zc = std::sqrt(R * R - yc * yc) - c.context_duct_gap_m - a;
     const double oy = s.y() - yc, oz = s.z() - zc, dy = dir.y(), dz = dir.z();
@@ -243,11 +244,14 @@ Cloud SyntheticBay::sample_context(double cell_size_m, double points_per_cell, d
                      return true;
                    });
   }
-  if (c.context_duct_diameter_m > 0) {  // the duct: its whole round, over both bays
+  if (c.context_duct_diameter_m > 0) {  // the duct: its whole round, from the lined bay's start to its outlet
     const double a = c.context_duct_diameter_m / 2, y = c.context_duct_y_m;
     if (!(std::abs(y) < R)) throw std::invalid_argument("synth: context_duct_y_m puts the duct outside the design circle");
     const double zc = std::sqrt(R * R - y * y) - c.context_duct_gap_m - a;
-    const double d0 = -c.context_previous_bay_m, len = c.context_previous_bay_m + c.length_m;
+    const double d0 = -c.context_previous_bay_m, len = std::min(c.length_m, c.context_duct_outlet_d_m) - d0;
+    if (!(len > 0))
+      throw std::invalid_argument("synth: context_duct_outlet_d_m (" + std::to_string(c.context_duct_outlet_d_m) +
+                                  " m) ends the duct before the lined bay's start (d = " + std::to_string(d0) + " m)");
     sample_surface(pts, std::lround(2 * kPi * a * len * density), noise_m, rng,
                    [&](double u1, double u2, Eigen::Vector3d& p, Eigen::Vector3d& n) {
                      const double phi = 2 * kPi * u1;
@@ -318,7 +322,8 @@ Cloud SyntheticBay::drop_shadowed(const Cloud& cloud) const {
   if (c.context_duct_diameter_m > 0) {
     const double a = c.context_duct_diameter_m / 2, zc = std::sqrt(R * R - c.context_duct_y_m * c.context_duct_y_m) -
                                                          c.context_duct_gap_m - a;
-    if (std::hypot(sp.y() - c.context_duct_y_m, sp.z() - zc) <= a)
+    if (std::hypot(sp.y() - c.context_duct_y_m, sp.z() - zc) <= a && sp.x() >= -c.context_previous_bay_m &&
+        sp.x() <= std::min(c.length_m, c.context_duct_outlet_d_m))
       throw std::invalid_argument("synth: context_scanner_position_m lies inside the duct");
   }
   if (c.context_rig_length_m > 0 && h > 0 && sp.x() >= c.context_rig_front_d_m - c.context_rig_length_m &&

@@ -585,6 +585,10 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
   if (!out.trajectory) return out;
   out.config_duration_s = out.trajectory->duration_s;
   if (config.timing.tune_with_pso) apply_timing_swarm(out, regions, config, robot, q_start, progress, clearance_term);
+  // What the re-plans' bounds and the regions' easing left over a joint limit is slowed down to it
+  // (the same joint path, later times): the arm can run what is reported, and the deposit below
+  // is what the slower motion lays.
+  slow_to_joint_limits(robot, *out.trajectory);
   if (progress) progress("executed deposit", 0.0);
   out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
   if (progress) progress("executed deposit", 1.0);
@@ -594,9 +598,13 @@ ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& 
     auto octree = std::make_unique<WallOctree>(wall, config.clearance.octree_resolution_m);
     out.transits = clear_transits(robot, *out.trajectory, *octree, config.clearance, config.timing);
     if (progress) progress("transits", 1.0);
-    // A re-route spreads the samples after it in time: the pump's flow (off-gaps it bridges) is
-    // laid again on the trajectory kept, and the wall it leaves is the one checked.
-    if (out.transits->rerouted > 0) {
+    // A re-route (or an eased move) spreads the samples after it in time: the pump's flow
+    // (off-gaps it bridges) is laid again on the trajectory kept, and the wall it leaves is the
+    // one checked.
+    const bool replaced = out.transits->rerouted > 0 || std::any_of(out.transits->detours.begin(), out.transits->detours.end(),
+                                                                     [](const TransitDetour& d) { return d.eased; });
+    if (replaced) {
+      slow_to_joint_limits(robot, *out.trajectory);  // a new move's joins with its neighbours
       out.executed = execute_deposit(surface, out.plan, *out.trajectory, config);
       wall = arm_wall(surface, *out.executed, machine);
       octree = std::make_unique<WallOctree>(wall, config.clearance.octree_resolution_m);

@@ -244,6 +244,12 @@ void write_optional(JsonWriter& w, const std::optional<double>& v) {
   else w.null();
 }
 
+// What slow_to_joint_limits did: {added_s, intervals, ratio_before}.
+void write_slowed(JsonWriter& w, const TrajectorySummary& t) {
+  w.key("slowed_to_joint_limits").begin_object().field("added_s", t.slowed_s).field("intervals", t.slowed_intervals);
+  w.field("ratio_before", t.ratio_before_slowing).end_object();
+}
+
 // Worst nozzle speed and acceleration over the limits, from the sampled nozzle positions.
 void nozzle_ratios(const TimedTrajectory& t, const NozzleLimits& limits, TrajectorySummary& s) {
   std::vector<Eigen::VectorXd> p, v, a;
@@ -267,6 +273,7 @@ void write_report_trajectory(JsonWriter& w, const JobSummary& s) {
   w.field("max_position_violation_rad", t.max_position_violation_rad);
   w.field("max_position_violation_m", t.max_position_violation_m);
   w.field("config_timing_duration_s", s.config_timing_duration_s);
+  write_slowed(w, t);
   if (s.swarm) {
     w.key("swarm");
     write(w, *s.swarm);
@@ -318,6 +325,9 @@ TrajectorySummary summarise_trajectory(const TimedTrajectory& t, const NozzleLim
   s.max_position_violation_rad = t.max_position_violation_rad;
   s.max_position_violation_m = t.max_position_violation_m;
   s.untracked_regions = t.untracked_regions;
+  s.slowed_s = t.slowed_s;
+  s.slowed_intervals = t.slowed_intervals;
+  s.ratio_before_slowing = t.ratio_before_slowing;
   return s;
 }
 
@@ -331,6 +341,7 @@ std::string to_json(const TrajectorySummary& t) {
   w.field("worst_velocity_joint", t.worst_velocity_joint).field("worst_acceleration_joint", t.worst_acceleration_joint);
   w.field("max_position_violation_rad", t.max_position_violation_rad);
   w.field("max_position_violation_m", t.max_position_violation_m).field("untracked_regions", t.untracked_regions);
+  write_slowed(w, t);
   w.end_object();
   return w.str();
 }
@@ -546,7 +557,7 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
       for (const auto& d : s.transits->detours)
         if (!d.rerouted) {
           moves = "; " + std::to_string(s.transits->failed) + " joint move(s) not re-routed clear" +
-                  (eased > 0 ? " (" + std::to_string(eased) + " of them eased onto the route with the fewest samples below)" : "") +
+                  (eased > 0 ? " (" + std::to_string(eased) + " of them eased onto a route with fewer samples below)" : "") +
                   " (move " + std::to_string(d.move) + ": " + d.reason + ")";
           break;
         }

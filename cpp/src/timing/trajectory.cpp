@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <iomanip>
 #include <limits>
 #include <sstream>
@@ -671,6 +672,133 @@ TimedTrajectory joint_move_through(const Robot& robot, const std::vector<Eigen::
   piece.duration_s = t0;
   piece.transit_time_s = t0;
   return piece;
+}
+
+namespace {
+
+// The bucket (and the totals besides duration_s) that time added on the interval ending at sample
+// k goes to; `stop_and_go_link[k]`: a Link sample in a run of off-pass samples that holds a joint
+// move of its region.
+void add_interval_time(TimedTrajectory& tr, std::size_t k, double added_s, const std::vector<char>& stop_and_go_link) {
+  CycleTimeBreakdown& b = tr.cycle_time;
+  if (stop_and_go_link.size() != tr.size()) {  // times and joints only (from_joints): no flags to tell
+    b.other_s += added_s;
+    return;
+  }
+  if (tr.spraying[k]) {
+    b.spraying_s += added_s;
+    tr.spray_time_s += added_s;
+    return;
+  }
+  switch (static_cast<SegmentKind>(tr.kind[k])) {
+    case SegmentKind::Transit:
+      (tr.region_index[k] < 0 ? b.transits_s : b.stop_and_go_s) += added_s;
+      tr.transit_time_s += added_s;
+      return;
+    case SegmentKind::Turn: b.turn_arounds_s += added_s; return;
+    case SegmentKind::Lead: b.leads_s += added_s; return;
+    case SegmentKind::Link: (stop_and_go_link[k] ? b.stop_and_go_s : b.turn_arounds_s) += added_s; return;
+    default: b.other_s += added_s; return;
+  }
+}
+
+// Per sample: a Link sample whose run of nozzle-off, off-pass samples (within its region) holds a
+// joint move (kind Transit) of that region: the run-out and run-in of a stop-and-go move.
+std::vector<char> stop_and_go_links(const TimedTrajectory& tr) {
+  const std::size_t n = tr.size();
+  if (tr.spraying.size() != n || tr.kind.size() != n || tr.region_index.size() != n) return {};
+  std::vector<char> out(n, 0);
+  const auto off_pass = [&](std::size_t k) {
+    return !tr.spraying[k] && static_cast<SegmentKind>(tr.kind[k]) != SegmentKind::Pass && tr.region_index[k] >= 0;
+  };
+  for (std::size_t a = 0; a < tr.size();) {
+    if (!off_pass(a)) {
+      ++a;
+      continue;
+    }
+    std::size_t b = a;
+    bool joint_move = false;
+    while (b < tr.size() && off_pass(b) && tr.region_index[b] == tr.region_index[a])
+      joint_move |= static_cast<SegmentKind>(tr.kind[b]) == SegmentKind::Transit, ++b;
+    if (joint_move)
+      for (std::size_t k = a; k < b; ++k) out[k] = static_cast<SegmentKind>(tr.kind[k]) == SegmentKind::Link;
+    a = b;
+  }
+  return out;
+}
+
+}  // namespace
+
+bool slow_to_joint_limits(const Robot& robot, TimedTrajectory& tr, double window_s) {
+  if (!(window_s > 0.0 && std::isfinite(window_s)))
+    throw std::invalid_argument("slow_to_joint_limits: window_s must be positive and finite");
+  constexpr int kRounds = 12;
+  constexpr double kHeadroom = 1.005;  // a little more than the need: the factor's own rate adds some
+  finish_trajectory(robot, tr);
+  const double ratio = std::max(tr.max_velocity_ratio, tr.max_acceleration_ratio);
+  tr.ratio_before_slowing = std::max(tr.ratio_before_slowing, ratio);  // over every call
+  const std::size_t n = tr.size();
+  if (n < 3) return ratio <= 1.0;
+  const std::vector<char> stop_and_go_link = stop_and_go_links(tr);
+  const Eigen::VectorXd& vl = robot.velocity_limits();
+  const Eigen::VectorXd& al = robot.acceleration_limits();
+  std::vector<char> stretched(n, 0);
+  for (int round = 0; round < kRounds && std::max(tr.max_velocity_ratio, tr.max_acceleration_ratio) > 1.0; ++round) {
+    // The need at each interval (k - 1, k]: the larger of its two samples'.
+    std::vector<double> need(n, 1.0);
+    for (std::size_t i = 0; i < n; ++i) {
+      const double rv = tr.qd[i].cwiseAbs().cwiseQuotient(vl).maxCoeff();
+      const double ra = tr.qdd[i].cwiseAbs().cwiseQuotient(al).maxCoeff();
+      const double s = std::max(rv, std::sqrt(ra));
+      need[i] = s > 1.0 ? kHeadroom * s : 1.0;
+    }
+    std::vector<double> interval(n, 1.0);
+    for (std::size_t k = 1; k < n; ++k) interval[k] = std::max(need[k - 1], need[k]);
+    // Largest within window_s, then its average over window_s (by time; two-pointer windows over
+    // the intervals' midpoints). The average of the largest is no less than each interval's own.
+    const auto mid = [&](std::size_t k) { return 0.5 * (tr.t_s[k - 1] + tr.t_s[k]); };
+    std::vector<double> widest(n, 1.0), factor(n, 1.0);
+    {
+      std::size_t lo = 1, hi = 1;
+      std::deque<std::size_t> best;  // indices of a decreasing run of interval[] over [lo, hi)
+      for (std::size_t k = 1; k < n; ++k) {
+        while (hi < n && mid(hi) <= mid(k) + window_s) {
+          while (!best.empty() && interval[best.back()] <= interval[hi]) best.pop_back();
+          best.push_back(hi++);
+        }
+        while (mid(lo) < mid(k) - window_s) ++lo;
+        while (best.front() < lo) best.pop_front();
+        widest[k] = interval[best.front()];
+      }
+    }
+    {
+      std::size_t lo = 1, hi = 1;
+      double sum = 0.0;
+      for (std::size_t k = 1; k < n; ++k) {
+        while (hi < n && mid(hi) <= mid(k) + window_s) sum += widest[hi++];
+        while (mid(lo) < mid(k) - window_s) sum -= widest[lo++];
+        factor[k] = std::max(1.0, sum / static_cast<double>(hi - lo));
+      }
+    }
+    // The intervals stretched, the later samples shifted.
+    double shift = 0.0;
+    std::vector<double> t_old = tr.t_s;
+    for (std::size_t k = 1; k < n; ++k) {
+      const double dt = t_old[k] - t_old[k - 1];
+      const double added = (factor[k] - 1.0) * dt;
+      if (added > 0.0) {
+        stretched[k] = 1;
+        add_interval_time(tr, k, added, stop_and_go_link);
+        tr.slowed_s += added;
+      }
+      shift += added;
+      tr.t_s[k] = t_old[k] + shift;
+    }
+    tr.duration_s += shift;
+    finish_trajectory(robot, tr);
+  }
+  tr.slowed_intervals += static_cast<int>(std::count(stretched.begin(), stretched.end(), 1));
+  return std::max(tr.max_velocity_ratio, tr.max_acceleration_ratio) <= 1.0;
 }
 
 void replace_joint_move(const Robot& robot, TimedTrajectory& tr, const JointMove& move, const TimedTrajectory& piece) {

@@ -37,7 +37,9 @@ struct TransitDetour {
   bool rerouted = false;           // a clear route was found and replaced the move
   bool eased = false;              // no clear route, but one with at most half the straight move's
                                    // link-samples below a margin (or fewer, 0.1 m less short of them)
-                                   // replaced it (still a failure)
+                                   // replaced it; or, from or to a posture itself short of the
+                                   // margins, one routed with the margins lowered by its shortfall
+                                   // that breaks them at fewer samples (still a failure)
   std::string reason;              // why not, when not rerouted
   std::vector<Eigen::VectorXd> vias;      // the postures passed through, in order
   std::vector<double> via_allowance_m;    // posture_allowance of each (>= 0)

@@ -63,6 +63,11 @@ struct TrajectorySummary {
   double max_position_violation_rad = 0.0;  // revolute joints, outside their position limits
   double max_position_violation_m = 0.0;    // prismatic joints
   int untracked_regions = 0;
+  // slow_to_joint_limits: the time it added, the sample intervals it stretched, and the worst of
+  // the joint velocity and acceleration ratios before it.
+  double slowed_s = 0.0;
+  int slowed_intervals = 0;
+  double ratio_before_slowing = 0.0;
 };
 /// The trajectory's scalars; the nozzle ratios against nozzle_limits (timing.nozzle_max_*).
 TrajectorySummary summarise_trajectory(const TimedTrajectory& trajectory, const NozzleLimits& nozzle_limits);

@@ -76,6 +76,11 @@ struct TimedTrajectory {
   double max_position_violation_m = 0.0;
   int untracked_regions = 0;  // regions where exact tracking failed and solve_path's result is used
   std::vector<int> untracked_region_ids;  // their region indices (time_plan)
+  // slow_to_joint_limits, over every call: the time it added (in duration_s and its buckets), the
+  // sample intervals it stretched, and the worst of the velocity and acceleration ratios before it.
+  double slowed_s = 0.0;
+  int slowed_intervals = 0;
+  double ratio_before_slowing = 0.0;
 
   std::size_t size() const { return t_s.size(); }
   /// Dense matrix (samples x (1 + 3 dof)): t, q..., qd..., qdd... ; for CSV / numpy.
@@ -139,6 +144,19 @@ TimedTrajectory joint_move_through(const Robot& robot, const std::vector<Eigen::
 /// duration_s, transit_time_s and the cycle-time bucket of the move: transits or stop_and_go), and
 /// redoes the finite differences and limit checks. The piece must end where the move ended.
 void replace_joint_move(const Robot& robot, TimedTrajectory& tr, const JointMove& move, const TimedTrajectory& piece);
+
+/// Slows `tr` where its finite-difference joint velocities or accelerations break a limit (what the
+/// re-plans' speed bounds and the regions' easing left: a tracking's null-space motion, a tight
+/// turn): the same samples and joint path, the time between them stretched by a smooth factor.
+/// At sample i the need is max(velocity ratio, sqrt(acceleration ratio)) (velocities scale as
+/// 1 / f, accelerations as 1 / f^2); each interval takes the largest need within window_s of it,
+/// averaged over window_s again so that the factor changes gently (its own rate of change adds
+/// q' d(1/f)/dt to the accelerations), and the check is redone, up to 12 times. A trajectory within
+/// its limits is left as it is, to the bit. The added time goes to duration_s and to the bucket of
+/// each stretched interval's later sample (spraying: spray_time_s too; a joint move:
+/// transit_time_s too; a Link run that holds a joint move of its region: stop-and-go, else a
+/// turn-around), and to slowed_s. Returns whether the trajectory ends within its limits.
+bool slow_to_joint_limits(const Robot& robot, TimedTrajectory& tr, double window_s = 1.0);
 
 /// One timed Cartesian path (e.g. a region, or the quintic baseline) in joint space from rest to
 /// rest: sampled at rate_hz, joints tracked from the solve_path start found from `seed`,
