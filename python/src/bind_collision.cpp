@@ -151,7 +151,7 @@ void bind_collision(py::module_& m) {
       .def_readonly("straight_min_allowance_m", &TransitDetour::straight_min_allowance_m)
       .def_readonly("rerouted", &TransitDetour::rerouted)
       .def_readonly("eased", &TransitDetour::eased,
-                    "no clear route, but one with at most half the straight move's link-samples below a margin (or fewer, 0.1 m less short of them) replaced it; still a failure")
+                    "no clear route, but one with at most half the straight move's link-samples below a margin (or fewer, 0.1 m less short of them) replaced it (from or to a posture itself short of the margins: one routed with the margins lowered by its shortfall); still a failure")
       .def_readonly("reason", &TransitDetour::reason)
       .def_readonly("vias", &TransitDetour::vias)
       .def_readonly("via_allowance_m", &TransitDetour::via_allowance_m)

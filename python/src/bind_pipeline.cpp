@@ -160,6 +160,10 @@ void bind_pipeline(py::module_& m) {
       .def_readonly("max_position_violation_rad", &TrajectorySummary::max_position_violation_rad)
       .def_readonly("max_position_violation_m", &TrajectorySummary::max_position_violation_m)
       .def_readonly("untracked_regions", &TrajectorySummary::untracked_regions)
+      .def_readonly("slowed_s", &TrajectorySummary::slowed_s, "time slow_to_joint_limits added [s]")
+      .def_readonly("slowed_spraying_s", &TrajectorySummary::slowed_spraying_s, "of it, spraying [s]")
+      .def_readonly("slowed_intervals", &TrajectorySummary::slowed_intervals)
+      .def_readonly("ratio_before_slowing", &TrajectorySummary::ratio_before_slowing)
       .def("to_json", [](const TrajectorySummary& s) { return to_json(s); })
       .def("to_dict", [](const TrajectorySummary& s) { return json_loads(to_json(s)); });
   m.def(

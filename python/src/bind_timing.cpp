@@ -338,6 +338,7 @@ void bind_timing(py::module_& m) {
       .def_readonly("untracked_regions", &TimedTrajectory::untracked_regions)
       .def_readonly("untracked_region_ids", &TimedTrajectory::untracked_region_ids, "their region indices")
       .def_readonly("slowed_s", &TimedTrajectory::slowed_s, "time slow_to_joint_limits added [s]")
+      .def_readonly("slowed_spraying_s", &TimedTrajectory::slowed_spraying_s, "of it, spraying [s]")
       .def_readonly("slowed_intervals", &TimedTrajectory::slowed_intervals, "sample intervals it stretched")
       .def_readonly("ratio_before_slowing", &TimedTrajectory::ratio_before_slowing,
                     "worst joint velocity / acceleration ratio before it")

@@ -145,9 +145,9 @@ std::pair<double, double> worst_rates(const Robot& robot, const std::vector<doub
   return {v, a};
 }
 
-// The slew at twice its velocity limit for 4 s, at rest elsewhere (no acceleration: a straight
-// joint line): every interval needs 2 x 1.005 (the headroom), so one round doubles the time
-// exactly, closed form 8.04 s, and the velocity is then the limit / 1.005.
+// The slew at twice its velocity limit the whole 4 s (no acceleration: a straight joint line):
+// every interval needs 2 x 1.005 (the headroom), so one round doubles the time exactly, closed
+// form 8.04 s, and the velocity is then the limit / 1.005. Bad input is refused by name.
 TEST(RobotTiming, SlowToJointLimitsClosedFormOfAConstantSpeed) {
   const Robot robot = Robot::load(RobotConfig{});
   const double v = 2.0 * robot.velocity_limits()[0];
@@ -170,6 +170,86 @@ TEST(RobotTiming, SlowToJointLimitsClosedFormOfAConstantSpeed) {
   EXPECT_NEAR(worst_rates(robot, tr.t_s, tr.q).first, 1.0 / 1.005, 1e-9);
   for (std::size_t k = 0; k < tr.size(); ++k) EXPECT_EQ(tr.q[k], before.q[k]);
   EXPECT_THROW(slow_to_joint_limits(robot, tr, 0.0), std::invalid_argument);
+  TimedTrajectory bad = before;
+  bad.t_s[7] = bad.t_s[5];  // back in time
+  EXPECT_THROW(slow_to_joint_limits(robot, bad), std::invalid_argument);
+  bad = before;
+  bad.t_s[3] = std::nan("");
+  EXPECT_THROW(slow_to_joint_limits(robot, bad), std::invalid_argument);
+  bad = before;
+  bad.q[4] = Eigen::VectorXd::Zero(3);
+  EXPECT_THROW(slow_to_joint_limits(robot, bad), std::invalid_argument);
+  bad = before;
+  bad.q.pop_back();
+  EXPECT_THROW(slow_to_joint_limits(robot, bad), std::invalid_argument);
+}
+
+// The windows, against a brute force written here: the slew at rest for 20 s but for one cosine
+// bump of 0.4 s at t = 10 s whose peak acceleration is 4x its limit (velocity within it). Per
+// interval the need (1.005 max(velocity ratio, sqrt(acceleration ratio)) of its two samples, by
+// this test's central differences, where over 1), the largest within +-w of its midpoint, the mean
+// of those within +-w: each interval's length times that factor gives times within the limits
+// after one round, and the core's times equal them. So every interval farther than the needs'
+// reach plus 2 w keeps its length; the factor is symmetric about the bump (w = 1.01 s: no tie with
+// the 20 ms samples) and never rises away from it; the stretched intervals are counted.
+TEST(RobotTiming, SlowToJointLimitsWindowsAroundOneBump) {
+  const Robot robot = Robot::load(RobotConfig{});
+  const double T = 0.4, t_c = 10.0, a_peak = 4.0 * robot.acceleration_limits()[0];
+  // q = A (1 - cos(2 pi (t - t0) / T)) on the bump: peak acceleration A (2 pi / T)^2.
+  const double A = a_peak / std::pow(2.0 * M_PI / T, 2);
+  TimedTrajectory tr;
+  for (int k = 0; k <= 1000; ++k) {
+    const double t = 0.02 * k, u = t - (t_c - 0.5 * T);
+    Eigen::VectorXd q = robot.neutral();
+    if (u > 0.0 && u < T) q[0] += A * (1.0 - std::cos(2.0 * M_PI * u / T));
+    tr.t_s.push_back(t), tr.q.push_back(q);
+  }
+  tr.duration_s = 20.0;
+  ASSERT_GT(worst_rates(robot, tr.t_s, tr.q).second, 3.5);
+  ASSERT_LT(worst_rates(robot, tr.t_s, tr.q).first, 1.0);
+  const TimedTrajectory before = tr;
+  const double w = 1.01;
+  // The brute force.
+  const std::size_t n = tr.size();
+  std::vector<double> need(n, 1.0);
+  for (std::size_t i = 1; i + 1 < n; ++i) {
+    const std::vector<double> t3{tr.t_s[i - 1], tr.t_s[i], tr.t_s[i + 1]};
+    const std::vector<Eigen::VectorXd> q3{tr.q[i - 1], tr.q[i], tr.q[i + 1]};
+    const auto [rv, ra] = worst_rates(robot, t3, q3);
+    const double s = std::max(rv, std::sqrt(ra));
+    need[i] = s > 1.0 ? 1.005 * s : 1.0;
+  }
+  std::vector<double> mid(n, 0.0), interval(n, 1.0), widest(n, 1.0), factor(n, 1.0), t_ref(n, 0.0);
+  for (std::size_t k = 1; k < n; ++k) mid[k] = 0.5 * (tr.t_s[k - 1] + tr.t_s[k]), interval[k] = std::max(need[k - 1], need[k]);
+  for (std::size_t k = 1; k < n; ++k)
+    for (std::size_t j = 1; j < n; ++j)
+      if (std::abs(mid[j] - mid[k]) <= w) widest[k] = std::max(widest[k], interval[j]);
+  double reach = 0.0;  // of the needs from the bump's centre
+  for (std::size_t k = 1; k < n; ++k) {
+    double sum = 0.0;
+    int count = 0;
+    for (std::size_t j = 1; j < n; ++j)
+      if (std::abs(mid[j] - mid[k]) <= w) sum += widest[j], ++count;
+    factor[k] = std::max(1.0, sum / count);
+    t_ref[k] = t_ref[k - 1] + factor[k] * (tr.t_s[k] - tr.t_s[k - 1]);
+    if (interval[k] > 1.0) reach = std::max(reach, std::abs(mid[k] - t_c));
+  }
+  ASSERT_LE(worst_rates(robot, t_ref, tr.q).second, 1.0);  // one round is enough
+  ASSERT_LE(worst_rates(robot, t_ref, tr.q).first, 1.0);
+  ASSERT_TRUE(slow_to_joint_limits(robot, tr, w));
+  int stretched = 0;
+  for (std::size_t k = 1; k < n; ++k) {
+    EXPECT_NEAR(tr.t_s[k], t_ref[k], 1e-9) << "sample " << k;
+    if (std::abs(mid[k] - t_c) > reach + 2 * w) EXPECT_NEAR(factor[k], 1.0, 1e-12) << "interval " << k;
+    stretched += factor[k] > 1.0 + 1e-12;
+    const std::size_t mirror = n - k;  // the interval the same distance the other side
+    EXPECT_NEAR(factor[k], factor[mirror], 1e-9) << "interval " << k;
+    if (mid[k] > t_c && k + 1 < n) EXPECT_LE(factor[k + 1], factor[k] + 1e-12);
+  }
+  EXPECT_GT(stretched, 0);
+  EXPECT_EQ(tr.slowed_intervals, stretched);
+  EXPECT_NEAR(tr.duration_s - before.duration_s, tr.slowed_s, 1e-9);
+  EXPECT_NEAR(tr.duration_s, t_ref.back(), 1e-9);
 }
 
 // A real trajectory (two regions: transits, turn-arounds, leads, a stop-and-go move) run 1 / 0.7
@@ -229,6 +309,7 @@ TEST(RobotTiming, SlowToJointLimitsStretchesTimeWhereALimitBreaks) {
   EXPECT_NEAR(slowed.cycle_time.transits_s - fast.cycle_time.transits_s, transits_added, 1e-9);
   EXPECT_NEAR(slowed.cycle_time.spraying_s - fast.cycle_time.spraying_s, spraying_added, 1e-9);
   EXPECT_NEAR(slowed.spray_time_s - fast.spray_time_s, spraying_added, 1e-9);
+  EXPECT_NEAR(slowed.slowed_spraying_s, spraying_added, 1e-9);
   EXPECT_GT(slowed.slowed_intervals, 0);
   std::printf("0.7x too fast (%.2fx velocity, %.2fx acceleration): %.1f s -> %.1f s (own speed %.1f s), %d intervals\n",
               v_fast, a_fast, fast.duration_s, slowed.duration_s, own.duration_s, slowed.slowed_intervals);

@@ -294,9 +294,9 @@ TEST(Transit, TheExactScreenReportsTheMovesTheOctreeReadingsFlag) {
 }
 
 // A rock at the goal of the transit (where the next region starts spraying) 0.8 m high: the goal
-// itself is short of the margins, so no route keeps them. The move is reported with the reason and
-// counted as failed; a route with the margins lowered by the goal's shortfall replaces it only
-// where the margins proper count fewer link-samples below them.
+// itself is short of the margins (0.245 m), so no route keeps them. The straight move comes no
+// closer than its goal, so nothing is searched: the move stays, reported with the reason and
+// counted as failed.
 TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
   const Robot robot = Robot::load(RobotConfig{});
   const TimingConfig timing;
@@ -318,13 +318,16 @@ TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
   EXPECT_FALSE(d->rerouted);
   EXPECT_EQ(d->reason.rfind("its start or goal posture is itself ", 0), 0u) << d->reason;
   EXPECT_GE(rep.failed, 1);
-  if (!d->eased) EXPECT_EQ(d->duration_s, d->straight_duration_s);
+  EXPECT_FALSE(d->eased);
+  EXPECT_EQ(d->optimisations, 0);
+  EXPECT_EQ(d->duration_s, d->straight_duration_s);
   if (rep.rerouted == 0 && std::none_of(rep.detours.begin(), rep.detours.end(), [](const TransitDetour& x) { return x.eased; }))
     EXPECT_EQ(tr.duration_s, before.duration_s);  // nothing changed
 }
 
-// The seed method's test bay with the rock over the crown where the move from the stow posture
-// swings (a link wholly in it, 0.4 m short of a margin), and a second rock where that move ends
+// The seed method's test bay with the rock over the crown where the transit between its regions
+// passes nearest (the move from the stow posture swings through it too, a link wholly in it, 0.4 m
+// short of a margin), and a second rock where that move ends
 // (the first region's first posture), its nozzle 0.1 m short of its margin: no route can keep
 // every margin to a goal that does not. Before, such a move stayed as it was, through the rock
 // (the face scene's start swung through the face: 2,000 link-samples at 0 m). It is routed with
@@ -391,6 +394,16 @@ TEST(Transit, AMoveToAPostureShortOfTheMarginsSweepsNoCloserThanItsEnd) {
   EXPECT_NEAR(tr.duration_s, duration_before + rep.detour_time_s, 1e-9);
   // The goal's posture is the region's own: unchanged.
   EXPECT_LT((tr.q[m.end] - goal_q).norm(), 1e-12);
+  // With re-routing off the move stays as it was, and the reason says so.
+  TimedTrajectory plain = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+  ClearanceConfig off = cfg;
+  off.reroute_transits = false;
+  const TransitReport kept = clear_transits(robot, plain, octree, off, timing);
+  const auto k = std::find_if(kept.detours.begin(), kept.detours.end(), [](const TransitDetour& x) { return x.move == 0; });
+  ASSERT_NE(k, kept.detours.end());
+  EXPECT_FALSE(k->eased || k->rerouted);
+  EXPECT_EQ(k->duration_s, k->straight_duration_s);
+  EXPECT_NE(k->reason.find("clearance.reroute_transits is off"), std::string::npos) << k->reason;
 }
 
 // The wall of the narrow bay with a face across the axis at x = x_face (points every ~4 cm).

@@ -324,29 +324,43 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
     if (end_allowance_m < 0.0) {
       // An end posture short of the margins (a pass's start near the face) cannot be reached
       // clear of them, but the move between need not sweep closer still (a straight swing from
-      // the start through the face: 2,000 link-samples at 0 m). Routed with every margin lowered
-      // by the shortfall and a leaf diagonal (the octree's reading at the end itself); replaces
-      // the move when the margins proper then count fewer link-samples below them. Still failed.
+      // the start through the face: 2,000 link-samples at 0 m). Where it does (0.1 m closer than
+      // its ends), routed with every margin lowered by the shortfall and a leaf diagonal (the
+      // octree's reading at the end itself); replaces the move by the eased moves' rule. Still
+      // failed.
       const double lowered_by_m = -end_allowance_m + leaf_diagonal_m;
       ClearanceConfig lowered = config;
       for (double* margin : {&lowered.link_margin_m, &lowered.nozzle_margin_m, &lowered.self_margin_m})
         *margin = std::max(0.0, *margin - lowered_by_m);
       Router near{robot, wall, lowered, timing, move.region_index, pairs, fixed};
-      std::optional<std::vector<Eigen::VectorXd>> route = near.route(qa, qb, near.top_depth);
+      std::optional<std::vector<Eigen::VectorXd>> route;
+      // Only a move that sweeps clearly closer than its ends is worth a search (most such moves
+      // break the margins at their ends alone: the whole scene has dozens, at minutes of search).
+      const bool sweeps_closer = d.straight_min_allowance_m < end_allowance_m - kBestEffortGain_m;
+      if (config.reroute_transits && sweeps_closer) route = near.route(qa, qb, near.top_depth);
       const bool clear_when_lowered = route.has_value();
       if (!route && !near.best_effort.empty()) route = near.best_effort;
       std::ostringstream why;
       why.precision(3);
       why << "its start or goal posture is itself " << -end_allowance_m << " m closer than the margins";
+      if (!config.reroute_transits) why << " (clearance.reroute_transits is off)";
       if (route && route->size() > 1) {
         std::vector<Eigen::VectorXd> postures{qa};
         postures.insert(postures.end(), route->begin(), route->end());
-        const ClearanceReport along = check_clearance_octree(robot, joint_move_through(robot, postures, timing, move.region_index), wall, config);
-        if (along.moving_samples_below_margin() < d.straight_samples_below) {
-          d.min_allowance_m = report_allowance(along, config);
+        // With qa itself, as the straight move was counted (move_samples), and by the rule of the
+        // other eased moves: at most half the link-samples below, or fewer 0.1 m less short.
+        TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+        piece.t_s.insert(piece.t_s.begin(), 0.0);
+        piece.q.insert(piece.q.begin(), qa);
+        const ClearanceReport along = check_clearance_octree(robot, piece, wall, config);
+        const int below = along.moving_samples_below_margin();
+        const double along_allowance_m = report_allowance(along, config);
+        if (below < d.straight_samples_below &&
+            (below <= d.straight_samples_below / 2 || along_allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m)) {
+          d.min_allowance_m = along_allowance_m;
           why << (clear_when_lowered ? "; routed with the margins lowered by " : "; no route keeps the margins lowered by ")
               << lowered_by_m << " m" << (clear_when_lowered ? "" : ": the one least below them replaced the move") << " ("
-              << along.moving_samples_below_margin() << " link-samples below the margins proper; the straight move "
+              << below << " link-samples below the margins proper; the straight move "
               << d.straight_samples_below << ")";
           replace_by(*route);
           d.eased = true;

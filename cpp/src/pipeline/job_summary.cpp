@@ -244,9 +244,10 @@ void write_optional(JsonWriter& w, const std::optional<double>& v) {
   else w.null();
 }
 
-// What slow_to_joint_limits did: {added_s, intervals, ratio_before}.
+// What slow_to_joint_limits did: {added_s, spraying_s, intervals, ratio_before}.
 void write_slowed(JsonWriter& w, const TrajectorySummary& t) {
-  w.key("slowed_to_joint_limits").begin_object().field("added_s", t.slowed_s).field("intervals", t.slowed_intervals);
+  w.key("slowed_to_joint_limits").begin_object().field("added_s", t.slowed_s).field("spraying_s", t.slowed_spraying_s);
+  w.field("intervals", t.slowed_intervals);
   w.field("ratio_before", t.ratio_before_slowing).end_object();
 }
 
@@ -326,6 +327,7 @@ TrajectorySummary summarise_trajectory(const TimedTrajectory& t, const NozzleLim
   s.max_position_violation_m = t.max_position_violation_m;
   s.untracked_regions = t.untracked_regions;
   s.slowed_s = t.slowed_s;
+  s.slowed_spraying_s = t.slowed_spraying_s;
   s.slowed_intervals = t.slowed_intervals;
   s.ratio_before_slowing = t.ratio_before_slowing;
   return s;
@@ -480,6 +482,12 @@ JobSummary summarise_job(const Surface& surface, const ArmPlan& arm_plan, const 
       s.warnings.push_back("the stow posture comes within the clearance margins of the scan (" +
                            fmt(-s.start->allowance_m, 2) + " m short) and no posture clear of it was found nearby");
   }
+  if (s.trajectory && s.trajectory->slowed_s > 0.0)
+    s.warnings.push_back("the timed motion broke a joint limit (up to " + fmt(s.trajectory->ratio_before_slowing, 2) +
+                         "x): the arm is slowed to it for " + fmt(s.trajectory->slowed_s, 1) + " s more, " +
+                         fmt(s.trajectory->slowed_spraying_s, 1) +
+                         " s of it spraying, which lays more concrete there (counted in the executed deposit; "
+                         "report.json trajectory.slowed_to_joint_limits)");
   s.problems = plan_problems(s);
   s.status = s.problems.empty() ? "ok" : "not_executable";
   return s;

@@ -688,6 +688,7 @@ void add_interval_time(TimedTrajectory& tr, std::size_t k, double added_s, const
   if (tr.spraying[k]) {
     b.spraying_s += added_s;
     tr.spray_time_s += added_s;
+    tr.slowed_spraying_s += added_s;
     return;
   }
   switch (static_cast<SegmentKind>(tr.kind[k])) {
@@ -732,6 +733,17 @@ std::vector<char> stop_and_go_links(const TimedTrajectory& tr) {
 bool slow_to_joint_limits(const Robot& robot, TimedTrajectory& tr, double window_s) {
   if (!(window_s > 0.0 && std::isfinite(window_s)))
     throw std::invalid_argument("slow_to_joint_limits: window_s must be positive and finite");
+  if (tr.q.size() != tr.t_s.size())
+    throw std::invalid_argument("slow_to_joint_limits: " + std::to_string(tr.q.size()) + " postures for " +
+                                std::to_string(tr.t_s.size()) + " times");
+  for (std::size_t k = 0; k < tr.size(); ++k) {
+    if (tr.q[k].size() != robot.dof() || !tr.q[k].allFinite())
+      throw std::invalid_argument("slow_to_joint_limits: posture " + std::to_string(k) + " is not " +
+                                  std::to_string(robot.dof()) + " finite joint values");
+    if (!std::isfinite(tr.t_s[k]) || (k > 0 && tr.t_s[k] < tr.t_s[k - 1]))
+      throw std::invalid_argument("slow_to_joint_limits: times must be finite and non-decreasing (sample " +
+                                  std::to_string(k) + ")");
+  }
   constexpr int kRounds = 12;
   constexpr double kHeadroom = 1.005;  // a little more than the need: the factor's own rate adds some
   finish_trajectory(robot, tr);
@@ -754,8 +766,8 @@ bool slow_to_joint_limits(const Robot& robot, TimedTrajectory& tr, double window
     }
     std::vector<double> interval(n, 1.0);
     for (std::size_t k = 1; k < n; ++k) interval[k] = std::max(need[k - 1], need[k]);
-    // Largest within window_s, then its average over window_s (by time; two-pointer windows over
-    // the intervals' midpoints). The average of the largest is no less than each interval's own.
+    // Largest within +-window_s, then its average over +-window_s (by time; two-pointer windows
+    // over the intervals' midpoints). The average of the largest is no less than each interval's own.
     const auto mid = [&](std::size_t k) { return 0.5 * (tr.t_s[k - 1] + tr.t_s[k]); };
     std::vector<double> widest(n, 1.0), factor(n, 1.0);
     {
@@ -777,7 +789,9 @@ bool slow_to_joint_limits(const Robot& robot, TimedTrajectory& tr, double window
       for (std::size_t k = 1; k < n; ++k) {
         while (hi < n && mid(hi) <= mid(k) + window_s) sum += widest[hi++];
         while (mid(lo) < mid(k) - window_s) sum -= widest[lo++];
-        factor[k] = std::max(1.0, sum / static_cast<double>(hi - lo));
+        // (A running sum keeps a rounding residue once a need has passed: 1 + 1e-16 is 1.)
+        const double mean = sum / static_cast<double>(hi - lo);
+        factor[k] = mean > 1.0 + 1e-12 ? mean : 1.0;
       }
     }
     // The intervals stretched, the later samples shifted.

@@ -42,7 +42,7 @@ struct TransitDetour {
                                    // that breaks them at fewer samples (still a failure)
   std::string reason;              // why not, when not rerouted
   std::vector<Eigen::VectorXd> vias;      // the postures passed through, in order
-  std::vector<double> via_allowance_m;    // posture_allowance of each (>= 0)
+  std::vector<double> via_allowance_m;    // posture_allowance of each (>= 0 when rerouted)
   double min_allowance_m = 0.0;    // least distance less margin along the new move (check_clearance_octree;
                                    // >= 0 when rerouted, < 0 when eased)
   double straight_duration_s = 0.0, duration_s = 0.0;  // of the move before and after
@@ -65,8 +65,12 @@ struct TransitReport {
 /// it, the stow posture); the shortest route start -> via -> goal of rest-to-rest quintics
 /// (joint_move_through) whose every sample keeps the margins replaces the move
 /// (replace_joint_move). When no single via does, each leg is re-routed once more the same way.
-/// A move whose start or goal posture already breaks a margin (the region's own posture), or
-/// that no route clears, stays as it was and is counted in `failed` with the reason. The shapes no
+/// A move whose start or goal posture already breaks a margin (the region's own posture) is
+/// routed the same way with every margin lowered by that shortfall (and a leaf diagonal), and the
+/// route replaces it when it breaks the margins proper at fewer link-samples (at most half, or
+/// 0.1 m less short: `eased`); a move no route clears is replaced by the best route tried by the
+/// same rule (`eased`), else stays as it was. Either way it is counted in `failed` with the
+/// reason. The detours' times are those before plan_for_arm's slowing after them. The shapes no
 /// posture moves (fixed_shapes: the base) are left out of every judgement here (a base too close
 /// to the wall is the base's place, not a move's: the clearance check reports it, LinkClearance::fixed).
 TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall,

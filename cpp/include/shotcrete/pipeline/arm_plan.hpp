@@ -91,7 +91,7 @@ struct ArmPlan {
   // where region r kept the config's), the duration with the config's parameters, and whether the
   // tuned trajectory replaced it (faster, within the limits or no worse).
   std::optional<TimingTuning> tuning;
-  double config_duration_s = 0.0;
+  double config_duration_s = 0.0;  // before slow_to_joint_limits
   bool tuned_timing_used = false;
   // The regions were tracked with the clearance term (clearance.enabled, null_space_gain > 0).
   bool clearance_term_used = false;
@@ -135,10 +135,13 @@ Robot placed_robot(const Robot& robot, const BasePlacement& placement);
 /// With timing.tune_with_pso the final plan's regions are then tuned by tune_timing and timed
 /// again; that trajectory is kept when it is shorter and each worst joint ratio stays within its
 /// limit or no worse than before (regions that came out worse keep the config's parameters).
-/// Last, the trajectory kept is executed on the surface (execute_deposit): `executed`. With
-/// clearance.enabled its joint moves are then checked against the wall as scanned and as sprayed
-/// and re-routed where they come closer than the margins (arm_transits; the deposit is laid again
-/// when one was), and the whole trajectory is checked (arm_clearance).
+/// What is then left over a joint limit is slowed to it (slow_to_joint_limits; config_duration_s
+/// and the swarm's comparison are of the trajectories before it). Last, the trajectory kept is
+/// executed on the surface (execute_deposit): `executed`. With clearance.enabled its joint moves are
+/// then checked against the wall as scanned and as sprayed and re-routed where they come closer
+/// than the margins (arm_transits; when one was re-routed or eased, the trajectory is slowed again
+/// where its joins need it and the deposit laid again), and the whole trajectory is checked
+/// (arm_clearance).
 ArmPlan plan_for_arm(const Surface& surface, const Config& config, const Robot& robot,
                      const ProgressFn& progress = {});
 

@@ -65,7 +65,7 @@ struct TrajectorySummary {
   int untracked_regions = 0;
   // slow_to_joint_limits: the time it added, the sample intervals it stretched, and the worst of
   // the joint velocity and acceleration ratios before it.
-  double slowed_s = 0.0;
+  double slowed_s = 0.0, slowed_spraying_s = 0.0;
   int slowed_intervals = 0;
   double ratio_before_slowing = 0.0;
 };

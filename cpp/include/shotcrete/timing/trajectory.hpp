@@ -78,7 +78,10 @@ struct TimedTrajectory {
   std::vector<int> untracked_region_ids;  // their region indices (time_plan)
   // slow_to_joint_limits, over every call: the time it added (in duration_s and its buckets), the
   // sample intervals it stretched, and the worst of the velocity and acceleration ratios before it.
+  // Gross over the calls: time a later re-route replaced stays counted, an interval stretched twice
+  // is counted twice.
   double slowed_s = 0.0;
+  double slowed_spraying_s = 0.0;  // of it, with the nozzle spraying (more concrete laid there)
   int slowed_intervals = 0;
   double ratio_before_slowing = 0.0;
 
@@ -149,13 +152,15 @@ void replace_joint_move(const Robot& robot, TimedTrajectory& tr, const JointMove
 /// re-plans' speed bounds and the regions' easing left: a tracking's null-space motion, a tight
 /// turn): the same samples and joint path, the time between them stretched by a smooth factor.
 /// At sample i the need is max(velocity ratio, sqrt(acceleration ratio)) (velocities scale as
-/// 1 / f, accelerations as 1 / f^2); each interval takes the largest need within window_s of it,
-/// averaged over window_s again so that the factor changes gently (its own rate of change adds
+/// 1 / f, accelerations as 1 / f^2); each interval takes the largest need within +-window_s of it,
+/// averaged over +-window_s again so that the factor changes gently (its own rate of change adds
 /// q' d(1/f)/dt to the accelerations), and the check is redone, up to 12 times. A trajectory within
 /// its limits is left as it is, to the bit. The added time goes to duration_s and to the bucket of
 /// each stretched interval's later sample (spraying: spray_time_s too; a joint move:
 /// transit_time_s too; a Link run that holds a joint move of its region: stop-and-go, else a
-/// turn-around), and to slowed_s. Returns whether the trajectory ends within its limits.
+/// turn-around), and to slowed_s. Returns whether the trajectory ends within its limits. Throws
+/// std::invalid_argument for times that are not finite and non-decreasing, or postures that are
+/// not the robot's dof finite values.
 bool slow_to_joint_limits(const Robot& robot, TimedTrajectory& tr, double window_s = 1.0);
 
 /// One timed Cartesian path (e.g. a region, or the quintic baseline) in joint space from rest to
