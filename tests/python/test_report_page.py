@@ -199,6 +199,25 @@ def test_summary_figures_are_report_json_figures(which, request):
     assert html.index('id="summary"') < html.index('id="view"') < html.index('<details id="raw"')
 
 
+def test_a_slowed_trajectory_is_said_on_the_summary(job):
+    """Where the arm was slowed to its joint limits (report.json trajectory.slowed_to_joint_limits),
+    the summary says how long and how far over the timing was, under the cycle time's breakdown; a
+    trajectory that was not slowed gets no note (the tiny demo's own report)."""
+    out, rep, rows, cfg = job
+    facts = report.PageFacts(bay_length_m=1.0, cell_size_m=cfg.grid.cell_size_m, finish_tolerance_mm=10.0,
+                             cells_within_finish=0)
+    assert rep["trajectory"]["slowed_to_joint_limits"]["added_s"] == 0
+    assert 'id="slowed"' not in report.summary_html(rep, facts)
+    slowed = json.loads(json.dumps(rep))
+    slowed["trajectory"]["slowed_to_joint_limits"] = {"added_s": 75.4, "spraying_s": 60.0, "intervals": 900,
+                                                      "ratio_before": 1.287}
+    page = _Figures()
+    text = report.summary_html(slowed, facts)
+    page.feed(text)
+    assert page.found["slowed_s"] == ["1 min 15 s"] and "up to 1.29x" in text
+    assert text.index('id="cycle-breakdown"') < text.index('id="slowed"')
+
+
 def test_cells_csv_matches_the_cores_figures(job):
     """cells.csv against what the core summarised independently (report.json): one row per valid
     cell, the level counts, TD before and residual statistics, the executed-minus-planned deposit."""

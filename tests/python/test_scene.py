@@ -471,7 +471,12 @@ def test_the_job_places_the_base_back_from_the_face_where_the_arm_can_turn(tmp_p
     slowed = rep["trajectory"]["slowed_to_joint_limits"]
     assert slowed["ratio_before"] >= max(rep["trajectory"]["max_velocity_ratio"], rep["trajectory"]["max_acceleration_ratio"]) - 1e-9
     assert (slowed["added_s"] > 0) == (slowed["ratio_before"] > 1.0) and (slowed["intervals"] > 0) == (slowed["added_s"] > 0)
+    assert 0 <= slowed["spraying_s"] <= slowed["added_s"]
     assert "joint_limits" not in [p["code"] for p in rep["problems"]]
+    # Said where a site engineer reads it: a warning and the report page's note, or neither.
+    warned = [w for w in rep["warnings"] if "slowed to it" in w]
+    assert len(warned) == (1 if slowed["added_s"] > 0 else 0)
+    assert ('id="slowed"' in page) == (slowed["added_s"] > 0)
 
 
 def carrier_box_in_base(urdf_path):

@@ -348,15 +348,18 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
         std::vector<Eigen::VectorXd> postures{qa};
         postures.insert(postures.end(), route->begin(), route->end());
         // With qa itself, as the straight move was counted (move_samples), and by the rule of the
-        // other eased moves: at most half the link-samples below, or fewer 0.1 m less short.
+        // other eased moves (at most half the link-samples below, or fewer 0.1 m less short), or
+        // fewer at no more time than the straight move.
         TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+        const double piece_s = piece.duration_s;
         piece.t_s.insert(piece.t_s.begin(), 0.0);
         piece.q.insert(piece.q.begin(), qa);
         const ClearanceReport along = check_clearance_octree(robot, piece, wall, config);
         const int below = along.moving_samples_below_margin();
         const double along_allowance_m = report_allowance(along, config);
         if (below < d.straight_samples_below &&
-            (below <= d.straight_samples_below / 2 || along_allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m)) {
+            (below <= d.straight_samples_below / 2 || along_allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m ||
+             piece_s <= d.straight_duration_s)) {
           d.min_allowance_m = along_allowance_m;
           why << (clear_when_lowered ? "; routed with the margins lowered by " : "; no route keeps the margins lowered by ")
               << lowered_by_m << " m" << (clear_when_lowered ? "" : ": the one least below them replaced the move") << " ("

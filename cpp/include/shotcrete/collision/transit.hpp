@@ -67,8 +67,8 @@ struct TransitReport {
 /// (replace_joint_move). When no single via does, each leg is re-routed once more the same way.
 /// A move whose start or goal posture already breaks a margin (the region's own posture) is
 /// routed the same way with every margin lowered by that shortfall (and a leaf diagonal), and the
-/// route replaces it when it breaks the margins proper at fewer link-samples (at most half, or
-/// 0.1 m less short: `eased`); a move no route clears is replaced by the best route tried by the
+/// route replaces it when it breaks the margins proper at fewer link-samples (at most half, 0.1 m
+/// less short, or in no more time: `eased`); a move no route clears is replaced by the best route tried by the
 /// same rule (`eased`), else stays as it was. Either way it is counted in `failed` with the
 /// reason. The detours' times are those before plan_for_arm's slowing after them. The shapes no
 /// posture moves (fixed_shapes: the base) are left out of every judgement here (a base too close
