@@ -278,6 +278,26 @@ TimedTrajectory move_samples(const TimedTrajectory& tr, const JointMove& m) {
 // gain, not one leaf of the octree's reading.
 constexpr double kBestEffortGain_m = 0.1;
 
+namespace {
+
+// Whether a route that still breaks a margin at `below` link-samples, `allowance_m` least, may
+// replace the straight move `d` (eased): fewer samples below, and at most half of them or 0.1 m
+// less short.
+bool eases(int below, double allowance_m, const TransitDetour& d) {
+  return below < d.straight_samples_below &&
+         (below <= d.straight_samples_below / 2 || allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m);
+}
+
+// A new move's samples with its start posture qa at t = 0 in front, as the straight move's were
+// checked (move_samples).
+TimedTrajectory from_start(TimedTrajectory piece, const Eigen::VectorXd& qa) {
+  piece.t_s.insert(piece.t_s.begin(), 0.0);
+  piece.q.insert(piece.q.begin(), qa);
+  return piece;
+}
+
+}  // namespace
+
 TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, const WallOctree& wall,
                              const ClearanceConfig& config, const TimingConfig& timing) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -350,16 +370,12 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
         // With qa itself, as the straight move was counted (move_samples), and by the rule of the
         // other eased moves (at most half the link-samples below, or fewer 0.1 m less short), or
         // fewer at no more time than the straight move.
-        TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
-        const double piece_s = piece.duration_s;
-        piece.t_s.insert(piece.t_s.begin(), 0.0);
-        piece.q.insert(piece.q.begin(), qa);
-        const ClearanceReport along = check_clearance_octree(robot, piece, wall, config);
+        const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+        const ClearanceReport along = check_clearance_octree(robot, from_start(piece, qa), wall, config);
         const int below = along.moving_samples_below_margin();
         const double along_allowance_m = report_allowance(along, config);
-        if (below < d.straight_samples_below &&
-            (below <= d.straight_samples_below / 2 || along_allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m ||
-             piece_s <= d.straight_duration_s)) {
+        if (eases(below, along_allowance_m, d) ||
+            (below < d.straight_samples_below && piece.duration_s <= d.straight_duration_s)) {
           d.min_allowance_m = along_allowance_m;
           why << (clear_when_lowered ? "; routed with the margins lowered by " : "; no route keeps the margins lowered by ")
               << lowered_by_m << " m" << (clear_when_lowered ? "" : ": the one least below them replaced the move") << " ("
@@ -374,14 +390,10 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
     } else if (const auto route = router.route(qa, qb, router.top_depth)) {
-      TimedTrajectory checked = replace_by(*route);
-      checked.t_s.insert(checked.t_s.begin(), 0.0);
-      checked.q.insert(checked.q.begin(), qa);
+      const TimedTrajectory checked = from_start(replace_by(*route), qa);
       d.min_allowance_m = report_allowance(check_clearance_octree(robot, checked, wall, config), config);
       d.rerouted = true;
-    } else if (!router.best_effort.empty() && router.best_effort_below < d.straight_samples_below &&
-               (router.best_effort_below <= d.straight_samples_below / 2 ||
-                router.best_effort_allowance_m >= d.straight_min_allowance_m + kBestEffortGain_m)) {
+    } else if (!router.best_effort.empty() && eases(router.best_effort_below, router.best_effort_allowance_m, d)) {
       // No clear route, but one with at most half the straight move's link-samples below a margin
       // (a straight swing through a face: 2,000 of them, every one 0.4 m short, where the reading
       // saturates), or fewer that come 0.1 m less short: it replaces the move, which still counts
