@@ -625,6 +625,82 @@ TEST(Planner, StopReasonsAndRoundKindsPrintAsInTheReport) {
   EXPECT_STREQ(enum_name(RoundKind::levelling), "levelling");
 }
 
+// A nozzle leaning toward a face fades its lean along the bay (0.5 rad per metre of wall here, the
+// default): it moves at about half its spot's speed. A round's slowest speed is the spot's, so
+// one round lays as much on the leaned wall as on the square one (with the nozzle's slowest speed
+// it laid half: the face scene took a third levelling round on the close lines, +17 % cycle).
+TEST(Planner, ALeaningNozzleLaysARoundsLayerAtItsSpotsSlowestSpeed) {
+  Surface s = analytic_bay(uniform_300mm);  // more than one round lays at the slowest speed
+  Config cfg;
+  cfg.planner.mode = PlannerMode::optimal;
+  cfg.planner.max_rounds = 1;
+  cfg.flow.ramp_s = cfg.flow.min_on_s = cfg.flow.min_off_s = 0.0;
+  std::vector<Eigen::Vector3d> lean(static_cast<std::size_t>(s.grid.size()));
+  for (int c = 0; c < s.grid.size(); ++c)
+    lean[static_cast<std::size_t>(c)] = 0.5 * s.grid.d_center(s.grid.col_of(c)) * Eigen::Vector3d::UnitX();
+  const Plan square = plan_bay(s, cfg);
+  const Plan leaned = plan_bay(s, cfg, {}, {}, {}, lean);
+  double slowest_nozzle = 1e9, slowest_spot = 1e9;
+  for (const auto& round : leaned.rounds)
+    for (const auto& region : round.regions)
+      for (const auto& pass : region.passes) {
+        double spot_m = 0.0;
+        for (std::size_t k = 1; k < pass.waypoints.size(); ++k) {
+          const NozzlePose &a = pass.waypoints[k - 1], &b = pass.waypoints[k];
+          spot_m += (b.position_m + cfg.planner.standoff_m * b.axis - a.position_m - cfg.planner.standoff_m * a.axis).norm();
+          slowest_nozzle = std::min(slowest_nozzle, pass.speed_at(k));
+        }
+        // Each segment's dwell is within its spot path at the slowest speed, so is the pass's (to
+        // the speed's hand-over between segments at their shared waypoint).
+        EXPECT_GE(spot_m / pass.duration_s(), cfg.planner.min_speed_mps * (1 - 2e-3));
+        slowest_spot = std::min(slowest_spot, spot_m / pass.duration_s());
+      }
+  EXPECT_LT(slowest_nozzle, 0.7 * cfg.planner.min_speed_mps);  // the nozzle slower than the bound's
+  EXPECT_LT(slowest_spot, 1.05 * cfg.planner.min_speed_mps);   // a pass at the bound all along
+  // The layer on the bay's inner columns (the ends get half a spot).
+  auto layer_mm = [&](const Plan& plan) {
+    double sum = 0.0;
+    int n = 0;
+    for (int c = 0; c < s.grid.size(); ++c) {
+      const double d = s.grid.d_center(s.grid.col_of(c));
+      if (s.grid.valid[c] && d > 0.2 && d < 0.6) sum += (s.grid.td_m[c] - plan.td_after_m[c]) * 1000.0, ++n;
+    }
+    return sum / n;
+  };
+  EXPECT_GT(layer_mm(square), 200.0);
+  EXPECT_NEAR(layer_mm(leaned), layer_mm(square), 0.1 * layer_mm(square))
+      << "square " << layer_mm(square) << " mm, leaned " << layer_mm(leaned) << " mm";
+}
+
+// Two cells left 55 mm short (level 1) among cells 30 mm over-filled: any pass over them lays a spot
+// 0.38 m across on them, past the guard band, and the plain guard sprays nothing (the bay left
+// unfinished, "no pass could be planned"). Their own guard is raised then, and a pass brings it
+// within level 0 at the cost of their neighbours' over-fill.
+double bump_among_overfill(double d, double theta) {
+  const Config cfg;  // analytic_bay's grid: rows from theta = 0.9, columns from d = 0
+  const double cs = cfg.grid.cell_size_m, s = (theta - 0.9) * cfg.profile.design_radius_m;
+  const double r2 = std::pow(d - 8.5 * cs, 2) + std::pow(s - 40.5 * cs, 2);  // centred on cell (40, 8)
+  return -0.030 + 0.090 * std::exp(-r2 / (2 * 0.08 * 0.08));  // at most 34 deg steep: wall
+}
+
+TEST(Planner, ACellAboveLevelZeroAmongOverfilledOnesIsStillSprayed) {
+  Config cfg;
+  Surface s = test::analytic_bay(bump_among_overfill, cfg);
+  cfg.planner.mode = PlannerMode::optimal;
+  int worst = -1;
+  for (int c = 0; c < s.grid.size(); ++c)
+    if (s.grid.valid[c] && (worst < 0 || s.grid.td_m[c] > s.grid.td_m[worst])) worst = c;
+  int above = 0;
+  for (int c = 0; c < s.grid.size(); ++c) above += s.grid.valid[c] && level_of_td_mm(s.grid.td_m[c] * 1000.0) >= 1;
+  ASSERT_EQ(above, 2);  // the two cells the bump's peak falls between, at +55.6 mm
+  ASSERT_EQ(level_of_td_mm(s.grid.td_m[worst] * 1000.0), 1) << s.grid.td_m[worst];
+  const Plan plan = plan_bay(s, cfg);
+  ASSERT_FALSE(plan.rounds.empty()) << plan.stop_reason;
+  EXPECT_NE(plan.stop_reason.kind, StopKind::no_progress) << plan.stop_reason;
+  for (int c = 0; c < s.grid.size(); ++c)
+    if (s.grid.valid[c]) EXPECT_EQ(level_of_td_mm(plan.td_after_m[c] * 1000.0), 0) << c << ": " << plan.td_after_m[c];
+}
+
 TEST(Planner, MaxRoundsIsTheStopReasonWhenRoundsRunOut) {
   Surface s = analytic_bay(uniform_300mm);  // level 4: one graded round takes it to level 3
   Config cfg;
@@ -1132,6 +1208,72 @@ TEST(LevellingDwells, TheLookAheadSolvesForMoreThanOneRound) {
   for (double w : optimise_dwell(p, zero)) EXPECT_DOUBLE_EQ(w, p.w_max_s_per_m);
   p.lookahead_rounds = 3;
   for (double w : optimise_dwell(p, zero)) EXPECT_NEAR(w, 3 * 6500.0 / 725.0, 0.01);
+}
+
+// A leaning nozzle whose lean fades along its pass moves slower than a square one aimed at the
+// same spots: its slowest speed is its spot's over the wall (the layer a pass lays), so one round
+// may dwell that much longer per metre of the nozzle's path. The slowdown against a numerical
+// integral of the closed-form paths; square poses keep exactly 1 (axial or around the tunnel,
+// where the spot runs 1.2x the nozzle's speed but a square nozzle does too); a lean tipping the
+// other way (the nozzle faster) keeps 1 too; a lean fading faster than 1 / standoff is capped; the
+// solve's bound follows it.
+TEST(LevellingDwells, ASegmentOfALeaningNozzleDwellsByItsSpotsSpeed) {
+  // The crown of a 5.6 m circle: the spot runs x in [0, 0.5] m at z = 5.6 m, the lean a(x) =
+  // 0.3 + 0.5 x rad toward +x (clearance.nozzle_lean_fade_rad_per_m's default), the nozzle the
+  // standoff (1 m) back along it; square, it would stand at z = 4.6 m under each spot.
+  const double standoff = 1.0, R = 5.6;
+  const TunnelAxis axis;
+  const DesignProfile circle = DesignProfile::circle(R);
+  auto poses_of = [&](auto lean) {
+    std::vector<NozzlePose> poses;
+    for (int i = 0; i <= 50; ++i) {
+      const double x = 0.01 * i, a = lean(x);
+      NozzlePose pose;
+      pose.axis = Eigen::Vector3d(std::sin(a), 0.0, std::cos(a));
+      pose.position_m = Eigen::Vector3d(x, 0.0, R) - standoff * pose.axis;
+      poses.push_back(pose);
+    }
+    return poses;
+  };
+  auto fading = [](double x) { return 0.3 + 0.5 * x; };
+  // The nozzle (x - sin a, R - cos a) moves at |(1 - 0.5 cos a, 0.5 sin a)| per metre of spot:
+  // Simpson's rule over 10,000 intervals.
+  double nozzle_m = 0.0;
+  const int n = 10000;
+  for (int i = 0; i <= n; ++i) {
+    const double a = fading(0.5 * i / n);
+    const double f = std::hypot(1.0 - 0.5 * std::cos(a), 0.5 * std::sin(a));
+    nozzle_m += f * (i == 0 || i == n ? 1.0 : i % 2 ? 4.0 : 2.0);
+  }
+  nozzle_m *= 0.5 / n / 3.0;
+  const double slowdown = lean_slowdown(poses_of(fading), standoff, axis, circle);
+  EXPECT_NEAR(slowdown, 0.5 / nozzle_m, 1e-4);
+  EXPECT_GT(slowdown, 1.6);  // about 1 / (1 - 0.5 x standoff x cos a)
+  EXPECT_EQ(lean_slowdown(poses_of([](double x) { return 0.3 - 0.5 * x; }), standoff, axis, circle), 1.0);
+  EXPECT_EQ(lean_slowdown(poses_of([](double) { return 0.0; }), standoff, axis, circle), 1.0);
+  EXPECT_EQ(lean_slowdown(poses_of([](double x) { return 0.99 * x; }), standoff, axis, circle), kMaxLeanSlowdown);
+  EXPECT_EQ(lean_slowdown({poses_of(fading).front()}, standoff, axis, circle), 1.0);
+  // Square around the tunnel (a circumferential pass): the spot at R, the nozzle at R - standoff.
+  std::vector<NozzlePose> around;
+  for (int i = 0; i <= 50; ++i) {
+    const double theta = 1.2 + 0.002 * i;
+    NozzlePose pose;
+    pose.axis = Eigen::Vector3d(0.0, std::cos(theta), std::sin(theta));
+    pose.position_m = (R - standoff) * pose.axis + Eigen::Vector3d(0.3, 0.0, 0.0);
+    around.push_back(pose);
+  }
+  EXPECT_EQ(lean_slowdown(around, standoff, axis, circle), 1.0);
+  // The solve: 300 mm asked, least squares wants 26.9 s/m; one round gives the square segment 20
+  // (the slowest speed) and the one whose nozzle moves 1.2x slower than a square one 24.
+  DwellProblem p = shoulder_dwell_problem();
+  p.target_mm *= 3.0;
+  p.segments[0].lean_slowdown = 1.2;
+  const std::vector<double> bound = dwell_bounds(p);
+  EXPECT_DOUBLE_EQ(bound[0], 24.0);
+  EXPECT_DOUBLE_EQ(bound[1], 20.0);
+  const std::vector<double> w = optimise_dwell(p, std::vector<double>(2, 0.0));
+  EXPECT_DOUBLE_EQ(w[0], 24.0);
+  EXPECT_DOUBLE_EQ(w[1], 20.0);
 }
 
 // The look-ahead on later lines: this round's segments take one round's dwell, the later lines

@@ -519,7 +519,9 @@ std::vector<PlanProblem> plan_problems(const JobSummary& s) {
   }
   if (s.unreachable_cells > 0)
     out.push_back({"unreachable_cells", std::to_string(s.unreachable_cells) +
-                                            " cells above level 0 that no pass can fill (beyond the arm's reach or the bay's passes)"});
+                                            " cells above level 0 that no pass can fill (beyond the arm's reach or the bay's "
+                                            "passes, or no pass the pump can run lays them less than it over-fills others; "
+                                            "stop reason: " + s.stop_reason + ")"});
   above -= s.obstructed_above_level_0;
   if (above > s.unreachable_cells)
     out.push_back({"cells_above_level_0", std::to_string(above - std::max(0, s.unreachable_cells)) +

@@ -477,6 +477,11 @@ double levelling_pitch_m(const PlannerConfig& pc, double ratio, const RoundConte
   return pitch_m;
 }
 
+// How much more a cell above level 0 weighs in a levelling round that would otherwise spray nothing
+// (tried in turn), and how far past flush that round may take a cell (level -1 from 50 mm).
+constexpr double kStragglerGuard[] = {10.0, 100.0};
+constexpr double kStragglerFloor_mm = 45.0;
+
 // Whether a round on lines of pitch_m solves the look-ahead's later rounds on the wide lines: with
 // the option, a look-ahead, and lines that are not the wide ones already.
 constexpr double kLateLayerAllowance = 1.25;  // levelling_sides
@@ -579,6 +584,10 @@ void add_segments(const RoundInput& in, const CellSurface& cells, const std::vec
         piece.waypoints = poses;
         piece.speed_mps = 1.0;
         seg.length_m = polyline_length(poses);
+        // (Along the scan's normals the square pose is not the design's: no lean measured.)
+        seg.lean_slowdown = pc.offset_along_normal ? 1.0
+                                                   : lean_slowdown(poses, pc.standoff_m, in.wall.surface.grid.axis,
+                                                                   in.wall.surface.grid.profile);
         seg.cap_mps = *std::min_element(cap.begin() + seg.first, cap.begin() + seg.last + 1);
         // thickness in mm per (s/m) of dwell: speed 1 m/s means dwell 1 s per metre.
         problem.unit_mm.push_back(sparsify(unit_deposit(ctx.model, cells, poses, piece.dwell_s(), rebound) * 1000.0));
@@ -596,7 +605,7 @@ std::vector<double> limited_dwells(const DwellProblem& problem, std::vector<doub
   for (int it = 0; it < 3; ++it) {
     w = optimise_dwell(problem, floor, w);
     for (std::size_t j = 0; j < w.size(); ++j)  // the look-ahead's rest: later rounds (on later lines: theirs)
-      if (!problem.segments[j].later) w[j] = std::min(w[j], problem.w_max_s_per_m);
+      if (!problem.segments[j].later) w[j] = std::min(w[j], round_dwell_max(problem, j));
     const auto limited = limit_speed_changes(problem.segments, w, accel_mps2);
     for (std::size_t j = 0; j < w.size(); ++j)
       if (limited[j] > w[j] * (1 + 1e-9)) floor[j] = std::max(floor[j], limited[j]);
@@ -755,6 +764,43 @@ class LevellingRounds : public RoundStages {
       w = solve_dwells(problem, accel, ctx.config.flow);
       out = runs_of(w);
     }
+    // A round that lays a cell past -45 mm (level -1 from -50 mm) that was not, or more than
+    // 0.5 mm on one that was (the retry below).
+    auto sinks = [&](const Eigen::VectorXd& laid) {
+      for (Eigen::Index k = 0; k < td_mm.size(); ++k)
+        if (td_mm[k] - laid[k] < std::min(td_mm[k], -kStragglerFloor_mm) - 0.5) return true;
+      return false;
+    };
+    bool straggling = false;
+    if (out.empty() && problem.guard_weight > 0) {
+      // Every segment left off while cells stay above level 0: the guard traded them for their
+      // neighbours' over-fill (a cell at +55 mm among cells at -30 mm, which any spot over it
+      // reaches; the bay left unfinished). Their own guard is raised, 10x then 100x (the others
+      // keep theirs), and the round taken once its passes, timed and pumped, bring one of them
+      // within level 0 and sink no cell (100x with no such test traded the scene without the
+      // duct's 3 cells at +52 mm for 26 at up to -96 mm).
+      std::vector<Eigen::Index> stragglers;
+      for (Eigen::Index k = 0; k < td_mm.size(); ++k)
+        if (level_of_td_mm(td_mm[k]) >= 1) stragglers.push_back(k);
+      for (double raise : kStragglerGuard) {
+        if (stragglers.empty()) break;
+        DwellProblem raised = problem;
+        raised.guard_weight_cell = Eigen::VectorXd::Constant(td_mm.size(), problem.guard_weight);
+        for (Eigen::Index k : stragglers) raised.guard_weight_cell[k] *= raise;
+        std::vector<double> w_raised = solve_dwells(raised, accel, ctx.config.flow);
+        std::vector<RegionPlan> out_raised = runs_of(w_raised);
+        if (out_raised.empty()) continue;
+        const Eigen::VectorXd laid = sprayed_round(out_raised, cells, ctx).deposit_mm;
+        const bool helps = std::any_of(stragglers.begin(), stragglers.end(),
+                                       [&](Eigen::Index k) { return level_of_td_mm(td_mm[k] - laid[k]) <= 0; });
+        if (!helps || sinks(laid)) continue;
+        problem = std::move(raised);
+        w = std::move(w_raised);
+        out = std::move(out_raised);
+        straggling = true;
+        break;
+      }
+    }
     if (pc.levelling_executed_corrections <= 0 || out.empty()) return out;
     // The solve's segments are not what the arm and the pump do with them: the timed passes
     // change speed over ramps, turns too short for the pump's off spell are sprayed through,
@@ -774,7 +820,7 @@ class LevellingRounds : public RoundStages {
       if (out_next.empty()) break;
       SprayedRound sprayed_next = sprayed_round(out_next, cells, ctx);
       const double c = cost(sprayed_next);
-      if (!(c < best)) break;
+      if (!(c < best) || (straggling && sinks(sprayed_next.deposit_mm))) break;
       best = c;
       w = std::move(w_next);
       out = std::move(out_next);

@@ -408,7 +408,8 @@ struct DwellSolver {
   }
   CellCost cell(int k) const {
     if (!guarded) return {p.target_mm[k], std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(), 0.0};
-    return {p.target_mm[k], p.guard_hi_mm[k], p.guard_lo_mm[k], p.guard_weight};
+    return {p.target_mm[k], p.guard_hi_mm[k], p.guard_lo_mm[k],
+            p.guard_weight_cell.size() == p.target_mm.size() ? p.guard_weight_cell[k] : p.guard_weight};
   }
   void set(std::size_t j, double value) {
     const double d = value - w[j];
@@ -497,8 +498,34 @@ std::vector<double> dwell_bounds(const DwellProblem& problem) {
   const bool later = std::any_of(problem.segments.begin(), problem.segments.end(), [](const Segment& s) { return s.later; });
   std::vector<double> out(problem.segments.size());
   for (std::size_t j = 0; j < out.size(); ++j)
-    out[j] = problem.w_max_s_per_m * (!later ? rounds : problem.segments[j].later ? rounds - 1 : 1);
+    out[j] = round_dwell_max(problem, j) * (!later ? rounds : problem.segments[j].later ? rounds - 1 : 1);
   return out;
+}
+
+double lean_slowdown(const std::vector<NozzlePose>& poses, double standoff_m, const TunnelAxis& axis,
+                     const DesignProfile& profile) {
+  double nozzle_m = 0.0, square_m = 0.0;
+  Eigen::Vector3d prev = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    const Eigen::Vector3d spot = poses[i].position_m + standoff_m * poses[i].axis;
+    // Square to the design line at the spot, as standoff_pose puts a square nozzle.
+    const Eigen::Vector3d q = spot - axis.origin_m;
+    Eigen::Vector3d normal = (q - q.dot(axis.ex) * axis.ex).normalized();
+    if (!profile.is_circle()) {
+      const Eigen::Vector3d n = design_normal(axis, profile, axis.to_cylindrical(spot)[1]);
+      if (n.allFinite()) normal = n;
+    }
+    const Eigen::Vector3d square = spot - standoff_m * normal;
+    if (i > 0) {
+      nozzle_m += (poses[i].position_m - poses[i - 1].position_m).norm();
+      square_m += (square - prev).norm();
+    }
+    prev = square;
+  }
+  // A square pose's two paths differ by a hair (between the knots the spline turns the axis up to
+  // 4e-5 off the design's normal on the default bay): within 0.1 % they are square, 1 exactly.
+  if (!(nozzle_m > 0.0) || !(square_m > nozzle_m * (1.0 + 1e-3))) return 1.0;
+  return std::min(square_m / nozzle_m, kMaxLeanSlowdown);
 }
 
 // Coordinate descent crawls along directions where two segments trade cells (a close line and

@@ -81,11 +81,14 @@ struct Segment {
   double length_m = 0;
   double cap_mps = 0;               // fastest speed the machine allows on the segment
   bool later = false;               // a line of the look-ahead's later rounds: solved for, never sprayed
+  double lean_slowdown = 1;         // a square nozzle's path to the same spots / this nozzle's: a
+                                    // leaning nozzle moves slower than its spot (lean_slowdown())
 };
 
 /// The least-squares problem of the levelling round:
-///   min 1/2 |x - t|^2 + guard_weight/2 sum_c [(x - hi)_c+^2 + (lo - x)_c+^2] + lambda L.w,
-///   x = U w + background, w in {0} u [w_min, w_max] (w: dwell per unit length [s/m]).
+///   min 1/2 |x - t|^2 + sum_c guard_weight_c/2 [(x - hi)_c+^2 + (lo - x)_c+^2] + lambda L.w,
+///   x = U w + background, w in {0} u [w_min, w_max_j] (w: dwell per unit length [s/m]; w_max_j:
+///   dwell_bounds, guard_weight_c: guard_weight or guard_weight_cell).
 /// The guard (planner.levelling_guard_*) holds every cell's final residual within a band: least
 /// squares alone trades a few big errors for many small ones (a pit filled at the cost of its
 /// shoulders over-filled 40 mm). Both terms are convex in w, so is the objective.
@@ -97,16 +100,36 @@ struct DwellProblem {
   Eigen::VectorXd guard_hi_mm;   // per cell slot: deposit beyond which a cell counts as over-filled (empty: no guard)
   Eigen::VectorXd guard_lo_mm;   // per cell slot: deposit below which it counts as under-filled (empty: no guard)
   double guard_weight = 0;       // cost of a mm past a guard limit, relative to a mm off target (squared)
+  Eigen::VectorXd guard_weight_cell;  // per cell slot: its own guard_weight (empty: guard_weight for all)
   double lambda_mm2_per_s = 0;   // planner.time_weight_mm2_per_s
-  double w_max_s_per_m = 0;      // dwell at the slowest speed: the most a round sprays
-  int lookahead_rounds = 1;      // the solve may give a segment lookahead_rounds x w_max (the rounds
-                                 // after this one add the rest); the round sprays at most w_max.
+  double w_max_s_per_m = 0;      // dwell at the slowest speed: the most a round sprays (a leaning
+                                 // nozzle's segment: x its lean_slowdown, round_dwell_max)
+  int lookahead_rounds = 1;      // the solve may give a segment lookahead_rounds x its round's most
+                                 // (round_dwell_max; the rounds after this one add the rest); the
+                                 // round sprays at most that.
                                  // With segments of later lines (Segment::later): this round's
                                  // take w_max, the later lines (lookahead_rounds - 1) x w_max.
 };
 
 /// The most dwell the solve gives each segment [s/m] (DwellProblem::lookahead_rounds).
 std::vector<double> dwell_bounds(const DwellProblem& problem);
+
+/// The most dwell one round gives segment j [s/m]: the slowest speed is the spot's over the wall,
+/// so a leaning nozzle, which moves slower than a square one over the same spots, may move slower
+/// by its Segment::lean_slowdown.
+inline double round_dwell_max(const DwellProblem& problem, std::size_t j) {
+  return problem.w_max_s_per_m * problem.segments[j].lean_slowdown;
+}
+
+/// How much slower the poses' nozzle moves than a square nozzle aimed at the same spots: the
+/// length of the path of a nozzle standing standoff_m back along the design's normal (radial on a
+/// circle) from each pose's spot (the point standoff_m along its axis), over the nozzle's own
+/// path. 1 for square poses (the two paths are the same), never below 1, at most
+/// kMaxLeanSlowdown. A nozzle whose lean toward a face fades at a rate along its pass moves at
+/// about 1 - rate x standoff of a square one's speed (clearance.nozzle_lean_fade_rad_per_m).
+constexpr double kMaxLeanSlowdown = 4.0;
+double lean_slowdown(const std::vector<NozzlePose>& poses, double standoff_m, const TunnelAxis& axis,
+                     const DesignProfile& profile);
 
 /// Guard limits for cells with TD td_mm [mm] (negative: over-filled): over-filled past band_mm
 /// beyond flush (a cell already past it may take nothing more), under-filled past band_mm short of
