@@ -119,7 +119,7 @@ template <class F> void visit(PlannerConfig*, F&& f) {
   f("pass_direction", &PlannerConfig::pass_direction, 0, 0, "axial | circumferential");
   f("standoff_m", &PlannerConfig::standoff_m, 0.8, 1.2, "nozzle standoff [m]");
   f("offset_along_normal", &PlannerConfig::offset_along_normal, 0, 0, "offset along -normal instead of -r");
-  f("min_speed_mps", &PlannerConfig::min_speed_mps, 0.001, 10.0, "slowest nozzle speed [m/s]; optimal mode: its spot's over the wall where that runs faster (a leaning nozzle)");
+  f("min_speed_mps", &PlannerConfig::min_speed_mps, 0.001, 10.0, "slowest nozzle speed [m/s]; optimal mode: a leaning nozzle's spot at this speed (the nozzle slower by as much as it lags a square one)");
   f("max_speed_mps", &PlannerConfig::max_speed_mps, 0.001, 10.0, "fastest nozzle speed [m/s]");
   f("max_rounds", &PlannerConfig::max_rounds, 1, 1000, "round limit");
   f("time_budget_s", &PlannerConfig::time_budget_s, 0.0, 604800.0, "wall clock of one plan; no round starts once spent (0: one round) [s]");
