@@ -37,6 +37,14 @@ void reverse_pass(Pass& p) {
   std::swap(p.tight_start, p.tight_end);
 }
 
+Eigen::Vector3d square_axis(const TunnelAxis& axis, const DesignProfile& profile, const Eigen::Vector3d& p) {
+  const Eigen::Vector3d q = p - axis.origin_m;
+  const Eigen::Vector3d radial = (q - q.dot(axis.ex) * axis.ex).normalized();
+  if (profile.is_circle()) return radial;
+  const Eigen::Vector3d n = design_normal(axis, profile, axis.to_cylindrical(p)[1]);
+  return n.allFinite() ? n : radial;
+}
+
 Eigen::Vector3d leaned_axis(const Eigen::Vector3d& square_axis, const Eigen::Vector3d& lean) {
   const Eigen::Vector3d t = lean - lean.dot(square_axis) * square_axis;
   const double angle = t.norm();
@@ -296,14 +304,7 @@ std::optional<Crossing> crossing_point(const PassFrame& f, int iu, double wk) {
 NozzlePose standoff_pose(const TunnelAxis& axis, const DesignProfile& profile, const Eigen::Vector3d& p,
                          const Eigen::Vector3d& nrm, const Eigen::Vector3d& lean, const PlannerConfig& config) {
   NozzlePose pose;
-  const Eigen::Vector3d q = p - axis.origin_m;
-  // Square to the design line: the radial direction on a circle, the section's normal on a section.
-  // (Off a section's ends, where it has no normal, radial.)
-  Eigen::Vector3d radial = (q - q.dot(axis.ex) * axis.ex).normalized();
-  if (!profile.is_circle()) {
-    const Eigen::Vector3d n = design_normal(axis, profile, axis.to_cylindrical(p)[1]);
-    if (n.allFinite()) radial = n;
-  }
+  const Eigen::Vector3d radial = square_axis(axis, profile, p);
   if (config.offset_along_normal && nrm.allFinite() && nrm.norm() > 0.5) {
     pose.axis = -nrm;
     pose.position_m = p + config.standoff_m * nrm;

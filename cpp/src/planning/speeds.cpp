@@ -508,14 +508,7 @@ double lean_slowdown(const std::vector<NozzlePose>& poses, double standoff_m, co
   Eigen::Vector3d prev = Eigen::Vector3d::Zero();
   for (std::size_t i = 0; i < poses.size(); ++i) {
     const Eigen::Vector3d spot = poses[i].position_m + standoff_m * poses[i].axis;
-    // Square to the design line at the spot, as standoff_pose puts a square nozzle.
-    const Eigen::Vector3d q = spot - axis.origin_m;
-    Eigen::Vector3d normal = (q - q.dot(axis.ex) * axis.ex).normalized();
-    if (!profile.is_circle()) {
-      const Eigen::Vector3d n = design_normal(axis, profile, axis.to_cylindrical(spot)[1]);
-      if (n.allFinite()) normal = n;
-    }
-    const Eigen::Vector3d square = spot - standoff_m * normal;
+    const Eigen::Vector3d square = spot - standoff_m * square_axis(axis, profile, spot);
     if (i > 0) {
       nozzle_m += (poses[i].position_m - poses[i - 1].position_m).norm();
       square_m += (square - prev).norm();

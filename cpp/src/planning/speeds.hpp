@@ -108,7 +108,8 @@ struct DwellProblem {
                                  // (round_dwell_max; the rounds after this one add the rest); the
                                  // round sprays at most that.
                                  // With segments of later lines (Segment::later): this round's
-                                 // take w_max, the later lines (lookahead_rounds - 1) x w_max.
+                                 // take their round's most, the later lines (lookahead_rounds - 1)
+                                 // x theirs.
 };
 
 /// The most dwell the solve gives each segment [s/m] (DwellProblem::lookahead_rounds).

@@ -68,6 +68,11 @@ std::vector<Pass> plan_passes(const Grid& grid, const std::vector<int>& cells, d
                               const PlannerConfig& config, const std::vector<Eigen::Vector3d>* lean = nullptr,
                               double split_gap_m = 0.0);
 
+/// The unit direction square to the design line at wall point p, outward: the section's normal,
+/// radial on a circle (and off a section's ends, where it has no normal). A square nozzle stands
+/// the standoff back along it (the passes' poses, and the levelling's lean_slowdown).
+Eigen::Vector3d square_axis(const TunnelAxis& axis, const DesignProfile& profile, const Eigen::Vector3d& p);
+
 /// The spray axis `square_axis` (unit) tipped by `lean` (its component tangent to the axis gives
 /// the direction, its length the angle [rad]); `square_axis` itself when that is zero. The one
 /// formula of the passes' poses and of the clearance check of them (obstructed_cells).
