@@ -597,6 +597,52 @@ TEST(RegionPath, SprayOffGapOnTheSameLineIsCrossedWithoutStopping) {
     }
 }
 
+// A leaning nozzle's line is no straight one: where the lean fades toward a face its standoff
+// point drifts across the line (the face scene: 2-4 cm over a 0.14 m gap, ends 10-30 deg apart).
+// Two runs of one planner line (Pass::line) across such a drift are still joined by a spray-off
+// gap along it, not by a stop-and-go (which at the slow passes' 0.04 m/s took 10-13 s); runs of
+// two lines on the same drift, and a run coming back along its line, are not.
+TEST(RegionPath, ASprayOffGapFollowsALineThatDriftsAcross) {
+  auto drifting = [](double x0, double x1, int line) {  // z = 4.6 + 0.3 x^2: 13-18 deg off x at the gap
+    Pass p;
+    for (double x = x0; x <= x1 + 1e-9; x += 0.01)
+      p.waypoints.push_back({Eigen::Vector3d(x, 0, 4.6 + 0.3 * x * x), Eigen::Vector3d(0, 0, 1)});
+    p.length_m = polyline_length(p.waypoints);
+    p.speed_mps = 0.04;
+    p.line = line;
+    return p;
+  };
+  auto motions = [](const std::vector<Pass>& passes) {
+    std::vector<PieceMotion> out;
+    const CartesianPath path = region_path(passes, leads(0.1, 0.1, 0.1));
+    for (const auto& piece : path.pieces())
+      if (piece.motion != PieceMotion::ByKind) out.push_back(piece.motion);
+    return out;
+  };
+  const Pass a = drifting(0.0, 0.4, 3), b = drifting(0.54, 1.0, 3);
+  // The old test (directions within 8 deg, less than 1 mm across) misses it: 5 mm across.
+  const Eigen::Vector3d da = (a.waypoints.back().position_m - a.waypoints[a.waypoints.size() - 2].position_m).normalized();
+  const Eigen::Vector3d gap = b.waypoints.front().position_m - a.waypoints.back().position_m;
+  ASSERT_GT((gap - gap.dot(da) * da).norm(), 1e-3);
+  EXPECT_EQ(motions({a, b}), std::vector<PieceMotion>{PieceMotion::SprayOffGap});
+  const CartesianPath path = region_path({a, b}, leads(0.1, 0.1, 0.1));
+  const SpeedProfile prof = region_profile(path, TimingParams::from_config(TimingConfig{}));
+  double vmin = 1e9;  // never at rest between the lead-in and the lead-out
+  for (double t = 0.2 * prof.duration_s(); t < 0.8 * prof.duration_s(); t += 0.01) vmin = std::min(vmin, prof.at(t).v_mps);
+  EXPECT_GT(vmin, 0.039);
+  // The gap's curve leaves a on its end direction and meets b on its start direction.
+  for (const auto& piece : path.pieces())
+    if (piece.motion == PieceMotion::SprayOffGap) {
+      EXPECT_LT((piece.poses.front().position_m - a.waypoints.back().position_m).norm(), 1e-9);
+      EXPECT_LT((piece.poses.back().position_m - b.waypoints.front().position_m).norm(), 1e-9);
+    }
+  // Two lines: stop and go.
+  const std::vector<PieceMotion> stop_and_go = {PieceMotion::StopAtEnd, PieceMotion::RestToRest, PieceMotion::StartFromRest};
+  EXPECT_EQ(motions({a, drifting(0.54, 1.0, 4)}), stop_and_go);
+  // The same line, the second run behind the first one's end: stop and go too.
+  EXPECT_EQ(motions({drifting(0.54, 1.0, 3), a}), stop_and_go);
+}
+
 TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {
   // Two passes along +x on neighbouring lines (not a serpentine): stop-and-go between them. At
   // 0.8 m/s and 0.5 m/s^2 the plain cycloidal stop needs 0.8^2 / 0.5 = 1.28 m (a k2 = 0.5 cruise
@@ -722,7 +768,8 @@ TEST(RegionPath, ATightEndIsTurnedWithinItsStopAndTheTurnLastsThePumpSpell) {
   // Without the tight flags both ends turn around.
   passes[0].tight_end = passes[1].tight_start = false;
   int plain_turns = 0;
-  for (const auto& p : region_path(passes, o).pieces()) plain_turns += p.kind == SegmentKind::Turn;
+  const CartesianPath plain = region_path(passes, o);
+  for (const auto& p : plain.pieces()) plain_turns += p.kind == SegmentKind::Turn;
   EXPECT_EQ(plain_turns, 2);
 }
 
@@ -830,8 +877,11 @@ TEST(RegionSpray, IdealPumpSpraysExactlyThePassTimes) {
   EXPECT_GT(spray.duration_s(), pass_time + (lead_in + lead_out) / 0.4);
   ASSERT_EQ(spray.nozzle.size(), spray.t_s.size());
   // Spraying samples lie on the passes: at their radius from the axis.
-  for (std::size_t i = 0; i < spray.t_s.size(); ++i)
-    if (spray.dwell_s[i] > 0) EXPECT_NEAR(spray.nozzle[i].position_m.tail<2>().norm(), 4.6, 1e-6);
+  for (std::size_t i = 0; i < spray.t_s.size(); ++i) {
+    if (spray.dwell_s[i] > 0) {
+      EXPECT_NEAR(spray.nozzle[i].position_m.tail<2>().norm(), 4.6, 1e-6);
+    }
+  }
 }
 
 TEST(RegionSpray, PumpSpellsAndRampsKeepTheVolume) {

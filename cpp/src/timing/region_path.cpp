@@ -208,7 +208,11 @@ void append_join(CartesianPath& path, const Join& j, const RegionPathOptions& o)
   const double cos_turn = j.da.dot(j.db);
   const double along = j.gap.dot(j.da), across = j.across_m();
   const bool turn = cos_turn < -0.5 && across > 1e-3, tight = j.p.tight_end || j.q.tight_start;
-  if (cos_turn > 0.99 && along >= 0.0 && across < 1e-3) append_spray_off_gap(path, j);
+  // The same planner line further on (Pass::line), though a leaning nozzle's line is no straight
+  // one: its standoff point drifts across as the lean fades (the face scene: 2-4 cm over a 0.14 m
+  // gap, ends 10-30 deg apart), which a stop-and-go crossed in 10-13 s at the slow passes' speeds.
+  const bool same_line_on = j.p.line == j.q.line && cos_turn > 0.0 && along > 0.0 && across < along;
+  if ((cos_turn > 0.99 && along >= 0.0 && across < 1e-3) || same_line_on) append_spray_off_gap(path, j);
   else if (turn && tight && j.gap.norm() <= kTightTurnMostM)
     append_stop_and_go(path, j, o, j.p.tight_end, j.q.tight_start, PieceMotion::Creep);
   else if (turn && !tight) append_turn(path, j, o);
