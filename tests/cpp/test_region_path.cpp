@@ -641,6 +641,11 @@ TEST(RegionPath, ASprayOffGapFollowsALineThatDriftsAcross) {
   EXPECT_EQ(motions({a, drifting(0.54, 1.0, 4)}), stop_and_go);
   // The same line, the second run behind the first one's end: stop and go too.
   EXPECT_EQ(motions({drifting(0.54, 1.0, 3), a}), stop_and_go);
+  // Passes of no planner line (Pass::line -1, as built outside plan_passes), and runs of one line
+  // more than 0.5 m apart (crossed at the passes' speeds, slower than a stop-and-go): stop and go.
+  EXPECT_EQ(Pass{}.line, -1);
+  EXPECT_EQ(motions({drifting(0.0, 0.4, -1), drifting(0.54, 1.0, -1)}), stop_and_go);
+  EXPECT_EQ(motions({a, drifting(0.95, 1.4, 3)}), stop_and_go);
 }
 
 TEST(RegionPath, StopAndGoRunsGrowWithThePassSpeed) {

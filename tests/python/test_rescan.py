@@ -121,13 +121,20 @@ def test_calibrated_factor_against_the_truth_and_numpy(loop):
         if new.sum() == keep.sum():
             break
         keep = new
-    # cells.csv rounds to 0.01 mm: a cell's residual moves by about that and the limit (3 x 1.4826 x
-    # the median) by up to 0.045 mm, so a cell within 0.06 mm of the limit may fall either way in the core.
-    near = use & (np.abs(np.abs(res) - lim) < 0.06)
-    fits = [np.sum(m[k] * p[k]) / np.sum(p[k] ** 2) for k in (keep, keep | near, keep & ~near)]
-    assert min(fits) * (1 - 2e-5) <= cal["flow_factor"] <= max(fits) * (1 + 2e-5), (cal["flow_factor"], fits)
-    assert near.sum() <= 3
-    assert abs(cal["cells"] - keep.sum()) <= 2  # rounding may move a cell at the limit
+    # cells.csv rounds to 0.01 mm: a cell's residual moves by about that, the limit (3 x 1.4826 x
+    # the median) by up to 0.045 mm, and the factor the residuals are taken at, by the cells that
+    # fall the other way, by about 1e-4, 0.025 mm on a 250 mm prediction: a cell within 0.1 mm of the
+    # limit may fall either way in the core (seen: three at 0.014, 0.020 and 0.085 mm inside it), so
+    # the core's factor is one of the fits with any of them left out.
+    near = np.flatnonzero(use & (np.abs(np.abs(res) - lim) < 0.1))
+    assert len(near) <= 6
+    fits = []
+    for leave_out in range(1 << len(near)):
+        k = keep.copy()
+        k[near] = [(leave_out >> i) & 1 == 0 for i in range(len(near))]
+        fits.append(np.sum(m[k] * p[k]) / np.sum(p[k] ** 2))
+    assert min(fits) * (1 - 2e-5) <= cal["flow_factor"] <= max(fits) * (1 + 2e-5), (cal["flow_factor"], min(fits), max(fits))
+    assert abs(cal["cells"] - keep.sum()) <= len(near)  # rounding may move the cells at the limit
     # --write-config: the copy holds the calibrated rate; the job's config is untouched.
     written = shotcrete.load_config(loop / "calibrated.yaml")
     base = shotcrete.load_config(loop / "cfg.yaml")

@@ -20,6 +20,9 @@ constexpr double kTightRunM = 0.005;
 // A tight turn creeps across at most this far (serpentine neighbours); farther joins at a tight
 // end are stop-and-go with the tight runs [m].
 constexpr double kTightTurnMostM = 0.5;
+// Two runs of one planner line at most this far apart are joined along it though the line is not
+// straight (append_join) [m].
+constexpr double kSameLineGapMostM = 0.5;
 
 void check_pass(const Pass& p, std::size_t i) {
   if (p.waypoints.size() < 2)
@@ -211,7 +214,10 @@ void append_join(CartesianPath& path, const Join& j, const RegionPathOptions& o)
   // The same planner line further on (Pass::line), though a leaning nozzle's line is no straight
   // one: its standoff point drifts across as the lean fades (the face scene: 2-4 cm over a 0.14 m
   // gap, ends 10-30 deg apart), which a stop-and-go crossed in 10-13 s at the slow passes' speeds.
-  const bool same_line_on = j.p.line == j.q.line && cos_turn > 0.0 && along > 0.0 && across < along;
+  // Not over longer gaps (a graded line's pieces 0.3 m and more apart, an arc's): crossed at the
+  // passes' speeds they can take longer than a stop-and-go.
+  const bool same_line_on = j.p.line >= 0 && j.p.line == j.q.line && cos_turn > 0.0 && along > 0.0 &&
+                            across < along && j.gap.norm() <= kSameLineGapMostM;
   if ((cos_turn > 0.99 && along >= 0.0 && across < 1e-3) || same_line_on) append_spray_off_gap(path, j);
   else if (turn && tight && j.gap.norm() <= kTightTurnMostM)
     append_stop_and_go(path, j, o, j.p.tight_end, j.q.tight_start, PieceMotion::Creep);

@@ -551,14 +551,20 @@ RegionTiming time_region_within_limits(const TimingContext& ctx, const RegionJob
   if (ratio <= 1.0 || !own_turns) return best;
   try {
     RegionTiming at_pass_speeds = eased_region(slow_ctx, slow_job, q_prev, slow_ratio);
-    // Kept when it tracks the nozzle path as well and, slowed to the limits, ends within them
-    // sooner (or within them where the own-speed turns do not; by the excess when neither does).
-    if (at_pass_speeds.tracked || !best.tracked) {
-      const auto [own_s, own_within] = slowed_duration(ctx.robot, best, q_prev);
-      const auto [slow_s, slow_within] = slowed_duration(ctx.robot, at_pass_speeds, q_prev);
-      const bool slower_turns = slow_within != own_within ? slow_within : own_within ? slow_s < own_s : slow_ratio < ratio;
-      if (slower_turns) best = std::move(at_pass_speeds);
+    // Kept when it tracks the nozzle path where the own-speed one does not, or as well and,
+    // slowed to the limits, ends within them sooner (or within them where the own-speed turns do
+    // not; by the excess when neither does).
+    bool slower_turns = at_pass_speeds.tracked && !best.tracked;  // the tracked one outright
+    if (!slower_turns && (at_pass_speeds.tracked || !best.tracked)) {
+      try {
+        const auto [own_s, own_within] = slowed_duration(ctx.robot, best, q_prev);
+        const auto [slow_s, slow_within] = slowed_duration(ctx.robot, at_pass_speeds, q_prev);
+        slower_turns = slow_within != own_within ? slow_within : own_within ? slow_s < own_s : slow_ratio < ratio;
+      } catch (const std::invalid_argument&) {  // a posture not finite: by the excess, as before
+        slower_turns = slow_ratio < ratio;
+      }
     }
+    if (slower_turns) best = std::move(at_pass_speeds);
   } catch (const std::exception&) {
     // The own-speed turns' timing stands; the limit check reports its excess.
   }

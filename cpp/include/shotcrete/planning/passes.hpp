@@ -20,7 +20,7 @@ struct Pass {
   double speed_mps = 0.0;
   double length_m = 0.0;
   std::vector<double> speed_profile_mps;  // empty: constant speed_mps
-  int line = 0;                           // index of the slicing plane the pass lies in
+  int line = -1;                          // index of the slicing plane the pass lies in (plan_passes); -1: none
   // The nozzle leans at this end to keep clear of something past it (a face) and the lean keeps
   // room for the pass's run-on only (obstructed_cells): the joins there go no further than the
   // nozzle needs to stop (timing: region_path's tight joins).

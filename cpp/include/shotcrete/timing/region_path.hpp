@@ -46,7 +46,8 @@ struct RegionPathOptions {
 /// consecutive passes that are not serpentine neighbours (not running opposite ways side by side,
 /// e.g. pieces of one line in optimal mode) are joined by stop-and-go instead: run-out along the
 /// pass with a cycloidal stop, a straight rest-to-rest move, run-in with a cycloidal start. A pass
-/// that continues the previous one along its line is joined by a spray-off gap without a stop. A
+/// that continues the previous one along its line (straight to 1 mm, or the same Pass::line >= 0
+/// at most 0.5 m ahead and less far across than along) is joined by a spray-off gap without a stop. A
 /// pass with a speed profile (optimal mode) keeps it: constant-speed runs with the planner's dwell
 /// semantics (waypoint i owns half of each neighbouring interval at speed_at(i)), joined by
 /// cycloidal changes centred on the run boundaries (peak speed_change_accel_mps2).
