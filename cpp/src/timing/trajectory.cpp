@@ -195,6 +195,13 @@ void push_sample(TimedTrajectory& tr, double t, const Eigen::VectorXd& q, const 
   tr.kind.push_back(kind);
 }
 
+// Every sample of part appended to tr, its times shifted by t0.
+void append_samples(TimedTrajectory& tr, const TimedTrajectory& part, double t0) {
+  for (std::size_t k = 0; k < part.size(); ++k)
+    push_sample(tr, t0 + part.t_s[k], part.q[k], part.nozzle[k], part.spraying[k], part.pass_index[k],
+                part.region_index[k], part.kind[k]);
+}
+
 // Rest-to-rest joint quintic q0 -> q1 within the joint and nozzle limits, appended to tr from time
 // t0 (not included) as samples of kind Transit with region index `region`. Returns its duration;
 // `pushed` gets the number of samples appended.
@@ -506,9 +513,7 @@ std::pair<double, bool> slowed_duration(const Robot& robot, const RegionTiming& 
   const TimedTrajectory& part = rt.part;
   TimedTrajectory tr;
   push_sample(tr, 0.0, q_prev, pose_of(robot.fk(q_prev)), 0, -1, -1, static_cast<char>(SegmentKind::Transit));
-  for (std::size_t k = 0; k < part.size(); ++k)
-    push_sample(tr, part.t_s[k], part.q[k], part.nozzle[k], part.spraying[k], part.pass_index[k], part.region_index[k],
-                part.kind[k]);
+  append_samples(tr, part, 0.0);
   tr.duration_s = part.duration_s;
   const bool within = slow_to_joint_limits(robot, tr);
   return {tr.duration_s, within};
@@ -605,9 +610,7 @@ TimedTrajectory time_plan(const Robot& robot, const std::vector<std::vector<Pass
     const RegionTiming best =
         time_region_within_limits(ctx, RegionJob{regions[r], static_cast<int>(r), pass_offset, params, {}}, q_prev);
     const TimedTrajectory& part = best.part;
-    for (std::size_t k = 0; k < part.size(); ++k)
-      push_sample(tr, t0 + part.t_s[k], part.q[k], part.nozzle[k], part.spraying[k], part.pass_index[k],
-                  part.region_index[k], part.kind[k]);
+    append_samples(tr, part, t0);
     t0 += part.duration_s;
     tr.transit_time_s += part.transit_time_s;
     tr.spray_time_s += part.spray_time_s;
