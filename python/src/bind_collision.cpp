@@ -158,7 +158,8 @@ void bind_collision(py::module_& m) {
       .def_readonly("min_allowance_m", &TransitDetour::min_allowance_m)
       .def_readonly("straight_duration_s", &TransitDetour::straight_duration_s)
       .def_readonly("duration_s", &TransitDetour::duration_s)
-      .def_readonly("optimisations", &TransitDetour::optimisations);
+      .def_readonly("optimisations", &TransitDetour::optimisations)
+      .def_readonly("sampled_nodes", &TransitDetour::sampled_nodes, "postures the sampled planner (RRT-Connect) added");
   py::class_<TransitReport>(m, "TransitReport", "The joint moves of a trajectory checked and re-routed.")
       .def_readonly("moves_checked", &TransitReport::moves_checked)
       .def_readonly("rerouted", &TransitReport::rerouted)

@@ -74,6 +74,36 @@ def test_a_transit_through_a_rock_is_rerouted_clear_by_exact_distances():
         assert d.vias and all(a >= 0 for a in d.via_allowance_m)
 
 
+def test_a_move_no_via_route_clears_is_sampled_clear_by_exact_distances():
+    """A rock 0.6 m into the nozzle's room over the crown: no via route clears the move from the stow
+    posture; the sampled planner (joint-space RRT-Connect) finds one that keeps every margin at
+    every sample by exact numpy distances to the wall's points; with it off, the move is not re-routed."""
+    cfg = shotcrete.load_config()
+    assert cfg.clearance.sampled_route_nodes > 0
+    robot = shotcrete.load_robot(cfg)
+    plan = [_region(0.55), _region(2.45)]
+    tr = _core.time_plan(robot, plan, robot.stow(), cfg.timing, cfg.robot, None)
+    moves = _core.joint_moves(tr)
+    start, end, _ = next(m for m in moves[1:] if m[2] == -1)
+    nozzle = np.asarray(tr.positions)[start:end + 1]
+    room = R - np.hypot(nozzle[:, 1], nozzle[:, 2])
+    k = int(np.argmin(room))
+    wall = _wall(nozzle[k, 0], math.atan2(nozzle[k, 2], nozzle[k, 1]), room[k] - cfg.clearance.nozzle_margin_m + 0.6)
+    octree = _core.WallOctree(wall, 0.05)
+    rep = _core.clear_transits(robot, tr, octree, cfg.clearance, cfg.timing)
+    first = next(d for d in rep.detours if d.move == 0)
+    assert first.rerouted and first.sampled_nodes > 0 and first.vias, first.reason
+    s, e, _ = _core.joint_moves(tr)[0]
+    q = np.asarray(tr.joint_table())[:, 1:1 + robot.dof]
+    exact = min(_exact_allowance(robot, q[i], wall, cfg.clearance) for i in range(s, e + 1))
+    assert exact >= 0.0 and first.min_allowance_m <= exact + 1e-6
+    off = cfg.clearance
+    off.sampled_route_nodes = 0
+    plain = _core.time_plan(robot, plan, robot.stow(), cfg.timing, cfg.robot, None)
+    kept = next(d for d in _core.clear_transits(robot, plain, octree, off, cfg.timing).detours if d.move == 0)
+    assert not kept.rerouted and kept.sampled_nodes == 0
+
+
 def test_report_json_has_the_transits_of_every_job(tmp_path):
     """The default config checks the joint moves of every job: report.json clearance.transits (a small
     bay whose moves are all clear: nothing re-routed, no time added)."""

@@ -301,6 +301,8 @@ struct ClearanceConfig {
                                       // of maximum space allowance (clear_transits)
   double via_allowance_m = 0.3;       // allowance beyond the margins sought at a via posture; past
                                       // it the posture nearest the straight move wins
+  int sampled_route_nodes = 2500;     // postures the sampled planner (joint-space RRT-Connect) may add
+                                      // per move no via route clears; 0 = off
   double null_space_gain = 1.0;       // clearance term of the regions' joint tracking (the 3 spare
                                       // DOF keep the links from the wall while spraying); 0 = off
   double null_space_influence_m = 1.5;  // links' key points nearer the wall than this are pushed away [m]

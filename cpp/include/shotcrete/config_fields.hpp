@@ -217,6 +217,7 @@ template <class F> void visit(ClearanceConfig*, F&& f) {
   f("carrier_tolerance_m", &ClearanceConfig::carrier_tolerance_m, 0.0, 1.0, "scan points this far outside the rig carrier's footprint or above its top count as the machine's own [m]");
   f("reroute_transits", &ClearanceConfig::reroute_transits, 0, 0, "re-route joint moves closer than the margins through a via posture of maximum space allowance");
   f("via_allowance_m", &ClearanceConfig::via_allowance_m, 0.0, 5.0, "allowance beyond the margins sought at a via posture [m]");
+  f("sampled_route_nodes", &ClearanceConfig::sampled_route_nodes, 0, 100000, "postures the sampled planner (joint-space RRT-Connect) may add per move no via route clears; 0 = off");
   f("null_space_gain", &ClearanceConfig::null_space_gain, 0.0, 100.0, "clearance term of the regions' joint tracking (null-space drift from the wall, per metre of path); 0 = off");
   f("null_space_influence_m", &ClearanceConfig::null_space_influence_m, 0.01, 10.0, "links' key points nearer the wall than this are pushed away by the clearance term [m]");
   f("max_nozzle_lean_rad", &ClearanceConfig::max_nozzle_lean_rad, 0.0, 1.0472, "the nozzle leans at most this far off square to stay clear of what is not wall (face, duct) [rad]; 0 = square only");

@@ -145,6 +145,44 @@ Eigen::VectorXd folded(const Robot& robot, const Eigen::VectorXd& q) {
   return f;
 }
 
+// How far a point of the arm can move per unit of each joint at most [m per rad or m]: for a
+// turning joint, the farthest reach of a shape it moves from its axis point (at the neutral
+// posture with the telescopes out, the arm at its longest); 1 for a sliding one. Bounds the step
+// between two postures the sampled planner checks, and weighs its joint distances.
+std::vector<double> joint_levers(const Robot& robot) {
+  Eigen::VectorXd q = robot.neutral();
+  for (int j = 0; j < robot.dof(); ++j)
+    if (robot.joint_is_prismatic()[static_cast<std::size_t>(j)]) q[j] = robot.upper_limits()[j];
+  std::vector<JointAxis> axes;
+  const auto frames = robot.link_frames(q, axes);
+  std::vector<double> lever(static_cast<std::size_t>(robot.dof()), 1.0);
+  for (int j = 0; j < robot.dof(); ++j) {
+    if (!axes[static_cast<std::size_t>(j)].rotational) continue;
+    double reach = 0.1;
+    for (const CollisionShape& s : robot.collision_shapes()) {
+      if (s.frame < axes[static_cast<std::size_t>(j)].first_frame) continue;
+      const double r = s.kind == CollisionShape::Kind::box      ? 0.5 * s.size_m.norm()
+                       : s.kind == CollisionShape::Kind::sphere ? s.radius_m
+                                                                : std::hypot(s.radius_m, 0.5 * s.length_m);
+      reach = std::max(reach, ((frames[static_cast<std::size_t>(s.frame)] * s.origin).translation() -
+                               axes[static_cast<std::size_t>(j)].point_m).norm() + r);
+    }
+    lever[static_cast<std::size_t>(j)] = reach;
+  }
+  return lever;
+}
+
+// The sampled planner's steps: the most a point of the arm moves between two checked postures
+// [m] (each posture keeps half of it beyond the margins, so the arm between them keeps the
+// margins); the longest extension of a tree [m].
+constexpr double kSampledCheckStep_m = 0.1;
+constexpr double kSampledExtend_m = 1.5;
+// Near an end with less room than the sampled planner asks (sampled_route): how far the arm may
+// move from it keeping only the end's room [m], and how fast the room asked grows beyond [m of
+// room per m of motion].
+constexpr double kSampledNear_m = 0.5;
+constexpr double kSampledRamp = 0.5;
+
 struct Router {
   const Robot& robot;
   const WallOctree& wall;
@@ -154,6 +192,7 @@ struct Router {
   std::vector<std::pair<int, int>> pairs;
   std::vector<char> fixed;  // fixed_shapes: left out of every judgement of a posture or a move
   int optimisations = 0;
+  int sampled_nodes = 0;  // postures the sampled planner added to its trees
   // Of the one-via and fold-swing-unfold routes tried that break a margin, the one with the fewest
   // link-samples below a margin (then the one least short of them: report_allowance) and its
   // postures after qa: what may replace a move no clear route was found for (clear_transits).
@@ -262,6 +301,121 @@ struct Router {
     }
     return std::nullopt;
   }
+
+  // The fallback when no via route clears a move (a swing folded round a face or a duct): a
+  // joint-space RRT-Connect (Kuffner & LaValle 2000, the planner MoveIt uses through OMPL) whose
+  // postures keep `slack_m` beyond the margins (posture_allowance), checked every
+  // kSampledCheckStep_m of the arm's motion (joint_levers), with at most config.sampled_route_nodes
+  // nodes added (0: off); the path found is shortened greedily (each posture joined to the
+  // farthest later one it reaches clear), and its inner postures are the vias. Seeded per move:
+  // the same answer every run.
+  // Clear only when the rest-to-rest quintics through them keep every margin at every sample
+  // (clear_or_note; else remembered as a best effort like any route).
+  std::optional<std::vector<Eigen::VectorXd>> sampled_route(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb,
+                                                            unsigned seed) {
+    const std::vector<double> lever = joint_levers(robot);
+    const int n = robot.dof();
+    const auto reach = [&](const Eigen::VectorXd& a, const Eigen::VectorXd& b) {  // how far the arm moves [m], at most
+      double d = 0.0;
+      for (int j = 0; j < n; ++j) d += lever[static_cast<std::size_t>(j)] * std::abs(b[j] - a[j]);
+      return d;
+    };
+    // Half a check step beyond the margins at each posture; an end with less (a region's own
+    // posture near a face, short of the margins) lets the postures within kSampledNear_m of the
+    // arm's motion from it keep only what it has, and kSampledRamp more per metre beyond: the
+    // route leaves it, and comes to the other end, by the quickest way out of what it is close to.
+    const double slack_m = 0.5 * kSampledCheckStep_m;
+    const double end_a = std::min(slack_m, allowance(qa, slack_m)), end_b = std::min(slack_m, allowance(qb, slack_m));
+    const auto need = [&](const Eigen::VectorXd& q) {
+      return std::min({slack_m, end_a + kSampledRamp * std::max(0.0, reach(qa, q) - kSampledNear_m),
+                       end_b + kSampledRamp * std::max(0.0, reach(qb, q) - kSampledNear_m)});
+    };
+    const auto clear = [&](const Eigen::VectorXd& q) { return allowance(q, slack_m) >= need(q) - 1e-9; };
+    // The postures strictly after a up to b, in an order that meets an obstacle early (every
+    // 8th, then every 4th between, ...).
+    const auto edge_clear = [&](const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
+      const int steps = std::max(1, static_cast<int>(std::ceil(reach(a, b) / kSampledCheckStep_m)));
+      if (!clear(b)) return false;
+      for (int stride = 8; stride >= 1; stride /= 2)
+        for (int k = stride; k < steps; k += stride)
+          if (stride == 8 || k % (2 * stride) != 0)
+            if (!clear(a + (b - a) * (static_cast<double>(k) / steps))) return false;
+      return true;
+    };
+    if (config.sampled_route_nodes <= 0) return std::nullopt;
+    struct Tree {
+      std::vector<Eigen::VectorXd> q;
+      std::vector<int> parent;
+    };
+    Tree from_a{{qa}, {-1}}, from_b{{qb}, {-1}};
+    const auto nearest = [&](const Tree& t, const Eigen::VectorXd& q) {
+      int best = 0;
+      double best_d = std::numeric_limits<double>::infinity();
+      for (std::size_t i = 0; i < t.q.size(); ++i) {
+        const double d = reach(t.q[i], q);
+        if (d < best_d) best_d = d, best = static_cast<int>(i);
+      }
+      return best;
+    };
+    enum class Step { trapped, advanced, reached };
+    // Toward target from the tree's nearest posture by at most kSampledExtend_m, as far as the
+    // postures stay clear (checked in order, every kSampledCheckStep_m).
+    const auto extend = [&](Tree& t, const Eigen::VectorXd& target) {
+      const int i = nearest(t, target);
+      const Eigen::VectorXd from = t.q[static_cast<std::size_t>(i)];
+      const double d = reach(from, target);
+      const bool whole = d <= kSampledExtend_m;
+      const Eigen::VectorXd to = whole ? target : Eigen::VectorXd(from + (target - from) * (kSampledExtend_m / d));
+      const int steps = std::max(1, static_cast<int>(std::ceil(reach(from, to) / kSampledCheckStep_m)));
+      int last = 0;
+      while (last < steps && clear(from + (to - from) * (static_cast<double>(last + 1) / steps))) ++last;
+      if (last == 0) return Step::trapped;
+      t.q.push_back(from + (to - from) * (static_cast<double>(last) / steps)), t.parent.push_back(i), ++sampled_nodes;
+      return whole && last == steps ? Step::reached : Step::advanced;
+    };
+    const auto path_to_root = [](const Tree& t, int i) {
+      std::vector<Eigen::VectorXd> out;
+      for (; i >= 0; i = t.parent[static_cast<std::size_t>(i)]) out.push_back(t.q[static_cast<std::size_t>(i)]);
+      return out;
+    };
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    const Eigen::VectorXd lo = robot.lower_limits(), span = robot.upper_limits() - robot.lower_limits();
+    Tree* grow = &from_a;
+    Tree* other = &from_b;
+    std::vector<Eigen::VectorXd> path;
+    // The straight move first (it is what failed, unless the slack differs), then random postures.
+    if (edge_clear(qa, qb)) path = {qa, qb};
+    while (path.empty() && static_cast<int>(from_a.q.size() + from_b.q.size()) < 2 + config.sampled_route_nodes) {
+      Eigen::VectorXd sample(n);
+      for (int j = 0; j < n; ++j) sample[j] = lo[j] + unit(rng) * span[j];
+      if (extend(*grow, sample) != Step::trapped) {
+        const Eigen::VectorXd reached = grow->q.back();
+        Step s = Step::advanced;
+        while (s == Step::advanced) s = extend(*other, reached);
+        if (s == Step::reached) {
+          std::vector<Eigen::VectorXd> a_side = path_to_root(from_a, static_cast<int>(from_a.q.size()) - 1);
+          std::vector<Eigen::VectorXd> b_side = path_to_root(from_b, static_cast<int>(from_b.q.size()) - 1);
+          std::reverse(a_side.begin(), a_side.end());  // qa ... meeting posture
+          path = a_side;
+          path.insert(path.end(), b_side.begin() + 1, b_side.end());  // the meeting posture once ... qb
+        }
+      }
+      std::swap(grow, other);
+    }
+    if (path.empty()) return std::nullopt;
+    // Greedy shortening: from each kept posture, the farthest later one it reaches clear.
+    std::vector<Eigen::VectorXd> kept{path.front()};
+    for (std::size_t i = 0; i + 1 < path.size();) {
+      std::size_t j = path.size() - 1;
+      while (j > i + 1 && !edge_clear(path[i], path[j])) --j;
+      kept.push_back(path[j]);
+      i = j;
+    }
+    std::vector<Eigen::VectorXd> legs(kept.begin() + 1, kept.end());
+    if (clear_or_note(joint_move_through(robot, kept, timing, region_index), legs, true)) return legs;
+    return std::nullopt;
+  }
 };
 
 // A move as a trajectory of its own (start sample included) for check_clearance_octree.
@@ -353,43 +507,68 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       for (double* margin : {&lowered.link_margin_m, &lowered.nozzle_margin_m, &lowered.self_margin_m})
         *margin = std::max(0.0, *margin - lowered_by_m);
       Router near{robot, wall, lowered, timing, move.region_index, pairs, fixed};
-      std::optional<std::vector<Eigen::VectorXd>> route;
       // Only a move that sweeps clearly closer than its ends is worth a search (most such moves
       // break the margins at their ends alone: the whole scene has dozens, at minutes of search).
       const bool sweeps_closer = d.straight_min_allowance_m < end_allowance_m - kBestEffortGain_m;
-      if (config.reroute_transits && sweeps_closer) route = near.route(qa, qb, near.top_depth);
-      const bool clear_when_lowered = route.has_value();
-      if (!route && !near.best_effort.empty()) route = near.best_effort;
+      // The candidates: the via route that keeps the lowered margins (or the one least below
+      // them), and the sampled planner's (the margins proper, relaxed near a short end only);
+      // the one that breaks the margins proper at the fewest link-samples (then less short) is
+      // judged by the eased moves' rule.
+      struct Candidate {
+        std::vector<Eigen::VectorXd> route;
+        std::string how;
+        int below = std::numeric_limits<int>::max();
+        double allowance_m = -std::numeric_limits<double>::infinity();
+        double duration_s = 0.0;
+      };
+      std::vector<Candidate> candidates;
+      if (config.reroute_transits && sweeps_closer) {
+        std::ostringstream by;
+        by.precision(3);
+        by << lowered_by_m << " m";
+        if (auto r = near.route(qa, qb, near.top_depth)) candidates.push_back({*r, "routed with the margins lowered by " + by.str()});
+        else if (!near.best_effort.empty())
+          candidates.push_back({near.best_effort, "no route keeps the margins lowered by " + by.str() +
+                                                      ": the one least below them replaced the move"});
+        const std::string sampled = "routed by the sampled planner (RRT-Connect), short of the margins near its ends only";
+        if (auto r = router.sampled_route(qa, qb, static_cast<unsigned>(i) + 1u)) candidates.push_back({*r, sampled});
+        else if (!router.best_effort.empty()) candidates.push_back({router.best_effort, sampled});
+      }
+      for (Candidate& c : candidates) {
+        std::vector<Eigen::VectorXd> postures{qa};
+        postures.insert(postures.end(), c.route.begin(), c.route.end());
+        // With qa itself, as the straight move was counted (move_samples).
+        const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
+        const ClearanceReport along = check_clearance_octree(robot, from_start(piece, qa), wall, config);
+        c.below = along.moving_samples_below_margin();
+        c.allowance_m = report_allowance(along, config);
+        c.duration_s = piece.duration_s;
+      }
+      const auto best = std::min_element(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
+        return a.below < b.below || (a.below == b.below && a.allowance_m > b.allowance_m);
+      });
       std::ostringstream why;
       why.precision(3);
       why << "its start or goal posture is itself " << -end_allowance_m << " m closer than the margins";
       if (!config.reroute_transits) why << " (clearance.reroute_transits is off)";
-      if (route && route->size() > 1) {
-        std::vector<Eigen::VectorXd> postures{qa};
-        postures.insert(postures.end(), route->begin(), route->end());
-        // With qa itself, as the straight move was counted (move_samples), and by the rule of the
-        // other eased moves (at most half the link-samples below, or fewer 0.1 m less short), or
-        // fewer at no more time than the straight move.
-        const TimedTrajectory piece = joint_move_through(robot, postures, timing, move.region_index);
-        const ClearanceReport along = check_clearance_octree(robot, from_start(piece, qa), wall, config);
-        const int below = along.moving_samples_below_margin();
-        const double along_allowance_m = report_allowance(along, config);
-        if (eases(below, along_allowance_m, d) ||
-            (below < d.straight_samples_below && piece.duration_s <= d.straight_duration_s)) {
-          d.min_allowance_m = along_allowance_m;
-          why << (clear_when_lowered ? "; routed with the margins lowered by " : "; no route keeps the margins lowered by ")
-              << lowered_by_m << " m" << (clear_when_lowered ? "" : ": the one least below them replaced the move") << " ("
-              << below << " link-samples below the margins proper; the straight move "
-              << d.straight_samples_below << ")";
-          replace_by(*route);
-          d.eased = true;
-        }
+      // By the rule of the other eased moves (at most half the link-samples below, or fewer 0.1 m
+      // less short), or fewer at no more time than the straight move.
+      if (best != candidates.end() && best->route.size() > 1 &&
+          (eases(best->below, best->allowance_m, d) ||
+           (best->below < d.straight_samples_below && best->duration_s <= d.straight_duration_s))) {
+        d.min_allowance_m = best->allowance_m;
+        why << "; " << best->how << " (" << best->below
+            << " link-samples below the margins proper; the straight move " << d.straight_samples_below << ")";
+        replace_by(best->route);
+        d.eased = true;
       }
       router.optimisations += near.optimisations;
+      router.sampled_nodes += near.sampled_nodes;
       d.reason = why.str();
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
-    } else if (const auto route = router.route(qa, qb, router.top_depth)) {
+    } else if (auto route = router.route(qa, qb, router.top_depth);
+               route || (route = router.sampled_route(qa, qb, static_cast<unsigned>(i) + 1u))) {
       const TimedTrajectory checked = from_start(replace_by(*route), qa);
       d.min_allowance_m = report_allowance(check_clearance_octree(robot, checked, wall, config), config);
       d.rerouted = true;
@@ -411,6 +590,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       d.reason = "no via posture found whose route keeps the margins";
     }
     d.optimisations = router.optimisations;
+    d.sampled_nodes = router.sampled_nodes;
     if (d.rerouted) ++rep.rerouted;
     else ++rep.failed;
     rep.detours.push_back(std::move(d));

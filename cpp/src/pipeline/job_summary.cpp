@@ -189,7 +189,8 @@ void write(JsonWriter& w, const TransitReport& t) {
     w.end_array().key("min_allowance_m");
     if (d.rerouted || d.eased) w.value(d.min_allowance_m);
     else w.null();
-    w.field("straight_duration_s", d.straight_duration_s).field("duration_s", d.duration_s).end_object();
+    w.field("straight_duration_s", d.straight_duration_s).field("duration_s", d.duration_s);
+    w.field("sampled_nodes", d.sampled_nodes).end_object();
   }
   w.end_array().end_object();
 }

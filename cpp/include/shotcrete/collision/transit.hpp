@@ -47,6 +47,7 @@ struct TransitDetour {
                                    // >= 0 when rerouted, < 0 when eased)
   double straight_duration_s = 0.0, duration_s = 0.0;  // of the move before and after
   int optimisations = 0;           // via postures searched (BOBYQA runs)
+  int sampled_nodes = 0;           // postures the sampled planner (RRT-Connect) added, when the via routes failed
 };
 
 struct TransitReport {
@@ -64,7 +65,9 @@ struct TransitReport {
 /// (the move's midpoint, the midpoint with the telescopes in, a quarter and three quarters along
 /// it, the stow posture); the shortest route start -> via -> goal of rest-to-rest quintics
 /// (joint_move_through) whose every sample keeps the margins replaces the move
-/// (replace_joint_move). When no single via does, each leg is re-routed once more the same way.
+/// (replace_joint_move). When no single via does, each leg is re-routed once more the same way;
+/// when that fails too, a joint-space RRT-Connect (Router::sampled_route, seeded per move) looks
+/// for a path whose postures keep the margins, shortened greedily, its postures the vias.
 /// A move whose start or goal posture already breaks a margin (the region's own posture) is
 /// routed the same way with every margin lowered by that shortfall (and a leaf diagonal), and the
 /// route replaces it when it breaks the margins proper at fewer link-samples (at most half, 0.1 m
