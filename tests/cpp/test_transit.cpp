@@ -335,11 +335,14 @@ TEST(Transit, GoalPostureInsideTheMarginIsReportedNotRerouted) {
 // move and its last one, by brute-force distances to the wall's points, keeps the lowered margins
 // to within the octree's two readings (the goal's and the route's: each never more than a leaf
 // diagonal short), less short than the straight swing, with fewer link-samples below the margins
-// proper. Still failed; within the joint limits; the time it costs reported.
+// proper. Still failed; within the joint limits; the time it costs reported. (With the sampled
+// planner off; with it on, its route replaces the move when it breaks the margins proper at fewer
+// link-samples: never more than the via route's, checked at the end.)
 TEST(Transit, AMoveToAPostureShortOfTheMarginsSweepsNoCloserThanItsEnd) {
   const Robot robot = Robot::load(RobotConfig{});
   const TimingConfig timing;
-  const ClearanceConfig cfg;
+  ClearanceConfig cfg;
+  cfg.sampled_route_nodes = 0;
   TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const auto moves = joint_moves(tr);
   const auto it = first_transit(moves);
@@ -386,7 +389,8 @@ TEST(Transit, AMoveToAPostureShortOfTheMarginsSweepsNoCloserThanItsEnd) {
   EXPECT_GE(worst, d->min_allowance_m - 1e-6);  // the octree reads short, never long
   TimedTrajectory new_move;
   for (std::size_t k = m.start; k <= m.end; ++k) new_move.t_s.push_back(tr.t_s[k]), new_move.q.push_back(tr.q[k]);
-  EXPECT_LT(check_clearance_octree(robot, new_move, octree, cfg).moving_samples_below_margin(), d->straight_samples_below);
+  const int via_below = check_clearance_octree(robot, new_move, octree, cfg).moving_samples_below_margin();
+  EXPECT_LT(via_below, d->straight_samples_below);
   for (std::size_t k = m.start + 1; k <= m.end; ++k) {
     ASSERT_TRUE(robot.within_limits(tr.q[k], 1e-9));
     EXPECT_LE(tr.qd[k].cwiseAbs().cwiseQuotient(robot.velocity_limits()).maxCoeff(), 1.0 + 1e-6);
@@ -394,6 +398,33 @@ TEST(Transit, AMoveToAPostureShortOfTheMarginsSweepsNoCloserThanItsEnd) {
   EXPECT_NEAR(tr.duration_s, duration_before + rep.detour_time_s, 1e-9);
   // The goal's posture is the region's own: unchanged.
   EXPECT_LT((tr.q[m.end] - goal_q).norm(), 1e-12);
+  // The sampled planner on (the default): the move is eased by whichever route breaks the margins
+  // proper at fewer link-samples, so never more than the via route's; by brute-force distances
+  // it keeps within the goal's shortfall and the octree's two readings, like the via route.
+  {
+    TimedTrajectory sampled = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
+    const ClearanceConfig on;
+    ASSERT_GT(on.sampled_route_nodes, 0);
+    const TransitReport rs = clear_transits(robot, sampled, octree, on, timing);
+    const auto ds = std::find_if(rs.detours.begin(), rs.detours.end(), [](const TransitDetour& x) { return x.move == 0; });
+    ASSERT_NE(ds, rs.detours.end());
+    ASSERT_TRUE(ds->eased) << ds->reason;
+    EXPECT_FALSE(ds->rerouted);
+    EXPECT_GT(ds->sampled_nodes, 0);
+    const JointMove ms = joint_moves(sampled).front();
+    TimedTrajectory move_s;
+    double worst_s = std::numeric_limits<double>::infinity();
+    for (std::size_t k = ms.start; k <= ms.end; ++k) {
+      move_s.t_s.push_back(sampled.t_s[k]), move_s.q.push_back(sampled.q[k]);
+      if ((k - ms.start) % 5 == 0 || k == ms.end) worst_s = std::min(worst_s, brute_allowance(robot, sampled.q[k], wall, cfg, pairs));
+    }
+    const int sampled_below = check_clearance_octree(robot, move_s, octree, cfg).moving_samples_below_margin();
+    std::printf("with the sampled planner: %d link-samples below (the via route %d), %.3f m short; %s\n", sampled_below,
+                via_below, -worst_s, ds->reason.c_str());
+    EXPECT_LE(sampled_below, via_below);
+    EXPECT_GE(worst_s, goal_allowance - 2.0 * diagonal - 1e-6);
+    EXPECT_LT((sampled.q[ms.end] - goal_q).norm(), 1e-12);
+  }
   // With re-routing off the move stays as it was, and the reason says so.
   TimedTrajectory plain = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   ClearanceConfig off = cfg;
@@ -507,7 +538,7 @@ TEST(Transit, AMoveNoRouteClearsIsEasedThroughItsBestRoute) {
 // from the stow posture, the joint-space RRT-Connect finds one that does. Independently, every
 // sample of the new move by the brute-force distances to the wall's points keeps every margin
 // (the octree reads short, never long); within the joint limits; its vias are the route's
-// postures; the same route on a second run (seeded); and the trajectory grew by the time reported.
+// postures; the trajectory grew by the time reported. With a budget too small, not re-routed.
 TEST(Transit, AMoveNoViaRouteClearsIsSampledClear) {
   const Robot robot = Robot::load(RobotConfig{});
   const TimingConfig timing;
@@ -550,13 +581,17 @@ TEST(Transit, AMoveNoViaRouteClearsIsSampledClear) {
     if ((tr.q[k] - d->vias[next]).norm() < 1e-9) ++next;
   EXPECT_EQ(next, d->vias.size());
   EXPECT_NEAR(tr.duration_s, duration_before + rep.detour_time_s, 1e-9);
-  // Seeded: the same route again.
-  TimedTrajectory again = untouched;
-  const TransitReport rep2 = clear_transits(robot, again, octree, cfg, timing);
-  const auto d2 = std::find_if(rep2.detours.begin(), rep2.detours.end(), [](const TransitDetour& x) { return x.move == 0; });
-  ASSERT_NE(d2, rep2.detours.end());
-  ASSERT_EQ(d2->vias.size(), d->vias.size());
-  for (std::size_t k = 0; k < d->vias.size(); ++k) EXPECT_LT((d2->vias[k] - d->vias[k]).norm(), 1e-12);
+  // A budget too small to find it: not re-routed; the trees stop near it (a connect step may
+  // overshoot by the postures on its way, at most the arm's reach in 0.1 m steps).
+  ClearanceConfig small = cfg;
+  small.sampled_route_nodes = 20;
+  TimedTrajectory poor = untouched;
+  const TransitReport rep3 = clear_transits(robot, poor, octree, small, timing);
+  const auto d3 = std::find_if(rep3.detours.begin(), rep3.detours.end(), [](const TransitDetour& x) { return x.move == 0; });
+  ASSERT_NE(d3, rep3.detours.end());
+  EXPECT_FALSE(d3->rerouted);
+  EXPECT_GE(d3->sampled_nodes, 1);
+  EXPECT_LT(d3->sampled_nodes, 20 + 200);
 }
 
 // The base 0.6 m from a face (the default base, face at x = 1.2): at slew 0 the boom's root, its

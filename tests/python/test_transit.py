@@ -90,6 +90,9 @@ def test_a_move_no_via_route_clears_is_sampled_clear_by_exact_distances():
     k = int(np.argmin(room))
     wall = _wall(nozzle[k, 0], math.atan2(nozzle[k, 2], nozzle[k, 1]), room[k] - cfg.clearance.nozzle_margin_m + 0.6)
     octree = _core.WallOctree(wall, 0.05)
+    s0, e0, _ = moves[0]
+    q0 = np.asarray(tr.joint_table())[:, 1:1 + robot.dof]
+    assert min(_exact_allowance(robot, q0[i], wall, cfg.clearance) for i in range(s0, e0 + 1, 10)) < 0  # straight: through it
     rep = _core.clear_transits(robot, tr, octree, cfg.clearance, cfg.timing)
     first = next(d for d in rep.detours if d.move == 0)
     assert first.rerouted and first.sampled_nodes > 0 and first.vias, first.reason

@@ -146,28 +146,38 @@ Eigen::VectorXd folded(const Robot& robot, const Eigen::VectorXd& q) {
 }
 
 // How far a point of the arm can move per unit of each joint at most [m per rad or m]: for a
-// turning joint, the farthest reach of a shape it moves from its axis point (at the neutral
-// posture with the telescopes out, the arm at its longest); 1 for a sliding one. Bounds the step
-// between two postures the sampled planner checks, and weighs its joint distances.
+// turning joint, the chain's length from its axis point to the farthest shape it moves (the
+// distances between successive link frames, the telescopes in or out, whichever is longer, and the
+// shape's reach from its frame: a bound by the triangle inequality, whatever the posture); 1 for
+// a sliding one. Bounds the step between two postures the sampled planner checks, and weighs its
+// joint distances.
 std::vector<double> joint_levers(const Robot& robot) {
-  Eigen::VectorXd q = robot.neutral();
+  Eigen::VectorXd in = robot.neutral(), out = robot.neutral();
   for (int j = 0; j < robot.dof(); ++j)
-    if (robot.joint_is_prismatic()[static_cast<std::size_t>(j)]) q[j] = robot.upper_limits()[j];
-  std::vector<JointAxis> axes;
-  const auto frames = robot.link_frames(q, axes);
+    if (robot.joint_is_prismatic()[static_cast<std::size_t>(j)]) in[j] = robot.lower_limits()[j], out[j] = robot.upper_limits()[j];
+  std::vector<JointAxis> axes_in, axes_out;
+  const auto f_in = robot.link_frames(in, axes_in), f_out = robot.link_frames(out, axes_out);
+  const auto gap = [&](std::size_t f, const Eigen::Vector3d& from_in, const Eigen::Vector3d& from_out) {
+    return std::max((f_in[f].translation() - from_in).norm(), (f_out[f].translation() - from_out).norm());
+  };
   std::vector<double> lever(static_cast<std::size_t>(robot.dof()), 1.0);
-  for (int j = 0; j < robot.dof(); ++j) {
-    if (!axes[static_cast<std::size_t>(j)].rotational) continue;
+  for (std::size_t j = 0; j < lever.size(); ++j) {
+    if (!axes_out[j].rotational) continue;
+    // chain[f]: from the axis point to frame f's origin along the chain, at most.
+    const auto first = static_cast<std::size_t>(axes_out[j].first_frame);
+    std::vector<double> chain(f_out.size(), 0.0);
+    if (first < f_out.size()) chain[first] = gap(first, axes_in[j].point_m, axes_out[j].point_m);
+    for (std::size_t f = first + 1; f < f_out.size(); ++f)
+      chain[f] = chain[f - 1] + gap(f, f_in[f - 1].translation(), f_out[f - 1].translation());
     double reach = 0.1;
     for (const CollisionShape& s : robot.collision_shapes()) {
-      if (s.frame < axes[static_cast<std::size_t>(j)].first_frame) continue;
+      if (s.frame < axes_out[j].first_frame) continue;
       const double r = s.kind == CollisionShape::Kind::box      ? 0.5 * s.size_m.norm()
                        : s.kind == CollisionShape::Kind::sphere ? s.radius_m
                                                                 : std::hypot(s.radius_m, 0.5 * s.length_m);
-      reach = std::max(reach, ((frames[static_cast<std::size_t>(s.frame)] * s.origin).translation() -
-                               axes[static_cast<std::size_t>(j)].point_m).norm() + r);
+      reach = std::max(reach, chain[static_cast<std::size_t>(s.frame)] + s.origin.translation().norm() + r);
     }
-    lever[static_cast<std::size_t>(j)] = reach;
+    lever[j] = reach;
   }
   return lever;
 }
@@ -313,6 +323,7 @@ struct Router {
   // (clear_or_note; else remembered as a best effort like any route).
   std::optional<std::vector<Eigen::VectorXd>> sampled_route(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb,
                                                             unsigned seed) {
+    if (config.sampled_route_nodes <= 0) return std::nullopt;
     const std::vector<double> lever = joint_levers(robot);
     const int n = robot.dof();
     const auto reach = [&](const Eigen::VectorXd& a, const Eigen::VectorXd& b) {  // how far the arm moves [m], at most
@@ -342,7 +353,6 @@ struct Router {
             if (!clear(a + (b - a) * (static_cast<double>(k) / steps))) return false;
       return true;
     };
-    if (config.sampled_route_nodes <= 0) return std::nullopt;
     struct Tree {
       std::vector<Eigen::VectorXd> q;
       std::vector<int> parent;
@@ -384,9 +394,11 @@ struct Router {
     Tree* grow = &from_a;
     Tree* other = &from_b;
     std::vector<Eigen::VectorXd> path;
-    // The straight move first (it is what failed, unless the slack differs), then random postures.
-    if (edge_clear(qa, qb)) path = {qa, qb};
-    while (path.empty() && static_cast<int>(from_a.q.size() + from_b.q.size()) < 2 + config.sampled_route_nodes) {
+    // (The straight move is what failed.) At most 4 samples per node allowed: trees that cannot
+    // grow (an end boxed in at the checks' resolution) give up too.
+    for (int tries = 0; path.empty() && tries < 4 * config.sampled_route_nodes &&
+                        static_cast<int>(from_a.q.size() + from_b.q.size()) < 2 + config.sampled_route_nodes;
+         ++tries) {
       Eigen::VectorXd sample(n);
       for (int j = 0; j < n; ++j) sample[j] = lo[j] + unit(rng) * span[j];
       if (extend(*grow, sample) != Step::trapped) {
@@ -412,8 +424,13 @@ struct Router {
       kept.push_back(path[j]);
       i = j;
     }
-    std::vector<Eigen::VectorXd> legs(kept.begin() + 1, kept.end());
-    if (clear_or_note(joint_move_through(robot, kept, timing, region_index), legs, true)) return legs;
+    // The shortened path, else the path as found (a shortcut's check between postures can miss
+    // what the samples of the timed move meet).
+    for (const auto* postures : {&kept, &path}) {
+      std::vector<Eigen::VectorXd> legs(postures->begin() + 1, postures->end());
+      if (clear_or_note(joint_move_through(robot, *postures, timing, region_index), legs, true)) return legs;
+      if (kept.size() == path.size()) break;
+    }
     return std::nullopt;
   }
 };
@@ -544,6 +561,15 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
         c.allowance_m = report_allowance(along, config);
         c.duration_s = piece.duration_s;
       }
+      // Of the candidates that may replace the move by the eased moves' rule (at most half the
+      // link-samples below, or fewer 0.1 m less short), or fewer at no more time than the
+      // straight move, the one with the fewest below (then the least short).
+      const auto may_replace = [&](const Candidate& c) {
+        return c.route.size() > 1 && (eases(c.below, c.allowance_m, d) ||
+                                      (c.below < d.straight_samples_below && c.duration_s <= d.straight_duration_s));
+      };
+      candidates.erase(std::remove_if(candidates.begin(), candidates.end(), [&](const Candidate& c) { return !may_replace(c); }),
+                       candidates.end());
       const auto best = std::min_element(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
         return a.below < b.below || (a.below == b.below && a.allowance_m > b.allowance_m);
       });
@@ -551,11 +577,7 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       why.precision(3);
       why << "its start or goal posture is itself " << -end_allowance_m << " m closer than the margins";
       if (!config.reroute_transits) why << " (clearance.reroute_transits is off)";
-      // By the rule of the other eased moves (at most half the link-samples below, or fewer 0.1 m
-      // less short), or fewer at no more time than the straight move.
-      if (best != candidates.end() && best->route.size() > 1 &&
-          (eases(best->below, best->allowance_m, d) ||
-           (best->below < d.straight_samples_below && best->duration_s <= d.straight_duration_s))) {
+      if (best != candidates.end()) {
         d.min_allowance_m = best->allowance_m;
         why << "; " << best->how << " (" << best->below
             << " link-samples below the margins proper; the straight move " << d.straight_samples_below << ")";
@@ -563,7 +585,6 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
         d.eased = true;
       }
       router.optimisations += near.optimisations;
-      router.sampled_nodes += near.sampled_nodes;
       d.reason = why.str();
     } else if (!config.reroute_transits) {
       d.reason = "clearance.reroute_transits is off";
@@ -581,13 +602,13 @@ TransitReport clear_transits(const Robot& robot, TimedTrajectory& trajectory, co
       d.min_allowance_m = router.best_effort_allowance_m;
       std::ostringstream why;
       why.precision(3);
-      why << "no via posture found whose route keeps the margins; the route with the fewest link-samples below them ("
+      why << "no route found (via postures, then sampled) that keeps the margins; the one with the fewest link-samples below them ("
           << router.best_effort_below << ", " << -d.min_allowance_m << " m short; the straight move " << d.straight_samples_below
           << ", " << -d.straight_min_allowance_m << " m) replaced the move";
       d.reason = why.str();
       d.eased = true;
     } else {
-      d.reason = "no via posture found whose route keeps the margins";
+      d.reason = "no route found (via postures, then sampled) that keeps the margins";
     }
     d.optimisations = router.optimisations;
     d.sampled_nodes = router.sampled_nodes;

@@ -69,9 +69,10 @@ struct TransitReport {
 /// when that fails too, a joint-space RRT-Connect (Router::sampled_route, seeded per move) looks
 /// for a path whose postures keep the margins, shortened greedily, its postures the vias.
 /// A move whose start or goal posture already breaks a margin (the region's own posture) is
-/// routed the same way with every margin lowered by that shortfall (and a leaf diagonal), and the
-/// route replaces it when it breaks the margins proper at fewer link-samples (at most half, 0.1 m
-/// less short, or in no more time: `eased`); a move no route clears is replaced by the best route tried by the
+/// routed the same way with every margin lowered by that shortfall (and a leaf diagonal), and by
+/// the sampled planner with the margins proper but near a short end; of those routes, the ones that
+/// break the margins proper at fewer link-samples (at most half, 0.1 m less short, or in no more
+/// time) may replace it, the one with the fewest does (`eased`); a move no route clears is replaced by the best route tried by the
 /// same rule (`eased`), else stays as it was. Either way it is counted in `failed` with the
 /// reason. The detours' times are those before plan_for_arm's slowing after them. The shapes no
 /// posture moves (fixed_shapes: the base) are left out of every judgement here (a base too close
