@@ -105,6 +105,17 @@ NearestWall nearest_wall(const TimedTrajectory& tr, const JointMove& m) {
   return n;
 }
 
+// The narrow wall with a rock over the crown where the trajectory's first transit between regions
+// swings its nozzle nearest (0.6 m past the nozzle's room above its margin, radius 0.8 m); no
+// points when it has no such transit.
+Points rock_over_the_crown(const TimedTrajectory& tr, const ClearanceConfig& cfg) {
+  const auto moves = joint_moves(tr);
+  const auto it = first_transit(moves);
+  if (it == moves.end()) return Points(0, 3);
+  const NearestWall near = nearest_wall(tr, *it);
+  return wall_with_protrusion(-0.6, 2.0, near.x_m, near.theta_rad, near.room_m - cfg.nozzle_margin_m + 0.6, 0.8);
+}
+
 }  // namespace
 
 TEST(Transit, JointMovesAndTheirReplacement) {
@@ -493,10 +504,8 @@ TEST(Transit, AMoveNoRouteClearsIsEasedThroughItsBestRoute) {
   cfg.sampled_route_nodes = 0;
   TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const auto moves = joint_moves(tr);
-  const auto it = first_transit(moves);
-  ASSERT_NE(it, moves.end());
-  const NearestWall near = nearest_wall(tr, *it);
-  const Points wall = wall_with_protrusion(-0.6, 2.0, near.x_m, near.theta_rad, near.room_m - cfg.nozzle_margin_m + 0.6, 0.8);
+  const Points wall = rock_over_the_crown(tr, cfg);
+  ASSERT_GT(wall.rows(), 0);
   const WallOctree octree(wall, cfg.octree_resolution_m);
   const auto pairs = self_check_pairs(robot);
   const JointMove first = moves.front();
@@ -547,10 +556,8 @@ TEST(Transit, AMoveNoViaRouteClearsIsSampledClear) {
   TimedTrajectory tr = time_plan(robot, two_regions(), robot.stow(), timing, RobotConfig{});
   const TimedTrajectory untouched = tr;
   const auto moves = joint_moves(tr);
-  const auto it = first_transit(moves);
-  ASSERT_NE(it, moves.end());
-  const NearestWall near = nearest_wall(tr, *it);
-  const Points wall = wall_with_protrusion(-0.6, 2.0, near.x_m, near.theta_rad, near.room_m - cfg.nozzle_margin_m + 0.6, 0.8);
+  const Points wall = rock_over_the_crown(tr, cfg);
+  ASSERT_GT(wall.rows(), 0);
   const WallOctree octree(wall, cfg.octree_resolution_m);
   const auto pairs = self_check_pairs(robot);
   const double duration_before = tr.duration_s;

@@ -191,6 +191,8 @@ constexpr double kSampledExtend_m = 1.5;
 // move from it keeping only the end's room [m], and how fast the room asked grows beyond [m of
 // room per m of motion].
 constexpr double kSampledNear_m = 0.5;
+// Shortcuts tried on the sampled path (sampled_route).
+constexpr int kSampledShortcuts = 100;
 constexpr double kSampledRamp = 0.5;
 
 struct Router {
@@ -424,12 +426,51 @@ struct Router {
       kept.push_back(path[j]);
       i = j;
     }
-    // The shortened path, else the path as found (a shortcut's check between postures can miss
-    // what the samples of the timed move meet).
-    for (const auto* postures : {&kept, &path}) {
+    // Then shortcuts between two points of the path (OMPL's random shortcutting) and dropped
+    // postures, each kept when its edge is clear and the rest-to-rest legs take less time: the
+    // samples wander in every joint, the legs need not.
+    const auto duration_of = [&](const std::vector<Eigen::VectorXd>& postures) {
+      double total = 0.0;
+      for (std::size_t k = 0; k + 1 < postures.size(); ++k)
+        total += quintic_nozzle_duration(robot, postures[k], postures[k + 1], timing.nozzle_max_speed_mps,
+                                         timing.nozzle_max_accel_mps2);
+      return total;
+    };
+    std::vector<Eigen::VectorXd> quick = kept;
+    double quick_s = duration_of(quick);
+    for (int round = 0; round < kSampledShortcuts && quick.size() > 2; ++round) {
+      std::vector<Eigen::VectorXd> tried;
+      Eigen::VectorXd a, b;
+      if (round % 4 == 3) {  // drop one posture
+        const auto k = 1 + static_cast<std::size_t>(unit(rng) * static_cast<double>(quick.size() - 2));
+        a = quick[k - 1], b = quick[std::min(k + 1, quick.size() - 1)];
+        tried = quick;
+        tried.erase(tried.begin() + static_cast<std::ptrdiff_t>(std::min(k, quick.size() - 2)));
+      } else {  // a point on leg i to a point on a later leg j
+        const std::size_t legs_n = quick.size() - 1;
+        std::size_t i = static_cast<std::size_t>(unit(rng) * static_cast<double>(legs_n));
+        std::size_t j = static_cast<std::size_t>(unit(rng) * static_cast<double>(legs_n));
+        i = std::min(i, legs_n - 1), j = std::min(j, legs_n - 1);
+        if (i > j) std::swap(i, j);
+        if (i == j) continue;
+        a = quick[i] + unit(rng) * (quick[i + 1] - quick[i]);
+        b = quick[j] + unit(rng) * (quick[j + 1] - quick[j]);
+        tried.assign(quick.begin(), quick.begin() + static_cast<std::ptrdiff_t>(i) + 1);
+        tried.push_back(a), tried.push_back(b);
+        tried.insert(tried.end(), quick.begin() + static_cast<std::ptrdiff_t>(j) + 1, quick.end());
+      }
+      const double tried_s = duration_of(tried);
+      if (tried_s < quick_s - 1e-3 && edge_clear(a, b)) quick = std::move(tried), quick_s = tried_s;
+    }
+    // The quickest path, else the shortened one, else the path as found (a check between
+    // postures can miss what the samples of the timed move meet).
+    // An end short of the margins: no route clears them; the quickest path is the best effort (the
+    // others, with more rest-to-rest legs, would win it by a few link-samples at twice the time).
+    const bool end_short = std::min(end_a, end_b) < 0.0;
+    for (const auto* postures : {&quick, &kept, &path}) {
       std::vector<Eigen::VectorXd> legs(postures->begin() + 1, postures->end());
       if (clear_or_note(joint_move_through(robot, *postures, timing, region_index), legs, true)) return legs;
-      if (kept.size() == path.size()) break;
+      if (end_short) break;
     }
     return std::nullopt;
   }
