@@ -191,9 +191,10 @@ constexpr double kSampledExtend_m = 1.5;
 // move from it keeping only the end's room [m], and how fast the room asked grows beyond [m of
 // room per m of motion].
 constexpr double kSampledNear_m = 0.5;
-// Shortcuts tried on the sampled path (sampled_route).
-constexpr int kSampledShortcuts = 100;
 constexpr double kSampledRamp = 0.5;
+// Rounds of shortening the sampled path (sampled_route): three in four a random shortcut, every
+// fourth a dropped posture.
+constexpr int kSampledShortcuts = 100;
 
 struct Router {
   const Robot& robot;
@@ -319,8 +320,10 @@ struct Router {
   // postures keep `slack_m` beyond the margins (posture_allowance), checked every
   // kSampledCheckStep_m of the arm's motion (joint_levers), with at most config.sampled_route_nodes
   // nodes added (0: off); the path found is shortened greedily (each posture joined to the
-  // farthest later one it reaches clear), and its inner postures are the vias. Seeded per move:
-  // the same answer every run.
+  // farthest later one it reaches clear), then by shortcuts and dropped postures that save time,
+  // and its inner postures are the vias (the quickest path, else the greedy one, else the path as
+  // found; with an end short of the margins the quickest only). Seeded per move: the same answer
+  // every run.
   // Clear only when the rest-to-rest quintics through them keep every margin at every sample
   // (clear_or_note; else remembered as a best effort like any route).
   std::optional<std::vector<Eigen::VectorXd>> sampled_route(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb,
@@ -438,14 +441,16 @@ struct Router {
     };
     std::vector<Eigen::VectorXd> quick = kept;
     double quick_s = duration_of(quick);
+    bool shortened = false;  // quick is not kept
     for (int round = 0; round < kSampledShortcuts && quick.size() > 2; ++round) {
       std::vector<Eigen::VectorXd> tried;
       Eigen::VectorXd a, b;
       if (round % 4 == 3) {  // drop one posture
-        const auto k = 1 + static_cast<std::size_t>(unit(rng) * static_cast<double>(quick.size() - 2));
-        a = quick[k - 1], b = quick[std::min(k + 1, quick.size() - 1)];
+        const std::size_t k =
+            std::min(quick.size() - 2, 1 + static_cast<std::size_t>(unit(rng) * static_cast<double>(quick.size() - 2)));
+        a = quick[k - 1], b = quick[k + 1];
         tried = quick;
-        tried.erase(tried.begin() + static_cast<std::ptrdiff_t>(std::min(k, quick.size() - 2)));
+        tried.erase(tried.begin() + static_cast<std::ptrdiff_t>(k));
       } else {  // a point on leg i to a point on a later leg j
         const std::size_t legs_n = quick.size() - 1;
         std::size_t i = static_cast<std::size_t>(unit(rng) * static_cast<double>(legs_n));
@@ -460,7 +465,7 @@ struct Router {
         tried.insert(tried.end(), quick.begin() + static_cast<std::ptrdiff_t>(j) + 1, quick.end());
       }
       const double tried_s = duration_of(tried);
-      if (tried_s < quick_s - 1e-3 && edge_clear(a, b)) quick = std::move(tried), quick_s = tried_s;
+      if (tried_s < quick_s - 1e-3 && edge_clear(a, b)) quick = std::move(tried), quick_s = tried_s, shortened = true;
     }
     // The quickest path, else the shortened one, else the path as found (a check between
     // postures can miss what the samples of the timed move meet).
@@ -468,6 +473,7 @@ struct Router {
     // others, with more rest-to-rest legs, would win it by a few link-samples at twice the time).
     const bool end_short = std::min(end_a, end_b) < 0.0;
     for (const auto* postures : {&quick, &kept, &path}) {
+      if ((postures == &kept && !shortened) || (postures == &path && kept.size() == path.size())) continue;  // checked
       std::vector<Eigen::VectorXd> legs(postures->begin() + 1, postures->end());
       if (clear_or_note(joint_move_through(robot, *postures, timing, region_index), legs, true)) return legs;
       if (end_short) break;
